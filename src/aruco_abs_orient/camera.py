@@ -1,0 +1,246 @@
+"""Equirectangular camera model and gnomonic (perspective) views.
+
+This is the only module that knows how pixels map to bearings (DESIGN §2).
+
+Camera frame of an equirectangular image: x = the image's centre column, y = left,
+z = up. A pixel (u, v) of a W×H image, OpenCV pixel centres (integer u is the centre
+of column u), has
+
+    az = π − 2π(u + 0.5)/W      (radians; 0 = camera +x, +π/2 = camera left)
+    el = π/2 − π(v + 0.5)/H     (radians; +π/2 = up)
+
+and the unit bearing (cos el cos az, cos el sin az, sin el).
+
+A gnomonic view is a virtual pinhole camera (OpenCV convention: x right, y down,
+z forward, pixel centres at integers) whose optical axis points along a chosen bearing
+of the equirectangular camera; it is used to detect markers without the equirect
+distortion (near the poles, close by) and to track predicted markers in small windows.
+
+Everything here is vectorised over leading array dimensions. Python 3.8 compatible.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional, Tuple
+
+import numpy as np
+
+__all__ = [
+    "CameraModelError",
+    "Equirect",
+    "GnomonicView",
+    "azel_to_bearing",
+    "bearing_to_azel",
+    "angle_between",
+]
+
+
+class CameraModelError(ValueError):
+    """Invalid camera model parameters (image size, view size, field of view)."""
+
+
+def azel_to_bearing(az, el) -> np.ndarray:
+    """Unit bearing(s) (..., 3) from azimuth and elevation in radians."""
+    az = np.asarray(az, dtype=float)
+    el = np.asarray(el, dtype=float)
+    ce = np.cos(el)
+    return np.stack([ce * np.cos(az), ce * np.sin(az), np.sin(el)], axis=-1)
+
+
+def bearing_to_azel(bearing) -> Tuple[np.ndarray, np.ndarray]:
+    """Azimuth in (−π, π] and elevation in [−π/2, π/2] (radians) of bearing(s) (..., 3).
+
+    The bearing need not be unit length; it must not be zero.
+    """
+    b = np.asarray(bearing, dtype=float)
+    x, y, z = b[..., 0], b[..., 1], b[..., 2]
+    az = np.arctan2(y, x)
+    el = np.arctan2(z, np.hypot(x, y))
+    return az, el
+
+
+def angle_between(a, b) -> np.ndarray:
+    """Angle (radians) between vectors a and b (..., 3); accurate for tiny angles."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    dot = np.sum(a * b, axis=-1)
+    return np.arctan2(cross, dot)
+
+
+class Equirect:
+    """Equirectangular image model of size ``width`` × ``height`` pixels (width = 2·height).
+
+    >>> cam = Equirect(3840, 1920)
+    >>> u, v = cam.bearing_to_pixel([1.0, 0.0, 0.0])
+    >>> float(u), float(v)
+    (1919.5, 959.5)
+    """
+
+    def __init__(self, width: int, height: int):
+        if int(width) != width or int(height) != height or width <= 0 or height <= 0:
+            raise CameraModelError(f"image size must be positive integers, got {width!r}x{height!r}")
+        if width != 2 * height:
+            raise CameraModelError(
+                f"an equirectangular image is 2:1, got {width}x{height}")
+        self.width = int(width)
+        self.height = int(height)
+
+    def __repr__(self) -> str:
+        return f"Equirect({self.width}, {self.height})"
+
+    @property
+    def rad_per_px(self) -> float:
+        """Angular pixel pitch (radians per pixel), the same along both axes."""
+        return 2.0 * math.pi / self.width
+
+    def pixel_to_azel(self, u, v) -> Tuple[np.ndarray, np.ndarray]:
+        """Azimuth and elevation (radians) of pixel coordinates (OpenCV pixel centres)."""
+        u = np.asarray(u, dtype=float)
+        v = np.asarray(v, dtype=float)
+        az = math.pi - 2.0 * math.pi * (u + 0.5) / self.width
+        el = 0.5 * math.pi - math.pi * (v + 0.5) / self.height
+        return az, el
+
+    def azel_to_pixel(self, az, el) -> Tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (u in [−0.5, W−0.5), v in [−0.5, H−0.5]) of az/el in radians."""
+        az = np.asarray(az, dtype=float)
+        el = np.asarray(el, dtype=float)
+        u = (math.pi - az) * self.width / (2.0 * math.pi) - 0.5
+        u = np.mod(u + 0.5, self.width) - 0.5
+        v = (0.5 * math.pi - el) * self.height / math.pi - 0.5
+        return u, v
+
+    def pixel_to_bearing(self, u, v) -> np.ndarray:
+        """Unit bearing(s) (..., 3) in the camera frame of pixel coordinates."""
+        az, el = self.pixel_to_azel(u, v)
+        return azel_to_bearing(az, el)
+
+    def bearing_to_pixel(self, bearing) -> Tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates of bearing(s) (..., 3) in the camera frame (need not be unit)."""
+        az, el = bearing_to_azel(bearing)
+        return self.azel_to_pixel(az, el)
+
+    def unwrap_u(self, u, reference) -> np.ndarray:
+        """Shift column(s) ``u`` by multiples of W to lie within W/2 of ``reference``.
+
+        Useful for pixel geometry of an object that straddles the ±180° seam.
+        """
+        u = np.asarray(u, dtype=float)
+        return u - self.width * np.round((u - reference) / self.width)
+
+
+def _look_rotation(forward, up_hint=None) -> np.ndarray:
+    """Rotation camera_R_view whose columns are the view's x (right), y (down), z (forward)."""
+    f = np.asarray(forward, dtype=float)
+    n = np.linalg.norm(f)
+    if not np.isfinite(n) or n == 0.0:
+        raise CameraModelError(f"view direction must be a finite non-zero vector, got {forward!r}")
+    f = f / n
+    up = np.array([0.0, 0.0, 1.0]) if up_hint is None else np.asarray(up_hint, dtype=float)
+    right = np.cross(f, up)
+    if np.linalg.norm(right) < 1e-6:  # looking straight up/down: any right will do
+        right = np.cross(f, np.array([1.0, 0.0, 0.0]))
+        if np.linalg.norm(right) < 1e-6:
+            right = np.cross(f, np.array([0.0, 1.0, 0.0]))
+    right /= np.linalg.norm(right)
+    down = np.cross(f, right)
+    return np.stack([right, down, f], axis=1)
+
+
+class GnomonicView:
+    """A virtual pinhole camera looking along a bearing of the equirectangular camera.
+
+    Parameters
+    ----------
+    center_bearing : (3,) bearing of the optical axis in the camera frame.
+    size : (width, height) of the view in pixels.
+    focal : focal length in pixels. Choose ``focal = 1 / Equirect.rad_per_px`` for
+        the equirect image's resolution at the view centre.
+    up_hint : (3,) camera-frame direction that appears "up" in the view (default +z).
+
+    View pixel (x, y) has OpenCV pixel centres; the principal point is the view centre
+    ((width − 1)/2, (height − 1)/2).
+    """
+
+    def __init__(self, center_bearing, size: Tuple[int, int], focal: float,
+                 up_hint: Optional[np.ndarray] = None):
+        w, h = size
+        if int(w) != w or int(h) != h or w <= 0 or h <= 0:
+            raise CameraModelError(f"view size must be positive integers, got {size!r}")
+        if not (focal > 0 and math.isfinite(focal)):
+            raise CameraModelError(f"focal length must be positive, got {focal!r}")
+        self.width = int(w)
+        self.height = int(h)
+        self.focal = float(focal)
+        self.cx = (self.width - 1) / 2.0
+        self.cy = (self.height - 1) / 2.0
+        self.camera_R_view = _look_rotation(center_bearing, up_hint)
+
+    @classmethod
+    def around(cls, equirect: Equirect, center_bearing, fov: float, size: Optional[int] = None,
+               up_hint=None) -> GnomonicView:
+        """A square view of full field of view ``fov`` (radians, < π) around a bearing.
+
+        Without ``size``, the view keeps the equirect image's resolution at its centre.
+        """
+        if not 0.0 < fov < math.pi:
+            raise CameraModelError(f"field of view must be in (0, π) radians, got {fov!r}")
+        if size is None:
+            size = int(math.ceil(2.0 * math.tan(fov / 2.0) / equirect.rad_per_px))
+            size = max(size, 8)
+        focal = (size / 2.0) / math.tan(fov / 2.0)
+        return cls(center_bearing, (size, size), focal, up_hint)
+
+    @property
+    def center_bearing(self) -> np.ndarray:
+        return self.camera_R_view[:, 2].copy()
+
+    @property
+    def K(self) -> np.ndarray:
+        """OpenCV intrinsic matrix of the view."""
+        return np.array([[self.focal, 0.0, self.cx], [0.0, self.focal, self.cy], [0.0, 0.0, 1.0]])
+
+    def pixel_to_bearing(self, x, y) -> np.ndarray:
+        """Unit camera-frame bearing(s) (..., 3) of view pixel coordinates."""
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        ray = np.stack([(x - self.cx) / self.focal, (y - self.cy) / self.focal, np.ones_like(x)], axis=-1)
+        b = ray @ self.camera_R_view.T
+        return b / np.linalg.norm(b, axis=-1, keepdims=True)
+
+    def bearing_to_pixel(self, bearing) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """View pixel coordinates of camera-frame bearing(s), and a mask of those in front.
+
+        Bearings behind the view (z ≤ 0 in the view frame) get NaN coordinates.
+        """
+        b = np.asarray(bearing, dtype=float) @ self.camera_R_view
+        z = b[..., 2]
+        front = z > 1e-12
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.where(front, self.focal * b[..., 0] / z + self.cx, np.nan)
+            y = np.where(front, self.focal * b[..., 1] / z + self.cy, np.nan)
+        return x, y, front
+
+    def remap_maps(self, equirect: Equirect) -> Tuple[np.ndarray, np.ndarray]:
+        """float32 maps (map_x, map_y) for ``cv2.remap`` from the equirect image to this view."""
+        xs, ys = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
+        u, v = equirect.bearing_to_pixel(self.pixel_to_bearing(xs, ys))
+        return u.astype(np.float32), v.astype(np.float32)
+
+    def render(self, image: np.ndarray, equirect: Optional[Equirect] = None,
+               interpolation: Optional[int] = None) -> np.ndarray:
+        """The view cut out of an equirect ``image`` (grey or colour) by bilinear remap.
+
+        Columns wrap around the ±180° seam.
+        """
+        import cv2
+
+        if equirect is None:
+            equirect = Equirect(image.shape[1], image.shape[0])
+        map_x, map_y = self.remap_maps(equirect)
+        # rows never wrap (only the ±180° columns do): clamp at the poles
+        np.clip(map_y, 0.0, equirect.height - 1.0, out=map_y)
+        interp = cv2.INTER_LINEAR if interpolation is None else interpolation
+        return cv2.remap(image, map_x, map_y, interp, borderMode=cv2.BORDER_WRAP)

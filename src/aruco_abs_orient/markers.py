@@ -1,0 +1,156 @@
+"""The marker map: surveyed ArUco marker centres, loaded from and saved to YAML (DESIGN §3).
+
+```yaml
+dictionary: DICT_4X4_50
+size: 0.19            # black square side, metres
+frame_id: map
+markers:
+  - {id: 3, position: [12.031, 4.210, 1.352]}
+  - {id: 7, position: [3.5, -2.0, 1.1], size: 0.30}   # per-marker override
+```
+Positions in metres in ``frame_id``. Optional per-marker ``sigma`` (survey 1-σ, metres,
+default the map's ``survey_sigma``, itself default 0.002 m).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Dict, List, NamedTuple, Optional
+
+import numpy as np
+
+__all__ = ["MarkerMapError", "Marker", "MarkerMap", "ARUCO_DICTIONARIES"]
+
+# Names accepted for ``dictionary`` (cv2.aruco predefined dictionaries).
+ARUCO_DICTIONARIES = tuple(
+    f"DICT_{b}X{b}_{n}" for b in (4, 5, 6, 7) for n in (50, 100, 250, 1000)
+) + ("DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_16h5", "DICT_APRILTAG_25h9", "DICT_APRILTAG_36h10",
+     "DICT_APRILTAG_36h11")
+
+
+class MarkerMapError(ValueError):
+    """A marker map that cannot be used: the message names the file and the field."""
+
+
+class Marker(NamedTuple):
+    """One surveyed marker: ``id``, centre ``position`` (3,) in metres, black-square ``size``
+    in metres, survey 1-σ ``sigma`` in metres."""
+
+    id: int
+    position: np.ndarray
+    size: float
+    sigma: float
+
+
+class MarkerMap:
+    """Markers by id, their ArUco dictionary and frame."""
+
+    def __init__(self, markers: List[Marker], dictionary: str = "DICT_4X4_50", frame_id: str = "map",
+                 source: str = "<memory>"):
+        if dictionary not in ARUCO_DICTIONARIES:
+            raise MarkerMapError(f"{source}: dictionary: unknown ArUco dictionary {dictionary!r}; "
+                                 f"expected one of {', '.join(ARUCO_DICTIONARIES)}")
+        self.dictionary = dictionary
+        self.frame_id = frame_id
+        self.source = source
+        self.markers: Dict[int, Marker] = {}
+        for m in markers:
+            if m.id in self.markers:
+                raise MarkerMapError(f"{source}: markers: id {m.id} appears twice")
+            self.markers[m.id] = m
+
+    def __len__(self) -> int:
+        return len(self.markers)
+
+    def __contains__(self, marker_id: int) -> bool:
+        return marker_id in self.markers
+
+    def __getitem__(self, marker_id: int) -> Marker:
+        return self.markers[marker_id]
+
+    def __iter__(self):
+        return iter(self.markers.values())
+
+    @property
+    def ids(self) -> List[int]:
+        return sorted(self.markers)
+
+    @classmethod
+    def from_dict(cls, data, source: str = "<memory>") -> MarkerMap:
+        """Validate a parsed YAML document; every problem names ``source`` and the field."""
+        if not isinstance(data, dict):
+            raise MarkerMapError(f"{source}: expected a mapping with 'dictionary', 'size', 'markers'")
+        default_size = _positive(data.get("size"), source, "size") if "size" in data else None
+        survey_sigma = _positive(data.get("survey_sigma", 0.002), source, "survey_sigma")
+        items = data.get("markers")
+        if not isinstance(items, list) or not items:
+            raise MarkerMapError(f"{source}: markers: expected a non-empty list of {{id, position}}")
+        markers = []
+        for i, item in enumerate(items):
+            where = f"markers[{i}]"
+            if not isinstance(item, dict):
+                raise MarkerMapError(f"{source}: {where}: expected a mapping with 'id' and 'position'")
+            mid = item.get("id")
+            if isinstance(mid, bool) or not isinstance(mid, int) or mid < 0:
+                raise MarkerMapError(f"{source}: {where}.id: expected a non-negative integer, got {mid!r}")
+            pos = item.get("position")
+            if (not isinstance(pos, (list, tuple)) or len(pos) != 3
+                    or not all(_is_finite_number(x) for x in pos)):
+                raise MarkerMapError(f"{source}: {where}.position: expected [x, y, z] in metres, got {pos!r}")
+            if "size" in item:
+                size = _positive(item["size"], source, where + ".size")
+            elif default_size is not None:
+                size = default_size
+            else:
+                raise MarkerMapError(f"{source}: {where}.size: no size here and no top-level 'size'")
+            sigma = _positive(item.get("sigma", survey_sigma), source, where + ".sigma")
+            markers.append(Marker(mid, np.array(pos, dtype=float), size, sigma))
+        return cls(markers, str(data.get("dictionary", "DICT_4X4_50")), str(data.get("frame_id", "map")),
+                   source)
+
+    @classmethod
+    def load(cls, path: str) -> MarkerMap:
+        """Load and validate a marker map YAML file. Raises MarkerMapError."""
+        import yaml
+
+        try:
+            with open(path) as f:
+                data = yaml.safe_load(f)
+        except OSError as e:
+            raise MarkerMapError(f"{path}: cannot read: {e.strerror}") from None
+        except yaml.YAMLError as e:
+            raise MarkerMapError(f"{path}: not valid YAML: {e}") from None
+        return cls.from_dict(data, source=path)
+
+    def to_dict(self) -> dict:
+        return {
+            "dictionary": self.dictionary,
+            "frame_id": self.frame_id,
+            "markers": [
+                {"id": m.id, "position": [round(float(x), 6) for x in m.position], "size": m.size,
+                 "sigma": m.sigma}
+                for m in self
+            ],
+        }
+
+    def save(self, path: str) -> None:
+        """Write the map as YAML, atomically."""
+        import yaml
+
+        from .tum import atomic_write_text
+
+        atomic_write_text(path, yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None))
+
+    def positions(self, ids: Optional[List[int]] = None) -> np.ndarray:
+        """Marker centres (N, 3) in metres for ``ids`` (default: all, sorted by id)."""
+        return np.array([self.markers[i].position for i in (self.ids if ids is None else ids)]).reshape(-1, 3)
+
+
+def _is_finite_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _positive(x, source: str, field: str) -> float:
+    if not _is_finite_number(x) or x <= 0:
+        raise MarkerMapError(f"{source}: {field}: expected a positive number (metres), got {x!r}")
+    return float(x)

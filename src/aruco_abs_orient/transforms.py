@@ -1,0 +1,139 @@
+"""Rotations, quaternions and rigid transforms (the package's one copy of this algebra).
+
+Conventions (DESIGN §2): attitude ``R = Rz(yaw) · Ry(pitch) · Rx(roll)``, angles in radians;
+quaternions are ``(x, y, z, w)`` as in ROS/TUM; a 4×4 homogeneous matrix ``a_T_b`` maps
+b-coordinates into a. Functions are vectorised over leading dimensions where noted.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "rpy_to_matrix",
+    "matrix_to_rpy",
+    "yaw_of",
+    "wrap_angle",
+    "quat_to_matrix",
+    "matrix_to_quat",
+    "make_T",
+    "invert_T",
+    "transform_points",
+]
+
+
+def wrap_angle(angle):
+    """Angle(s) (radians) wrapped to [−π, π)."""
+    return (np.asarray(angle, dtype=float) + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def rot_x(a) -> np.ndarray:
+    """Rotation(s) (..., 3, 3) about x by ``a`` radians."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def rot_y(a) -> np.ndarray:
+    """Rotation(s) (..., 3, 3) about y by ``a`` radians."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+def rot_z(a) -> np.ndarray:
+    """Rotation(s) (..., 3, 3) about z by ``a`` radians."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def rpy_to_matrix(roll, pitch, yaw) -> np.ndarray:
+    """``Rz(yaw) · Ry(pitch) · Rx(roll)`` (..., 3, 3); angles in radians."""
+    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
+def matrix_to_rpy(R):
+    """(roll, pitch, yaw) in radians of rotation matrix/matrices (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    pitch = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 2, 1], R[..., 2, 2]))
+    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    return roll, pitch, yaw
+
+
+def yaw_of(R):
+    """Yaw (radians) of rotation matrix/matrices (..., 3, 3) in the Z-Y-X convention."""
+    R = np.asarray(R, dtype=float)
+    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """Rotation matrix/matrices (..., 3, 3) of quaternion(s) ``(x, y, z, w)`` (normalised here)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def matrix_to_quat(R) -> np.ndarray:
+    """Quaternion(s) ``(x, y, z, w)`` with w ≥ 0 of rotation matrix/matrices (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    # Squared magnitudes of the components; take signs from the off-diagonal terms of the
+    # largest one (numerically stable everywhere).
+    w2 = np.maximum(0.0, 1 + m00 + m11 + m22)
+    x2 = np.maximum(0.0, 1 + m00 - m11 - m22)
+    y2 = np.maximum(0.0, 1 - m00 + m11 - m22)
+    z2 = np.maximum(0.0, 1 - m00 - m11 + m22)
+    cand = np.stack([
+        np.stack([w2, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1),
+        np.stack([R[..., 2, 1] - R[..., 1, 2], x2, R[..., 1, 0] + R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0]], -1),
+        np.stack([R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] + R[..., 0, 1], y2, R[..., 2, 1] + R[..., 1, 2]], -1),
+        np.stack([R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 2, 1] + R[..., 1, 2], z2], -1),
+    ], -2)  # row k: 4·q_k·(w, x, y, z)
+    k = np.argmax(np.stack([w2, x2, y2, z2], -1), axis=-1)
+    row = np.take_along_axis(cand, k[..., None, None], axis=-2)[..., 0, :]
+    wxyz = row / np.linalg.norm(row, axis=-1, keepdims=True)
+    wxyz = wxyz * np.where(wxyz[..., :1] < 0, -1.0, 1.0)
+    return np.concatenate([wxyz[..., 1:], wxyz[..., :1]], axis=-1)
+
+
+def make_T(R=None, t=None) -> np.ndarray:
+    """4×4 homogeneous transform(s) from rotation (..., 3, 3) and translation (..., 3)."""
+    if R is None:
+        R = np.eye(3)
+    R = np.asarray(R, dtype=float)
+    t = np.zeros(R.shape[:-2] + (3,)) if t is None else np.asarray(t, dtype=float)
+    shape = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    T = np.zeros(shape + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def invert_T(T) -> np.ndarray:
+    """Inverse of rigid transform(s) (..., 4, 4): ``b_T_a`` from ``a_T_b``."""
+    T = np.asarray(T, dtype=float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return make_T(Rt, -(Rt @ T[..., :3, 3:4])[..., 0])
+
+
+def transform_points(a_T_b, points_b) -> np.ndarray:
+    """Points (..., 3) in frame b mapped into frame a by ``a_T_b`` (4, 4)."""
+    a_T_b = np.asarray(a_T_b, dtype=float)
+    p = np.asarray(points_b, dtype=float)
+    return p @ a_T_b[:3, :3].T + a_T_b[:3, 3]
