@@ -99,17 +99,16 @@ class Equirect:
         """Azimuth and elevation (radians) of pixel coordinates (OpenCV pixel centres)."""
         u = np.asarray(u, dtype=float)
         v = np.asarray(v, dtype=float)
-        az = math.pi - 2.0 * math.pi * (u + 0.5) / self.width
-        el = 0.5 * math.pi - math.pi * (v + 0.5) / self.height
+        az = math.pi * (1.0 - 2.0 * (u + 0.5) / self.width)
+        el = math.pi * (0.5 - (v + 0.5) / self.height)
         return az, el
 
     def azel_to_pixel(self, az, el) -> Tuple[np.ndarray, np.ndarray]:
         """Pixel coordinates (u in [−0.5, W−0.5), v in [−0.5, H−0.5]) of az/el in radians."""
         az = np.asarray(az, dtype=float)
         el = np.asarray(el, dtype=float)
-        u = (math.pi - az) * self.width / (2.0 * math.pi) - 0.5
-        u = np.mod(u + 0.5, self.width) - 0.5
-        v = (0.5 * math.pi - el) * self.height / math.pi - 0.5
+        u = np.mod((0.5 - az / (2.0 * math.pi)) * self.width, self.width) - 0.5
+        v = (0.5 - el / math.pi) * self.height - 0.5
         return u, v
 
     def pixel_to_bearing(self, u, v) -> np.ndarray:

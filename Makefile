@@ -1,0 +1,36 @@
+# aruco_abs_orient — every target sets itself up first (idempotent, seconds when nothing changed).
+#   make demo    generate the demo scenario (cached) and run the pipeline on it
+#   make test    all tests: unit tests and rostests, one pytest run
+#   make bench   the benchmarks (full-size figures)
+#   make lint    ruff, catkin_lint, vermin (Python 3.8 for everything but offline/ and synthetic/)
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+ENV := source tools/env.sh &&
+PYTEST_ARGS ?=
+
+.PHONY: help setup test demo bench lint clean
+
+help:
+	@sed -n '2,6p' Makefile | sed 's/^# //'
+
+setup:
+	@bash tools/setup.sh
+
+test: setup
+	@$(ENV) python -m pytest test $(PYTEST_ARGS)
+
+demo: setup
+	@$(ENV) bash tools/demo.sh
+
+bench: setup
+	@$(ENV) bash tools/bench.sh
+
+lint: setup
+	@$(ENV) ruff check . && \
+	catkin_lint -W2 --strict .ws/src/aruco_abs_orient && \
+	vermin --target=3.8- --no-tips --violations -q \
+	  $$(find src/aruco_abs_orient scripts -name '*.py' -not -path '*/offline/*' -not -path '*/synthetic/*') \
+	  $$(grep -l 'python' scripts/* 2>/dev/null) && echo "lint: clean"
+
+clean:
+	rm -rf .ws .venv .pytest_cache .hypothesis .ruff_cache

@@ -1,0 +1,369 @@
+"""Rendering of equirectangular 360° frames with ArUco markers (the synthetic world's camera).
+
+Inverse mapping with supersampling: for every (sub)pixel in a marker's bounding pixel box the
+ray of ``camera.Equirect.pixel_to_bearing`` (the package's one pixel↔bearing convention) is
+intersected with the marker plane, the ArUco bit under the hit point is looked up and the
+sub-samples are averaged. The rest of the frame is a precomputed background panorama (textured
+or flat grey) rolled by the camera's yaw. Then optional Gaussian blur, sensor noise and a JPEG
+round trip, as set by a :class:`RenderProfile`.
+
+Units: metres for positions and sizes, radians for angles, pixels for blur, grey levels (DN,
+0–255) for noise. Frames: the camera frame of DESIGN §2 (x = image centre column, y left, z up).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Dict, Optional, Sequence, Tuple, Union
+
+import cv2
+import numpy as np
+
+from ..camera import Equirect, bearing_to_azel
+from ..markers import ARUCO_DICTIONARIES
+from ..transforms import rot_x, rot_z
+
+__all__ = [
+    "RenderError",
+    "PlacedMarker",
+    "facing_marker",
+    "RenderProfile",
+    "PROFILES",
+    "render_equirect",
+    "encode_jpeg",
+    "decode_jpeg",
+    "QUIET_ZONE_BITS",
+]
+
+# White margin around the black square, in bit widths (keeps markers detectable on texture).
+QUIET_ZONE_BITS = 1
+
+
+class RenderError(ValueError):
+    """Invalid rendering input: image width, profile name, marker geometry, dictionary, id."""
+
+
+@dataclass(frozen=True, eq=False)
+class PlacedMarker:
+    """A marker placed in the camera frame.
+
+    ``id``: ArUco id; ``size``: side of the black square in metres; ``center`` (3,): marker centre
+    in the camera frame (x fwd, y left, z up) in metres; ``camera_R_marker`` (3, 3): rotation from
+    the marker frame (x right, y up on the printed face, z out of the face towards the viewer) to
+    the camera frame.
+    """
+
+    id: int
+    size: float
+    center: np.ndarray
+    camera_R_marker: np.ndarray
+
+    def corners(self) -> np.ndarray:
+        """Camera-frame corners (4, 3) in metres of the black square, OpenCV ArUco order as seen
+        from the front: top-left, top-right, bottom-right, bottom-left."""
+        return self.points_on_face(_CORNER_SIGNS * (self.size / 2.0))
+
+    def points_on_face(self, xy) -> np.ndarray:
+        """Camera-frame points (..., 3) in metres of marker-face coordinates ``xy`` (..., 2) in metres."""
+        xy = np.asarray(xy, dtype=float)
+        R = np.asarray(self.camera_R_marker, dtype=float)
+        return np.asarray(self.center, dtype=float) + xy[..., :1] * R[:, 0] + xy[..., 1:2] * R[:, 1]
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal (3,) of the printed face in the camera frame (marker +z)."""
+        return np.asarray(self.camera_R_marker, dtype=float)[:, 2].copy()
+
+
+_CORNER_SIGNS = np.array([[-1.0, 1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]])
+
+
+def facing_marker(id: int, size: float, center, roll: float = 0.0, tilt: float = 0.0) -> PlacedMarker:
+    """A marker at ``center`` (3,) m (camera frame) whose face is turned towards the camera origin.
+
+    Upright: the marker's y axis is as close to camera +z as possible (for a marker straight above
+    or below the camera, its y axis points towards camera +x / −x). Then rotated by ``roll``
+    (radians) about its normal and tilted by ``tilt`` (radians) about its (rolled) x axis:
+    ``camera_R_marker = R_facing · Rz(roll) · Rx(tilt)``.
+    """
+    c = np.asarray(center, dtype=float).reshape(3)
+    dist = float(np.linalg.norm(c))
+    if not (math.isfinite(dist) and dist > 0):
+        raise RenderError(f"marker {id}: centre must be a finite non-zero point, got {center!r}")
+    if not (size > 0 and math.isfinite(size)):
+        raise RenderError(f"marker {id}: size must be a positive number of metres, got {size!r}")
+    z = -c / dist
+    y = np.array([0.0, 0.0, 1.0]) - z[2] * z
+    if np.linalg.norm(y) < 1e-9:  # straight above/below: "up" is away from the camera's forward
+        y = np.array([math.copysign(1.0, c[2]), 0.0, 0.0]) - z[0] * z
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    R = np.stack([x, y, z], axis=1) @ rot_z(roll) @ rot_x(tilt)
+    return PlacedMarker(int(id), float(size), c, R)
+
+
+@dataclass(frozen=True)
+class RenderProfile:
+    """How a frame is degraded: ``supersample`` sub-samples per pixel side (≥ 1),
+    ``blur_sigma_px`` Gaussian blur σ in pixels (0 = none), ``noise_sigma`` Gaussian noise σ in
+    grey levels (0 = none), ``jpeg_quality`` 1–100 or None (no JPEG round trip), ``background``
+    'textured' or 'grey'."""
+
+    supersample: int
+    blur_sigma_px: float
+    noise_sigma: float
+    jpeg_quality: Optional[int]
+    background: str
+
+
+PROFILES: Dict[str, RenderProfile] = {
+    "clean": RenderProfile(supersample=4, blur_sigma_px=0.0, noise_sigma=0.0, jpeg_quality=None,
+                           background="grey"),
+    "realistic": RenderProfile(supersample=4, blur_sigma_px=0.7, noise_sigma=2.0, jpeg_quality=85,
+                               background="textured"),
+}
+
+_GREY_LEVEL = 128
+_WHITE = 255.0
+_BLACK = 0.0
+
+
+def _resolve_profile(profile: Union[str, RenderProfile]) -> RenderProfile:
+    if isinstance(profile, RenderProfile):
+        p = profile
+    else:
+        try:
+            p = PROFILES[profile]
+        except KeyError:
+            raise RenderError(f"unknown render profile {profile!r}; expected one of {', '.join(PROFILES)}") from None
+    if int(p.supersample) != p.supersample or p.supersample < 1:
+        raise RenderError(f"render profile: supersample must be an integer >= 1, got {p.supersample!r}")
+    if p.background not in ("textured", "grey"):
+        raise RenderError(f"render profile: background must be 'textured' or 'grey', got {p.background!r}")
+    if p.jpeg_quality is not None and not 1 <= p.jpeg_quality <= 100:
+        raise RenderError(f"render profile: jpeg_quality must be 1..100 or None, got {p.jpeg_quality!r}")
+    if p.blur_sigma_px < 0 or p.noise_sigma < 0:
+        raise RenderError("render profile: blur_sigma_px and noise_sigma must be >= 0")
+    return p
+
+
+@functools.lru_cache(maxsize=64)
+def _marker_bits(dictionary: str, marker_id: int) -> np.ndarray:
+    """Grey levels (n, n) float32 of the marker's bits incl. the black border and the white quiet
+    zone; row 0 is the top (marker +y), column 0 the left (marker −x)."""
+    if dictionary not in ARUCO_DICTIONARIES:
+        raise RenderError(f"unknown ArUco dictionary {dictionary!r}")
+    d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+    n_marker = d.markerSize + 2
+    n_ids = d.bytesList.shape[0]
+    if not 0 <= marker_id < n_ids:
+        raise RenderError(f"marker id {marker_id} is not in {dictionary} (ids 0..{n_ids - 1})")
+    bits = cv2.aruco.generateImageMarker(d, int(marker_id), n_marker, borderBits=1)
+    q = QUIET_ZONE_BITS
+    out = np.full((n_marker + 2 * q, n_marker + 2 * q), _WHITE, dtype=np.float32)
+    out[q:q + n_marker, q:q + n_marker] = np.where(bits > 127, _WHITE, _BLACK)
+    out.flags.writeable = False
+    return out
+
+
+def _marker_bit_count(dictionary: str) -> int:
+    """Bits across the black square (data bits + 2 border bits)."""
+    return _marker_bits(dictionary, 0).shape[0] - 2 * QUIET_ZONE_BITS
+
+
+@functools.lru_cache(maxsize=8)
+def _background(width: int, seed: int) -> np.ndarray:
+    """A textured panorama (H, W) uint8, periodic in azimuth: low-frequency blobs plus lines,
+    rectangles and edges (candidate quads for false-positive tests). Read-only, cached."""
+    height = width // 2
+    rng = np.random.default_rng(seed)
+    # low-frequency blobs: a coarse random grid, wrapped in azimuth, upsampled smoothly
+    cw = 48
+    ch = cw // 2
+    coarse = rng.normal(0.0, 1.0, (ch, cw)).astype(np.float32)
+    tiled = np.concatenate([coarse[:, -4:], coarse, coarse[:, :4]], axis=1)
+    scale = width / cw
+    up = cv2.resize(tiled, (int(round(tiled.shape[1] * scale)), height), interpolation=cv2.INTER_CUBIC)
+    off = int(round(4 * scale))
+    img = 135.0 + 28.0 * up[:, off:off + width]
+    # straight edges: rectangles (filled and outlined) and lines, drawn at 1920-wide scale
+    s = width / 1920.0
+    canvas = img.astype(np.float32)
+    for _ in range(60):
+        w = rng.uniform(10, 160) * s
+        h = rng.uniform(10, 120) * s
+        x0 = rng.uniform(0, width - w)
+        y0 = rng.uniform(0.1 * height, 0.9 * height - h)
+        level = float(rng.uniform(50, 215))
+        p0 = (int(x0), int(y0))
+        p1 = (int(x0 + w), int(y0 + h))
+        thick = -1 if rng.random() < 0.6 else max(1, int(round(rng.uniform(1, 4) * s)))
+        cv2.rectangle(canvas, p0, p1, level, thick, lineType=cv2.LINE_AA)
+    for _ in range(40):
+        p0 = (int(rng.uniform(0, width)), int(rng.uniform(0, height)))
+        p1 = (int(p0[0] + rng.normal(0, 200 * s)), int(p0[1] + rng.normal(0, 100 * s)))
+        cv2.line(canvas, p0, p1, float(rng.uniform(40, 220)), max(1, int(round(rng.uniform(1, 3) * s))),
+                 lineType=cv2.LINE_AA)
+    # a gentle ground/sky gradient
+    rows = np.linspace(1.0, -1.0, height, dtype=np.float32)[:, None]
+    canvas += 18.0 * rows
+    out = np.clip(np.rint(canvas), 0, 255).astype(np.uint8)
+    out.flags.writeable = False
+    return out
+
+
+def _bounding_box(equirect: Equirect, marker: PlacedMarker, half: float
+                  ) -> Optional[Tuple[int, int, int, int]]:
+    """Pixel box (u0, u1, v0, v1), inclusive, u possibly outside [0, W) (wraps), of the marker's
+    face square of half side ``half`` (m). None when the square is behind the camera entirely."""
+    n_edge = 24
+    t = np.linspace(-1.0, 1.0, n_edge, endpoint=False)
+    ones = np.ones_like(t)
+    outline = np.concatenate([
+        np.stack([t, ones], -1), np.stack([ones, -t], -1), np.stack([-t, -ones], -1), np.stack([-ones, t], -1),
+    ]) * half
+    pts = marker.points_on_face(outline)
+    az, el = bearing_to_azel(pts)
+    az_c = float(bearing_to_azel(marker.center)[0])
+    az_u = az_c + (az - az_c + math.pi) % (2.0 * math.pi) - math.pi
+    el_min, el_max = float(el.min()), float(el.max())
+    # a pole inside the square: the ray along ±z hits the face inside the outline
+    all_columns = False
+    for pole in (1.0, -1.0):
+        R = np.asarray(marker.camera_R_marker, dtype=float)
+        n = R[:, 2]
+        denom = pole * n[2]
+        if abs(denom) < 1e-12:
+            continue
+        s = float(np.dot(marker.center, n)) / denom
+        if s <= 0:
+            continue
+        hit = np.array([0.0, 0.0, pole * s]) - marker.center
+        if abs(hit @ R[:, 0]) <= half and abs(hit @ R[:, 1]) <= half:
+            all_columns = True
+            if pole > 0:
+                el_max = math.pi / 2
+            else:
+                el_min = -math.pi / 2
+    # great-circle edges bulge between outline samples: pad by the sample spacing's sagitta + 2 px
+    pad = 2.0 + (2.0 * half / n_edge) / max(float(np.linalg.norm(pts, axis=-1).min()), 1e-9) / equirect.rad_per_px
+    if all_columns or float(az_u.max() - az_u.min()) > math.pi:
+        u0, u1 = 0, equirect.width - 1
+    else:
+        ua, _ = equirect.azel_to_pixel(az_u.max(), 0.0)
+        ua = float(equirect.unwrap_u(ua, equirect.azel_to_pixel(az_c, 0.0)[0]))
+        ub = ua + (az_u.max() - az_u.min()) / equirect.rad_per_px
+        u0, u1 = int(math.floor(ua - pad)), int(math.ceil(ub + pad))
+        if u1 - u0 + 1 >= equirect.width:
+            u0, u1 = 0, equirect.width - 1
+    _, v_top = equirect.azel_to_pixel(0.0, el_max)
+    _, v_bot = equirect.azel_to_pixel(0.0, el_min)
+    v0 = max(0, int(math.floor(float(v_top) - pad)))
+    v1 = min(equirect.height - 1, int(math.ceil(float(v_bot) + pad)))
+    if v1 < v0:
+        return None
+    return u0, u1, v0, v1
+
+
+def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray,
+                  n_bits_black: int, supersample: int) -> None:
+    """Average the marker (with its quiet zone) into ``canvas`` (H, W) float32 in place."""
+    R = np.asarray(marker.camera_R_marker, dtype=float)
+    c = np.asarray(marker.center, dtype=float)
+    n_all = bits.shape[0]
+    bit = marker.size / n_bits_black
+    half = 0.5 * bit * n_all
+    c_n = float(c @ R[:, 2])
+    front = c_n < 0.0  # the camera (origin) is on the printed side
+    box = _bounding_box(equirect, marker, half)
+    if box is None or abs(c_n) < 1e-12:
+        return
+    u0, u1, v0, v1 = box
+    S = int(supersample)
+    offs = (np.arange(S) + 0.5) / S - 0.5
+    us = (np.arange(u0, u1 + 1)[:, None] + offs[None, :]).ravel()
+    vs = (np.arange(v0, v1 + 1)[:, None] + offs[None, :]).ravel()
+    uu, vv = np.meshgrid(us, vs)
+    d = equirect.pixel_to_bearing(uu, vv)  # (rows·S, cols·S, 3)
+    dp = d @ R  # components along marker x, y, z
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = c_n / dp[..., 2]
+    c_x, c_y = float(c @ R[:, 0]), float(c @ R[:, 1])
+    mx = t * dp[..., 0] - c_x
+    my = t * dp[..., 1] - c_y
+    inside = (t > 0) & (np.abs(mx) < half) & (np.abs(my) < half)
+    if not inside.any():
+        return
+    if front:
+        col = np.clip(np.floor((mx + half) / bit).astype(np.int64), 0, n_all - 1)
+        row = np.clip(np.floor((half - my) / bit).astype(np.int64), 0, n_all - 1)
+        value = bits[row, col]
+    else:  # the back of the board: plain white
+        value = np.full(mx.shape, _WHITE, dtype=np.float32)
+    rows_n, cols_n = v1 - v0 + 1, u1 - u0 + 1
+    cols = np.arange(u0, u1 + 1) % equirect.width
+    # per pixel: background weighted by the uncovered fraction + the mean of the covered samples
+    covered = inside.reshape(rows_n, S, cols_n, S).mean(axis=(1, 3), dtype=np.float32)
+    paint = np.where(inside, value, np.float32(0.0)).reshape(rows_n, S, cols_n, S).mean(axis=(1, 3),
+                                                                                      dtype=np.float32)
+    patch = canvas[v0:v1 + 1][:, cols]
+    canvas[v0:v1 + 1, cols] = patch * (1.0 - covered) + paint
+
+
+def render_equirect(width: int, markers: Sequence[PlacedMarker], dictionary: str = "DICT_4X4_50",
+                    profile: Union[str, RenderProfile] = "realistic", seed: int = 0,
+                    background_yaw: float = 0.0) -> np.ndarray:
+    """Render a grey equirect frame (H, W) = (width // 2, width) uint8 with ``markers``.
+
+    ``profile``: a name of :data:`PROFILES` or a :class:`RenderProfile`. ``seed`` selects the
+    background panorama and the noise. ``background_yaw`` (radians): the camera's yaw in the
+    background's world; a background direction at azimuth a appears at camera azimuth
+    a − background_yaw (the panorama is rolled by whole pixels). When the profile has a
+    ``jpeg_quality``, the frame returned is the decoded JPEG (what a bag will hold).
+    Markers do not occlude one another (later ones are painted over earlier ones).
+    """
+    if int(width) != width or width < 8 or width % 2:
+        raise RenderError(f"image width must be an even integer >= 8, got {width!r}")
+    if not math.isfinite(background_yaw):
+        raise RenderError(f"background_yaw must be finite, got {background_yaw!r}")
+    width = int(width)
+    p = _resolve_profile(profile)
+    equirect = Equirect(width, width // 2)
+    if p.background == "textured":
+        shift = int(round(background_yaw / equirect.rad_per_px))
+        canvas = np.roll(_background(width, int(seed)), shift, axis=1).astype(np.float32)
+    else:
+        canvas = np.full((equirect.height, width), float(_GREY_LEVEL), dtype=np.float32)
+    n_black = _marker_bit_count(dictionary)
+    for m in markers:
+        _splat_marker(canvas, equirect, m, _marker_bits(dictionary, int(m.id)), n_black, p.supersample)
+    if p.blur_sigma_px > 0:
+        cv2.GaussianBlur(canvas, (0, 0), p.blur_sigma_px, dst=canvas, borderType=cv2.BORDER_REPLICATE)
+    if p.noise_sigma > 0:
+        rng = np.random.default_rng([int(seed), 0x5EED])
+        canvas += rng.standard_normal(canvas.shape, dtype=np.float32) * np.float32(p.noise_sigma)
+    image = np.clip(np.rint(canvas), 0, 255).astype(np.uint8)
+    if p.jpeg_quality is not None:
+        image = decode_jpeg(encode_jpeg(image, p.jpeg_quality))
+    return image
+
+
+def encode_jpeg(image: np.ndarray, quality: int) -> bytes:
+    """JPEG bytes of a grey uint8 image at ``quality`` (1–100)."""
+    if not 1 <= int(quality) <= 100:
+        raise RenderError(f"JPEG quality must be 1..100, got {quality!r}")
+    ok, buf = cv2.imencode(".jpg", image, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+    if not ok:
+        raise RenderError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def decode_jpeg(data: bytes) -> np.ndarray:
+    """Grey uint8 image of JPEG bytes."""
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise RenderError("not a decodable JPEG")
+    return image
+

@@ -1,0 +1,119 @@
+#!/usr/bin/env bash
+# Idempotent set-up of aruco_abs_orient on Debian 12 (run as root, or with passwordless sudo):
+#   1. Debian's ROS 1 packages (apt, only when one is missing),
+#   2. the venv .venv (/usr/bin/python3 --system-site-packages) with the pinned requirements,
+#   3. the real robot_localization, built by ../shared/tools/build-robot-localization into .ws/rl,
+#   4. the catkin workspace .ws (the repository linked as .ws/src/aruco_abs_orient), built with
+#      the venv's python.
+# Each step is skipped when a stamp says nothing it depends on changed, so a repeated run takes
+# seconds. No `set -u`: catkin's setup.bash reads unset variables.
+set -eo pipefail
+ROOT=$(cd -- "$(dirname -- "${BASH_SOURCE[0]}")/.." && pwd -P)
+cd "$ROOT"
+# Debian's python3 must win over pyenv & co.: ROS 1's python modules exist only for /usr/bin/python3.
+export PATH=/usr/bin:/bin:/usr/sbin:/sbin:$PATH
+unset PYTHONPATH PYTHONHOME PYENV_VERSION CMAKE_PREFIX_PATH ROS_PACKAGE_PATH
+export DEBIAN_FRONTEND=noninteractive
+STAMPS=$ROOT/.ws/stamps
+mkdir -p "$STAMPS"
+log() { echo "setup: $*" >&2; }
+t_start=$(date +%s.%N)
+elapsed() { awk -v a="$t_start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }'; }
+
+# --------------------------------------------------------------------------- 1. apt
+APT_PKGS=(
+  python3-rospy python3-roslaunch python3-rosmaster rosout python3-rostest librostest-dev
+  python3-tf2-ros python3-std-msgs python3-geometry-msgs python3-nav-msgs python3-sensor-msgs
+  python3-tf2-msgs python3-visualization-msgs python3-diagnostic-msgs python3-cv-bridge
+  python3-dynamic-reconfigure libdynamic-reconfigure-config-init-mutex-dev python3-rosbag
+  catkin catkin-lint python3-venv tf2-tools python3-rostopic python3-rosnode python3-rosservice rosbash
+  ros-std-msgs ros-geometry-msgs ros-sensor-msgs ros-nav-msgs ros-diagnostic-msgs ros-visualization-msgs
+  ros-message-generation ros-message-runtime python3-genpy python3-gencpp python3-genmsg g++ make
+)
+missing=$(dpkg-query -W -f='${Package} ${db:Status-Status}\n' "${APT_PKGS[@]}" 2>/dev/null |
+  awk '$2 == "installed" { print $1 }' | sort | comm -13 - <(printf '%s\n' "${APT_PKGS[@]}" | sort)) || true
+if [[ -n "$missing" ]]; then
+  log "installing Debian packages: $(echo $missing)"
+  SUDO=()
+  ((EUID == 0)) || SUDO=(sudo -n env DEBIAN_FRONTEND=noninteractive)
+  "${SUDO[@]}" apt-get update -q -o DPkg::Lock::Timeout=600 >&2
+  # shellcheck disable=SC2086
+  "${SUDO[@]}" apt-get install -y -q --no-install-recommends -o DPkg::Lock::Timeout=600 $missing >&2
+else
+  log "Debian packages: all ${#APT_PKGS[@]} present"
+fi
+
+# --------------------------------------------------------------------------- 2. venv
+VENV=$ROOT/.venv
+if [[ ! -x $VENV/bin/python ]] || ! grep -q '^include-system-site-packages = true' "$VENV/pyvenv.cfg" ||
+  [[ "$(readlink -f "$VENV/bin/python")" != /usr/bin/python3* ]]; then
+  log "creating the venv $VENV from /usr/bin/python3 (--system-site-packages: sees Debian's ROS 1)"
+  rm -rf -- "$VENV"
+  /usr/bin/python3 -m venv --system-site-packages "$VENV"
+  rm -f -- "$STAMPS/venv"
+fi
+want=$(cat requirements.txt setup.py | sha256sum | cut -d' ' -f1)
+if [[ "$(cat "$STAMPS/venv" 2>/dev/null)" != "$want" ]]; then
+  log "installing Python requirements into $VENV"
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check -r requirements.txt 2>&1 |
+    grep -v 'is ignored: it is neither a file nor a directory' >&2 || true
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . 2>&1 |
+    grep -v 'is ignored: it is neither a file nor a directory' >&2 || true
+  "$VENV/bin/python" -c 'import numpy, cv2, rosbags, serial, cv_bridge, rospy, aruco_abs_orient' ||
+    { log "ERROR: the venv cannot import its requirements (see above)"; exit 1; }
+  echo "$want" >"$STAMPS/venv"
+else
+  log "venv: up to date"
+fi
+
+# --------------------------------------------------------------------------- 3. robot_localization
+RL_TOOL=$ROOT/../shared/tools/build-robot-localization
+RL_SETUP=
+if [[ -x $RL_TOOL ]]; then
+  RL_SETUP=$("$RL_TOOL" "$ROOT/.ws/rl" | tail -n 1)
+  log "robot_localization: $RL_SETUP"
+else
+  log "robot_localization: $RL_TOOL not found: skipped (the EKF rostests will be skipped;" \
+    "on a ROS distro install ros-\$ROS_DISTRO-robot-localization)"
+fi
+echo "$RL_SETUP" >"$STAMPS/rl_setup"
+
+# --------------------------------------------------------------------------- 4. catkin workspace
+WS=$ROOT/.ws
+mkdir -p "$WS/src"
+if [[ "$(readlink -f "$WS/src/aruco_abs_orient" 2>/dev/null)" != "$ROOT" ]]; then
+  rm -rf -- "$WS/src/aruco_abs_orient"
+  ln -s "$ROOT" "$WS/src/aruco_abs_orient"
+fi
+[[ -f $WS/src/CMakeLists.txt ]] || ln -sf /usr/share/catkin/cmake/toplevel.cmake "$WS/src/CMakeLists.txt"
+want=$( {
+  echo "$RL_SETUP"
+  cat CMakeLists.txt package.xml setup.py msg/*.msg
+  ls scripts test/*.test 2>/dev/null
+  [[ -d cfg ]] && find cfg -name '*.cfg' -exec cat {} +
+} | sha256sum | cut -d' ' -f1)
+if [[ "$(cat "$STAMPS/catkin" 2>/dev/null)" != "$want" || ! -f $WS/devel/setup.bash ]]; then
+  log "building the catkin workspace $WS (log: $WS/build.log)"
+  if [[ -n $RL_SETUP ]]; then
+    # shellcheck disable=SC1090
+    source "$RL_SETUP"
+  else
+    # shellcheck disable=SC1091
+    source /usr/share/catkin/setup.bash 2>/dev/null || true
+  fi
+  CMAKE_ARGS=(-DPYTHON_EXECUTABLE="$VENV/bin/python" -DCMAKE_BUILD_TYPE=Release)
+  # a build/ configured for another python or another underlay is useless: start over
+  if [[ -f $WS/build/CMakeCache.txt ]] && ! grep -qxF "PYTHON_EXECUTABLE:FILEPATH=$VENV/bin/python" \
+    "$WS/build/CMakeCache.txt"; then
+    rm -rf -- "$WS/build" "$WS/devel"
+  fi
+  if ! (cd "$WS" && catkin_make "${CMAKE_ARGS[@]}" </dev/null) >"$WS/build.log" 2>&1; then
+    tail -n 40 "$WS/build.log" >&2
+    log "ERROR: catkin_make failed; full log: $WS/build.log"
+    exit 1
+  fi
+  echo "$want" >"$STAMPS/catkin"
+else
+  log "catkin workspace: up to date"
+fi
+log "done in $(elapsed) s"
