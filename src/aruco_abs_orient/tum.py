@@ -15,7 +15,7 @@ import numpy as np
 
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
-__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text"]
+__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "slerp"]
 
 
 class TumError(ValueError):
@@ -40,10 +40,56 @@ class Trajectory(NamedTuple):
         """Homogeneous transforms (N, 4, 4) world_T_frame."""
         return make_T(self.rotations, self.positions)
 
+    def interpolate(self, t):
+        """Poses at time(s) ``t`` (s): linear in position, slerp in rotation.
+
+        Returns ``(positions (..., 3), quats (..., 4), valid (...))``; times outside
+        [stamps[0], stamps[-1]] are not extrapolated: they are clamped and flagged invalid.
+        The stamps must be increasing.
+        """
+        t = np.asarray(t, dtype=float)
+        n = len(self.stamps)
+        if n == 0:
+            raise TumError("cannot interpolate an empty trajectory")
+        valid = (t >= self.stamps[0]) & (t <= self.stamps[-1])
+        if n == 1:
+            shape = t.shape
+            return (np.broadcast_to(self.positions[0], shape + (3,)).copy(),
+                    np.broadcast_to(self.quats[0], shape + (4,)).copy(), valid)
+        i = np.clip(np.searchsorted(self.stamps, t, side="right") - 1, 0, n - 2)
+        t0, t1 = self.stamps[i], self.stamps[i + 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a = np.clip(np.where(t1 > t0, (t - t0) / (t1 - t0), 0.0), 0.0, 1.0)
+        p = self.positions[i] + a[..., None] * (self.positions[i + 1] - self.positions[i])
+        return p, slerp(self.quats[i], self.quats[i + 1], a), valid
+
+    def transforms_at(self, t):
+        """Homogeneous transforms (..., 4, 4) world_T_frame at time(s) ``t`` and a validity mask."""
+        p, q, valid = self.interpolate(t)
+        return make_T(quat_to_matrix(q), p), valid
+
     @classmethod
     def from_transforms(cls, stamps, world_T_frame) -> Trajectory:
         T = np.asarray(world_T_frame, dtype=float)
         return cls(np.asarray(stamps, dtype=float), T[:, :3, 3].copy(), matrix_to_quat(T[:, :3, :3]))
+
+
+def slerp(q0, q1, a) -> np.ndarray:
+    """Spherical linear interpolation between quaternions (..., 4) ``(x, y, z, w)`` at fraction(s) ``a``."""
+    q0 = np.asarray(q0, dtype=float)
+    q1 = np.asarray(q1, dtype=float)
+    a = np.asarray(a, dtype=float)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)  # the short way round
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_theta = np.sin(theta)
+    small = sin_theta < 1e-9
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w0 = np.where(small, 1.0 - a, np.sin((1.0 - a) * theta) / sin_theta)
+        w1 = np.where(small, a, np.sin(a * theta) / sin_theta)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def atomic_write_text(path: str, text: str) -> None:

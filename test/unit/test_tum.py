@@ -1,0 +1,62 @@
+"""tum.py: TUM round trips, bad files named with their line, interpolation against exact motion."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from aruco_abs_orient.transforms import matrix_to_quat, quat_to_matrix, rpy_to_matrix, yaw_of
+from aruco_abs_orient.tum import Trajectory, TumError, read_tum, slerp, write_tum
+
+
+def _constant_turn(stamps, rate=0.3, speed=1.0):
+    """Exact motion: yaw = rate·t, position along x at ``speed``."""
+    yaw = rate * stamps
+    pos = np.stack([speed * stamps, np.zeros_like(stamps), np.full_like(stamps, 0.5)], -1)
+    return Trajectory(stamps, pos, matrix_to_quat(rpy_to_matrix(0 * yaw, 0 * yaw, yaw)))
+
+
+def test_round_trip(tmp_path):
+    traj = _constant_turn(np.linspace(0, 10, 21) + 1.7e9)
+    path = tmp_path / "t.tum"
+    write_tum(str(path), traj, header="made by a test")
+    back = read_tum(str(path))
+    np.testing.assert_allclose(back.stamps, traj.stamps, atol=1e-9)
+    np.testing.assert_allclose(back.positions, traj.positions, atol=1e-6)
+    np.testing.assert_allclose(back.quats, traj.quats, atol=1e-9)
+    assert path.read_text().startswith("# made by a test\n")
+    assert not [p for p in tmp_path.iterdir() if p.name != "t.tum"]  # no temporary left behind
+
+
+@pytest.mark.parametrize("line,what", [("1 2 3", "expected 8 fields"), ("1 2 3 4 5 6 7 x", "not a number"),
+                                       ("1 2 3 nan 0 0 0 1", "NaN")])
+def test_bad_lines_are_named(tmp_path, line, what):
+    path = tmp_path / "bad.tum"
+    path.write_text("# ok\n0 0 0 0 0 0 0 1\n" + line + "\n")
+    with pytest.raises(TumError, match=r"bad\.tum:3: " + what):
+        read_tum(str(path))
+
+
+def test_missing_file():
+    with pytest.raises(TumError, match="cannot read"):
+        read_tum("/nonexistent/x.tum")
+
+
+@given(st.floats(0.0, 10.0))
+def test_interpolation_is_exact_for_constant_rates(t):
+    traj = _constant_turn(np.linspace(0, 10, 11))
+    p, q, valid = traj.interpolate(t)
+    assert bool(valid)
+    np.testing.assert_allclose(p, [t, 0, 0.5], atol=1e-12)
+    assert math.remainder(float(yaw_of(quat_to_matrix(q))) - 0.3 * t, 2 * math.pi) == pytest.approx(0, abs=1e-12)
+
+
+def test_interpolation_flags_outside_and_takes_the_short_way():
+    traj = _constant_turn(np.array([0.0, 1.0]), rate=0.0)
+    _, _, valid = traj.interpolate(np.array([-0.1, 0.5, 1.1]))
+    assert valid.tolist() == [False, True, False]
+    q0 = matrix_to_quat(rpy_to_matrix(0, 0, math.radians(179)))
+    q1 = -matrix_to_quat(rpy_to_matrix(0, 0, math.radians(-179)))  # same rotation, other sign
+    mid = slerp(q0, q1, 0.5)
+    assert abs(math.degrees(float(yaw_of(quat_to_matrix(mid))))) == pytest.approx(180.0, abs=1e-9)
