@@ -1,0 +1,730 @@
+"""ArUco markers in 360° equirectangular frames (DESIGN §4 steps 1–2).
+
+Full-frame detection with cv2.aruco and subpixel corners, tuned for small far markers;
+markers straddling the ±180° seam (a strip rolled by W/2 around the seam); markers near
+the poles or very close re-detected in gnomonic (perspective) views, where their edges
+are straight and the corners are refined without the equirect distortion.
+
+Each marker becomes a :class:`MarkerObservation` whose centre is the intersection of the
+diagonals **on the sphere** (great circles through opposite corners), not in pixel space:
+the pixel-space intersection of an equirect image is biased toward the horizon by about
+δ²·tan(el)/4 (δ the marker's angular size, el its elevation), 0.5–0.7° at 1 m and
+45–60° elevation. :func:`pixel_centre_bearing` computes that biased centre, for the
+benchmark and tests only.
+
+Map-guided tracking (DESIGN §4 step 3) lives in :mod:`aruco_abs_orient.tracking`.
+
+All pixel↔bearing conversions go through :mod:`aruco_abs_orient.camera`. Angles are in
+radians inside the code; the few parameters in degrees say so in their names (``*_deg``).
+Works with both OpenCV ArUco APIs: ``cv2.aruco.ArucoDetector`` (OpenCV ≥ 4.7) and the
+function API (``detectMarkers``/``DetectorParameters_create``) of OpenCV 4.2–4.6.
+Python 3.8 compatible; numpy and OpenCV only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
+from .markers import ARUCO_DICTIONARIES
+
+__all__ = [
+    "DetectionError",
+    "DetectorParams",
+    "MarkerObservation",
+    "ArucoBackend",
+    "MarkerDetector",
+    "decode_jpeg",
+    "to_grey",
+    "sphere_centre_bearing",
+    "pixel_centre_bearing",
+    "marker_angular_size",
+]
+
+METHODS = ("full", "seam", "gnomonic", "tracked")
+
+
+class DetectionError(ValueError):
+    """An image, JPEG or dictionary the detector cannot use; the caller counts and skips."""
+
+
+@dataclass
+class DetectorParams:
+    """Every knob of detection and tracking, flat scalars (exposed via dynamic_reconfigure).
+
+    cv2.aruco (see ``cv2.aruco.DetectorParameters``):
+
+    - ``min_marker_perimeter_px``: smallest marker perimeter searched for, in pixels of
+      the equirect image (DESIGN §6: OpenCV's default rate 0.03 of 3840 px = 115 px finds
+      nothing beyond ~4 m). 28 px = 7 px sides: a 0.19 m marker at ~16 m on 3840 px.
+      Converted to OpenCV's ``minMarkerPerimeterRate`` for each (sub)image searched.
+    - ``max_marker_perimeter_rate``: largest perimeter as a fraction of the searched image's
+      larger side (OpenCV's rate).
+    - ``adaptive_thresh_win_min/max/step`` (pixels, odd), ``adaptive_thresh_constant`` (grey levels).
+    - ``polygonal_approx_accuracy_rate``: polygon fit tolerance (fraction of the perimeter).
+    - ``min_corner_distance_rate``: (fraction of the perimeter).
+    - ``min_distance_to_border``: pixels.
+    - ``perspective_remove_pixel_per_cell``: pixels per bit cell of the unwarped code.
+    - ``perspective_remove_ignored_margin_per_cell``: fraction of a cell.
+    - ``max_erroneous_bits_in_border_rate``, ``error_correction_rate``: bit decoding
+      tolerance (lower = fewer false ids).
+    - ``corner_refinement``: 'none' | 'subpix' | 'contour' | 'apriltag';
+      ``corner_refine_win`` (pixels, half window), ``corner_refine_max_iter``,
+      ``corner_refine_min_accuracy`` (pixels).
+
+    360° handling:
+
+    - ``seam_strip_deg``: half width (degrees of azimuth) of the strip re-searched around
+      the ±180° seam; markers wider than this on the seam need the gnomonic path.
+    - ``pole_views``: search two gnomonic views (zenith, nadir) for markers in the polar
+      bands ``|el| > pole_band_deg`` (degrees), where equirect shapes are too distorted.
+    - ``max_view_px``: cap on a view's side (pixels); larger views lower their resolution.
+
+    Noise model (1-σ centre bearing, radians, see :func:`bearing_sigma`):
+
+    - ``corner_sigma_px``: corner noise of a well-resolved marker (pixels).
+    - ``small_marker_side_px``: side (pixels) below which corner noise grows ∝ 1/side.
+
+    Map-guided tracking (:class:`aruco_abs_orient.tracking.MarkerTracker`):
+
+    - ``roi_margin``: ROI view field of view = angular size × (1 + 2·margin) + 2·gate.
+    - ``roi_min_px``: smallest ROI view side (pixels).
+    - ``roi_target_side_px``: ROI views of small markers are upsampled until the marker's
+      side spans this many pixels (pixels) ...
+    - ``roi_max_upsample``: ... by at most this factor.
+    - ``gate_deg``: largest angle (degrees) between an observed and a predicted centre.
+    - ``min_predicted_side_px``: markers predicted smaller than this (pixels of the
+      equirect) are not tracked.
+    - ``sweep_tile_deg``: width (degrees of azimuth) of the vertical strip searched each
+      frame while tracking, so markers the prediction misses are found.
+    - ``sweep_period_frames``: frames for the sweeping tile to go once around 360°.
+    - ``max_full_interval``: frames between forced full-frame searches while tracking
+      (0 = only at start-up and after a loss).
+    - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
+      after which tracking falls back to full-frame search.
+    """
+
+    min_marker_perimeter_px: float = 28.0
+    max_marker_perimeter_rate: float = 4.0
+    adaptive_thresh_win_min: int = 3
+    adaptive_thresh_win_max: int = 23
+    adaptive_thresh_win_step: int = 10
+    adaptive_thresh_constant: float = 7.0
+    polygonal_approx_accuracy_rate: float = 0.05
+    min_corner_distance_rate: float = 0.05
+    min_distance_to_border: int = 1
+    perspective_remove_pixel_per_cell: int = 8
+    perspective_remove_ignored_margin_per_cell: float = 0.13
+    max_erroneous_bits_in_border_rate: float = 0.35
+    error_correction_rate: float = 0.6
+    corner_refinement: str = "subpix"
+    corner_refine_win: int = 3
+    corner_refine_max_iter: int = 50
+    corner_refine_min_accuracy: float = 0.01
+
+    seam_strip_deg: float = 15.0
+    pole_views: bool = True
+    pole_band_deg: float = 55.0
+    max_view_px: int = 1024
+
+    edge_refine: bool = True
+    rescue_max_side_px: float = 20.0
+    decode_min_contrast: float = 30.0
+    decode_min_correlation: float = 0.8
+    decode_min_lead: float = 0.25
+
+    corner_sigma_px: float = 0.15
+    small_marker_side_px: float = 16.0
+
+    roi_margin: float = 0.5
+    roi_min_px: int = 48
+    roi_target_side_px: float = 24.0
+    roi_max_upsample: float = 3.0
+    gate_deg: float = 1.5
+    min_predicted_side_px: float = 6.0
+    sweep_tile_deg: float = 10.0
+    sweep_period_frames: int = 72
+    max_full_interval: int = 0
+    lost_after_frames: int = 3
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise DetectionError naming the first out-of-range field."""
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, (bool, str)):
+                continue
+            if not math.isfinite(v) or v < 0:
+                raise DetectionError(f"DetectorParams.{f.name}: expected a finite non-negative number, got {v!r}")
+        if self.corner_refinement not in _REFINE:
+            raise DetectionError(f"DetectorParams.corner_refinement: expected one of {', '.join(_REFINE)}, "
+                                 f"got {self.corner_refinement!r}")
+        if self.adaptive_thresh_win_min < 3 or self.adaptive_thresh_win_max < self.adaptive_thresh_win_min:
+            raise DetectionError("DetectorParams.adaptive_thresh_win_min/max: need 3 ≤ min ≤ max, got "
+                                 f"{self.adaptive_thresh_win_min}, {self.adaptive_thresh_win_max}")
+        if not 0.0 < self.pole_band_deg < 90.0:
+            raise DetectionError(f"DetectorParams.pole_band_deg: expected (0, 90) degrees, got {self.pole_band_deg}")
+        if self.sweep_period_frames < 1:
+            raise DetectionError("DetectorParams.sweep_period_frames: expected ≥ 1")
+
+
+_REFINE = {"none": "CORNER_REFINE_NONE", "subpix": "CORNER_REFINE_SUBPIX",
+           "contour": "CORNER_REFINE_CONTOUR", "apriltag": "CORNER_REFINE_APRILTAG"}
+
+
+@dataclass
+class MarkerObservation:
+    """One marker seen in one equirect frame.
+
+    - ``id``: ArUco id.
+    - ``corners``: (4, 3) unit bearings (camera frame) of the corners, OpenCV ArUco order
+      (TL, TR, BR, BL as seen from the front).
+    - ``centre``: (3,) unit bearing of the centre: the diagonals intersected on the sphere.
+    - ``pixel``: (u, v) of ``centre`` in the equirect image (pixels, OpenCV centres).
+    - ``corners_px``: (4, 2) corner pixels in the equirect image, u unwrapped next to corner 0
+      (may leave [0, W) for a marker on the seam).
+    - ``angular_size``: mean side (radians, great-circle angle between adjacent corners).
+    - ``sigma``: 1-σ noise of the centre bearing (radians, per axis).
+    - ``method``: 'full' | 'seam' | 'gnomonic' | 'tracked'.
+    """
+
+    id: int
+    corners: np.ndarray
+    centre: np.ndarray
+    pixel: Tuple[float, float]
+    corners_px: np.ndarray
+    angular_size: float
+    sigma: float
+    method: str
+    side_px: float = field(default=0.0)  # mean side in the pixels it was detected in
+
+    @property
+    def azimuth(self) -> float:
+        """Azimuth of the centre (radians, 0 = camera +x, +π/2 = camera left)."""
+        return float(bearing_to_azel(self.centre)[0])
+
+    @property
+    def elevation(self) -> float:
+        """Elevation of the centre (radians, +π/2 = up)."""
+        return float(bearing_to_azel(self.centre)[1])
+
+
+# --------------------------------------------------------------------------- geometry
+
+def sphere_centre_bearing(corners) -> np.ndarray:
+    """Centre bearing (3,) of a marker from its four corner bearings (4, 3).
+
+    Intersection of the great circles through opposite corners (n1 = c0×c2, n2 = c1×c3,
+    centre = ±n1×n2, the sign nearest the corners' mean). Exact for a planar square seen
+    by a central camera: the diagonals' intersection is the square's centre and lines
+    project to great circles.
+    """
+    c = np.asarray(corners, dtype=float)
+    c = c / np.linalg.norm(c, axis=-1, keepdims=True)
+    n1 = np.cross(c[0], c[2])
+    n2 = np.cross(c[1], c[3])
+    m = np.cross(n1, n2)
+    norm = np.linalg.norm(m)
+    mean = c.mean(axis=0)
+    if norm < 1e-15:  # degenerate quad: fall back to the corners' mean direction
+        return mean / np.linalg.norm(mean)
+    m = m / norm
+    return m if np.dot(m, mean) >= 0 else -m
+
+
+def pixel_centre_bearing(equirect: Equirect, corners_px) -> np.ndarray:
+    """The NAIVE centre: diagonals intersected in equirect pixel space, then turned into a
+    bearing (3,). Biased toward the horizon by about δ²·tan(el)/4 radians; for the
+    benchmark and tests only (pipelines use :func:`sphere_centre_bearing`).
+
+    ``corners_px``: (4, 2) pixel coordinates; columns are unwrapped next to corner 0.
+    """
+    p = np.asarray(corners_px, dtype=float).copy()
+    p[:, 0] = equirect.unwrap_u(p[:, 0], p[0, 0])
+    d1 = p[2] - p[0]
+    d2 = p[3] - p[1]
+    a = np.array([[d1[0], -d2[0]], [d1[1], -d2[1]]])
+    t = np.linalg.solve(a, p[1] - p[0])[0]
+    u, v = p[0] + t * d1
+    return equirect.pixel_to_bearing(u, v)
+
+
+def marker_angular_size(corners) -> float:
+    """Mean side of a marker (radians): great-circle angles between adjacent corner bearings (4, 3)."""
+    c = np.asarray(corners, dtype=float)
+    return float(np.mean(angle_between(c, np.roll(c, -1, axis=0))))
+
+
+def bearing_sigma(params: DetectorParams, pitch: float, side_px: float) -> float:
+    """1-σ centre bearing noise (radians) of a marker detected with ``side_px`` pixel sides
+    in an image of angular pixel pitch ``pitch`` (radians/pixel).
+
+    Corner noise ``corner_sigma_px`` for a well-resolved marker, growing ∝ 1/side below
+    ``small_marker_side_px`` (fewer edge pixels for the subpixel fit); the centre averages
+    four corners (÷2).
+    """
+    grow = max(1.0, params.small_marker_side_px / max(side_px, 1e-6))
+    return float(pitch * params.corner_sigma_px * grow / 2.0)
+
+
+def _marker_view(equirect: Equirect, corners) -> Tuple[GnomonicView, np.ndarray]:
+    """A virtual gnomonic view centred on a marker at the equirect's resolution (nothing is
+    rendered) and the marker's corner pixels (4, 2) in it; None pixels if a corner is behind."""
+    c = np.asarray(corners, dtype=float)
+    view = GnomonicView(sphere_centre_bearing(c), (1, 1), 1.0 / equirect.rad_per_px, None)
+    x, y, front = view.bearing_to_pixel(c)
+    return view, (np.stack([x, y], axis=1) if np.all(front) else None)
+
+
+def _sample(grey: np.ndarray, equirect: Equirect, view: GnomonicView, pts: np.ndarray) -> np.ndarray:
+    """Bilinear grey levels of the equirect at view pixels ``pts`` (..., 2)."""
+    u, v = equirect.bearing_to_pixel(view.pixel_to_bearing(pts[..., 0], pts[..., 1]))
+    np.clip(v, 0.0, equirect.height - 1.0, out=v)
+    shape = pts.shape[:-1]
+    u = u.reshape(1, -1).astype(np.float32)
+    v = v.reshape(1, -1).astype(np.float32)
+    out = cv2.remap(grey, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    return out.astype(float).reshape(shape)
+
+
+def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6, iterations: int = 3,
+                   min_contrast: float = 12.0, min_half_px: float = 1.5, half_bits: float = 0.45,
+                   samples: int = 16) -> Optional[np.ndarray]:
+    """Refined corner bearings (4, 3) of a marker from approximate ones (4, 3), or None.
+
+    The four outer edges of the black square are straight lines in a gnomonic view centred
+    on the marker (not in the equirect, where they are curved). Along each edge of that
+    virtual view the intensity profile across the edge is sampled straight from the
+    equirect ``grey`` image (one bilinear interpolation, through camera.py's mappings), the
+    edge is located at the centroid of the black→white gradient within ±max(``half_bits``
+    bit, ``min_half_px`` pixels) of the current line (``samples`` steps), a line is fitted to
+    each edge and adjacent lines are intersected. Iterated ``iterations`` times, re-centring
+    the profiles on the new lines.
+
+    ``bits``: cells across the marker including its black border (6 for 4×4 dictionaries).
+    ``min_contrast``: grey levels a profile must rise by to count.
+    """
+    view, q = _marker_view(equirect, corners)
+    if q is None:
+        return None
+    for _ in range(max(1, iterations)):
+        d = np.roll(q, -1, axis=0) - q
+        length = np.linalg.norm(d, axis=1)
+        if np.any(length < 2.0):
+            return None
+        t = d / length[:, None]
+        n = np.stack([t[:, 1], -t[:, 0]], axis=1)
+        mid = q + 0.5 * d
+        n *= np.sign(np.sum(n * (mid - q.mean(axis=0)), axis=1))[:, None]  # outward normals
+        half = max(half_bits * float(np.mean(length)) / bits, min_half_px)
+        offs = np.arange(-half, half + 1e-9, max(0.1, 2.0 * half / samples))
+        k = int(np.clip(np.mean(length), 8, 48))
+        s = np.linspace(0.15, 0.85, k)
+        base = q[:, None, :] + s[None, :, None] * d[:, None, :]  # (4, k, 2)
+        prof = _sample(grey, equirect, view, base[:, :, None, :] + offs[None, None, :, None] * n[:, None, None, :])
+        grad = np.clip(np.diff(prof, axis=2), 0.0, None)
+        total = grad.sum(axis=2)
+        edge = (grad * (0.5 * (offs[1:] + offs[:-1]))).sum(axis=2) / np.maximum(total, 1e-9)
+        ok = total >= min_contrast
+        lines = []
+        for i in range(4):
+            if np.count_nonzero(ok[i]) < 3:
+                return None
+            lines.append(_fit_line(base[i][ok[i]] + edge[i][ok[i], None] * n[i]))
+        newq = np.array([_intersect(lines[i - 1], lines[i]) for i in range(4)])
+        if not np.all(np.isfinite(newq)) or np.max(np.linalg.norm(newq - q, axis=1)) > 0.5 * float(np.mean(length)):
+            return None
+        q = newq
+    return view.pixel_to_bearing(q[:, 0], q[:, 1])
+
+
+def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
+                  min_contrast: float = 30.0, min_correlation: float = 0.8,
+                  min_lead: float = 0.25) -> Optional[Tuple[int, np.ndarray]]:
+    """Read a candidate quad (corner bearings (4, 3)) straight from the equirect:
+    ``(id, corner bearings in ArUco order)`` or None.
+
+    For small markers whose bits OpenCV cannot threshold (1–2 px cells, blurred). The
+    centres of the marker's cells and of the one-cell white quiet zone around it are mapped
+    by the quad's homography in a gnomonic view centred on it (exact for a planar marker),
+    3×3 sub-samples per cell. Accepted when every quiet-zone cell is brighter than every
+    border cell by ≥ ``min_contrast`` grey levels, and the Pearson correlation of the inner
+    cells' grey levels with one code's bits, in one of the four corner orders, is
+    ≥ ``min_correlation`` and leads every other code/order by ≥ ``min_lead`` (a soft
+    decision: blur lowers isolated white bits below any fixed threshold, not their rank).
+    ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
+    """
+    view, q = _marker_view(equirect, corners)
+    if q is None:
+        return None
+    if _signed_area(q) < 0:
+        q = q[::-1]
+    n = codes.shape[1]
+    cells = n + 2
+    square = np.array([[0.0, 0.0], [cells, 0.0], [cells, cells], [0.0, cells]], dtype=np.float32)
+    idx = np.arange(-1, cells + 1) + 0.5
+    gx = (idx[:, None] + np.array([-0.2, 0.0, 0.2])[None, :]).reshape(-1)
+    grid = np.stack(np.meshgrid(gx, gx), axis=-1).reshape(-1, 1, 2)  # rows = y
+    templates = codes.astype(float)
+    templates -= templates.mean(axis=(1, 2), keepdims=True)
+    templates /= np.maximum(np.linalg.norm(templates, axis=(1, 2), keepdims=True), 1e-12)
+    scores = np.full((4, len(codes)), -1.0)
+    quads = []
+    for shift in range(4):
+        quad = np.roll(q, -shift, axis=0)
+        quads.append(quad)
+        h = cv2.getPerspectiveTransform(square, quad.astype(np.float32))
+        pts = cv2.perspectiveTransform(grid, h).reshape(len(gx), len(gx), 2)
+        m = _sample(grey, equirect, view, pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
+        if shift == 0:
+            ring = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])
+            border = np.concatenate([m[1, 1:-1], m[-2, 1:-1], m[2:-2, 1], m[2:-2, -2]])
+            if float(np.min(ring)) - float(np.max(border)) < min_contrast:
+                return None
+        z = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
+        norm = float(np.linalg.norm(z))
+        if norm == 0.0:
+            return None
+        scores[shift] = np.tensordot(templates, z / norm, axes=([1, 2], [0, 1]))
+    flat = np.sort(scores.reshape(-1))
+    best = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    if flat[-1] < min_correlation or flat[-1] - flat[-2] < min_lead:
+        return None
+    quad = quads[best[0]]
+    return int(best[1]), view.pixel_to_bearing(quad[:, 0], quad[:, 1])
+
+
+def _signed_area(q: np.ndarray) -> float:
+    """Signed area of a polygon (N, 2); positive when clockwise in a y-down image."""
+    return 0.5 * float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
+
+
+def _fit_line(p: np.ndarray) -> Tuple[np.ndarray, float]:
+    """Line (unit normal n, offset c) with n·x = c, total least squares, one 3-MAD outlier pass."""
+    for _ in range(2):
+        m = p.mean(axis=0)
+        _, _, vt = np.linalg.svd(p - m)
+        nrm = vt[1]
+        r = (p - m) @ nrm
+        mad = float(np.median(np.abs(r - np.median(r))))
+        keep = np.abs(r) <= max(3.0 * 1.4826 * mad, 1e-3)
+        if keep.all() or keep.sum() < 3:
+            break
+        p = p[keep]
+    return nrm, float(nrm @ m)
+
+
+def _intersect(a: Tuple[np.ndarray, float], b: Tuple[np.ndarray, float]) -> np.ndarray:
+    m = np.array([a[0], b[0]])
+    if abs(np.linalg.det(m)) < 1e-9:
+        return np.array([np.nan, np.nan])
+    return np.linalg.solve(m, np.array([a[1], b[1]]))
+
+
+# --------------------------------------------------------------------------- images
+
+def to_grey(image, what: str = "image") -> np.ndarray:
+    """Validate an equirect frame (grey H×W, or BGR/BGRA H×W×3/4, uint8, W = 2H) and return grey.
+
+    Raises DetectionError naming ``what``.
+    """
+    if not isinstance(image, np.ndarray):
+        raise DetectionError(f"{what}: expected a numpy image, got {type(image).__name__}")
+    if image.size == 0:
+        raise DetectionError(f"{what}: empty image {image.shape}")
+    if image.dtype != np.uint8:
+        raise DetectionError(f"{what}: expected uint8 pixels, got {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    elif image.ndim != 2:
+        raise DetectionError(f"{what}: expected grey H×W or colour H×W×3, got shape {image.shape}")
+    h, w = image.shape
+    if w != 2 * h:
+        raise DetectionError(f"{what}: an equirectangular frame is 2:1, got {w}×{h}")
+    return image
+
+
+def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:
+    """Decode JPEG bytes to a grey uint8 image, optionally reduced by 2, 4 or 8 in the DCT.
+
+    Uses simplejpeg (libjpeg-turbo, the fastest measured here: bench/detection.py) when
+    installed, else ``cv2.imdecode`` (IMREAD_GRAYSCALE / IMREAD_REDUCED_GRAYSCALE_n).
+    Raises DetectionError on a corrupt or truncated JPEG.
+    """
+    if reduce not in (1, 2, 4, 8):
+        raise DetectionError(f"{what}: reduce must be 1, 2, 4 or 8, got {reduce!r}")
+    buf = bytes(data) if not isinstance(data, (bytes, bytearray)) else data
+    if len(buf) < 4 or buf[:2] != b"\xff\xd8":
+        raise DetectionError(f"{what}: not a JPEG (no SOI marker, {len(buf)} bytes)")
+    try:
+        import simplejpeg
+    except ImportError:  # Noetic robots: OpenCV only
+        simplejpeg = None
+    if simplejpeg is not None:
+        try:
+            if reduce == 1:
+                return simplejpeg.decode_jpeg(buf, colorspace="GRAY")
+            return simplejpeg.decode_jpeg(buf, colorspace="GRAY", min_factor=float(reduce))
+        except ValueError as e:
+            raise DetectionError(f"{what}: corrupt JPEG: {e}") from None
+    flag = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
+            8: cv2.IMREAD_REDUCED_GRAYSCALE_8}[reduce]
+    img = cv2.imdecode(np.frombuffer(buf, dtype=np.uint8), flag)
+    if img is None or buf[-2:] != b"\xff\xd9":
+        raise DetectionError(f"{what}: corrupt or truncated JPEG ({len(buf)} bytes)")
+    return img
+
+
+# --------------------------------------------------------------------------- OpenCV adapter
+
+class ArucoBackend:
+    """cv2.aruco behind one call, for both APIs.
+
+    ``api`` is 'ArucoDetector' (OpenCV ≥ 4.7) or 'function' (OpenCV 4.2–4.6:
+    ``detectMarkers`` with ``DetectorParameters_create``/``Dictionary_get``).
+    """
+
+    def __init__(self, dictionary: str, params: DetectorParams, api: Optional[str] = None):
+        if not hasattr(cv2, "aruco"):
+            raise DetectionError("OpenCV was built without the aruco module (install opencv-contrib)")
+        aruco = cv2.aruco
+        if dictionary not in ARUCO_DICTIONARIES or not hasattr(aruco, dictionary):
+            raise DetectionError(f"unknown ArUco dictionary {dictionary!r}; expected one of "
+                                 f"{', '.join(d for d in ARUCO_DICTIONARIES if hasattr(aruco, d))}")
+        if api is None:
+            api = "ArucoDetector" if hasattr(aruco, "ArucoDetector") else "function"
+        if api not in ("ArucoDetector", "function"):
+            raise DetectionError(f"unknown OpenCV ArUco API {api!r}")
+        if api == "function" and not hasattr(aruco, "detectMarkers"):
+            raise DetectionError(f"this OpenCV {cv2.__version__} has no aruco.detectMarkers function API")
+        self.api = api
+        self.params = params
+        dict_id = getattr(aruco, dictionary)
+        if api == "function" and hasattr(aruco, "Dictionary_get"):
+            self.dictionary = aruco.Dictionary_get(dict_id)
+        else:
+            self.dictionary = aruco.getPredefinedDictionary(dict_id)
+        n = int(self.dictionary.markerSize)
+        self.bits = n + 2  #: cells across a marker, black border included
+        blist = self.dictionary.bytesList
+        #: (N, n, n) bits of every code (1 = white), rotation 0, indexed by id
+        self.codes = np.array([aruco.Dictionary_getBitsFromByteList(blist[i:i + 1], n) for i in range(len(blist))],
+                              dtype=bool)
+        self._cache: Dict[float, object] = {}
+
+    def _cv_params(self, min_perimeter_rate: float):
+        aruco = cv2.aruco
+        p = aruco.DetectorParameters() if self.api == "ArucoDetector" else aruco.DetectorParameters_create()
+        q = self.params
+        p.minMarkerPerimeterRate = float(min_perimeter_rate)
+        p.maxMarkerPerimeterRate = float(q.max_marker_perimeter_rate)
+        p.adaptiveThreshWinSizeMin = int(q.adaptive_thresh_win_min)
+        p.adaptiveThreshWinSizeMax = int(q.adaptive_thresh_win_max)
+        p.adaptiveThreshWinSizeStep = max(1, int(q.adaptive_thresh_win_step))
+        p.adaptiveThreshConstant = float(q.adaptive_thresh_constant)
+        p.polygonalApproxAccuracyRate = float(q.polygonal_approx_accuracy_rate)
+        p.minCornerDistanceRate = float(q.min_corner_distance_rate)
+        p.minDistanceToBorder = int(q.min_distance_to_border)
+        p.perspectiveRemovePixelPerCell = int(q.perspective_remove_pixel_per_cell)
+        p.perspectiveRemoveIgnoredMarginPerCell = float(q.perspective_remove_ignored_margin_per_cell)
+        p.maxErroneousBitsInBorderRate = float(q.max_erroneous_bits_in_border_rate)
+        p.errorCorrectionRate = float(q.error_correction_rate)
+        p.cornerRefinementMethod = int(getattr(aruco, _REFINE[q.corner_refinement]))
+        p.cornerRefinementWinSize = int(q.corner_refine_win)
+        p.cornerRefinementMaxIterations = int(q.corner_refine_max_iter)
+        p.cornerRefinementMinAccuracy = float(q.corner_refine_min_accuracy)
+        return p
+
+    def detect(self, grey: np.ndarray, min_perimeter_px: float
+               ) -> Tuple[List[int], List[np.ndarray], List[np.ndarray]]:
+        """ids and (4, 2) float64 corner pixels of the markers in a grey image, and the
+        (4, 2) corner pixels of the quads OpenCV rejected (could not decode).
+
+        ``min_perimeter_px``: smallest perimeter searched (pixels of this image).
+        """
+        rate = round(min(float(min_perimeter_px) / max(grey.shape[:2]), 4.0), 6)
+        entry = self._cache.get(rate)
+        if entry is None:
+            p = self._cv_params(rate)
+            entry = cv2.aruco.ArucoDetector(self.dictionary, p) if self.api == "ArucoDetector" else p
+            if len(self._cache) > 64:
+                self._cache.clear()
+            self._cache[rate] = entry
+        if self.api == "ArucoDetector":
+            corners, ids, rejected = entry.detectMarkers(grey)
+        else:
+            corners, ids, rejected = cv2.aruco.detectMarkers(grey, self.dictionary, parameters=entry)
+        rejected = [np.asarray(c, dtype=np.float64).reshape(4, 2) for c in rejected]
+        if ids is None or len(ids) == 0:
+            return [], [], rejected
+        return ([int(i) for i in np.asarray(ids).reshape(-1)],
+                [np.asarray(c, dtype=np.float64).reshape(4, 2) for c in corners], rejected)
+
+
+# --------------------------------------------------------------------------- the detector
+
+class MarkerDetector:
+    """Full-frame ArUco detection in equirect frames, seam- and pole-aware.
+
+    >>> det = MarkerDetector("DICT_4X4_50")          # doctest: +SKIP
+    >>> observations = det.detect(grey_equirect)     # doctest: +SKIP
+    """
+
+    def __init__(self, dictionary: str = "DICT_4X4_50", params: Optional[DetectorParams] = None,
+                 api: Optional[str] = None):
+        self.params = params if params is not None else DetectorParams()
+        self.params.validate()
+        self.backend = ArucoBackend(dictionary, self.params, api)
+        self._pole_maps: Dict[Tuple[int, int], Tuple[GnomonicView, np.ndarray, np.ndarray]] = {}
+
+    # ---------------------------------------------------------------- building blocks
+
+    def observation(self, equirect: Equirect, marker_id: int, corners: np.ndarray,
+                    method: str) -> MarkerObservation:
+        """A record from corner bearings (4, 3) in ArUco order."""
+        centre = sphere_centre_bearing(corners)
+        u, v = equirect.bearing_to_pixel(centre)
+        cu, cv = equirect.bearing_to_pixel(corners)
+        cu = equirect.unwrap_u(cu, cu[0])
+        size = marker_angular_size(corners)
+        side_px = size / equirect.rad_per_px
+        return MarkerObservation(
+            id=int(marker_id), corners=corners, centre=centre, pixel=(float(u), float(v)),
+            corners_px=np.stack([cu, cv], axis=1), angular_size=size,
+            sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px), method=method, side_px=side_px)
+
+    def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
+                List[np.ndarray]], to_bearing, scale: float, method: str) -> List[MarkerObservation]:
+        """Observations from a backend result in some image: edge-refined corners of the
+        decoded markers, plus small rejected quads decoded here (``rescue_max_side_px``).
+
+        ``to_bearing(x, y)``: that image's pixels to bearings; ``scale``: its pixels per
+        equirect pixel.
+        """
+        q = self.params
+        ids, corners, rejected = found
+        out = []
+        for i, c in zip(ids, corners):
+            b = to_bearing(c[:, 0], c[:, 1])
+            if q.edge_refine:
+                r = refine_corners(grey, equirect, b, self.backend.bits)
+                b = r if r is not None else b
+            out.append(self.observation(equirect, i, b, method))
+        limit = q.rescue_max_side_px * 4.0 * scale
+        for c in rejected:
+            if np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) > limit:
+                continue
+            r = refine_corners(grey, equirect, to_bearing(c[:, 0], c[:, 1]), self.backend.bits)
+            hit = decode_marker(grey, equirect, r, self.backend.codes, q.decode_min_contrast,
+                                q.decode_min_correlation, q.decode_min_lead) if r is not None else None
+            if hit is not None:
+                out.append(self.observation(equirect, hit[0], hit[1], method))
+        return out
+
+    def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
+                       maps: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> List[MarkerObservation]:
+        """Markers in a gnomonic view of the equirect frame (corners refined in a view).
+
+        ``maps``: precomputed clipped ``view.remap_maps(equirect)``, for fixed views.
+        """
+        if maps is None:
+            maps = _clipped_maps(view, equirect)
+        img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
+        found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
+        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method)
+
+    def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
+                       method: str = "full") -> List[MarkerObservation]:
+        """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam)."""
+        w = equirect.width
+        u0 = int(u0) % w
+        width = int(min(width, w))
+        if u0 + width <= w:
+            strip = grey[:, u0:u0 + width]
+        else:
+            strip = np.hstack([grey[:, u0:], grey[:, :u0 + width - w]])
+        found = self.backend.detect(strip, self.params.min_marker_perimeter_px)
+        return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y), 1.0, method)
+
+    def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0) -> GnomonicView:
+        """A square gnomonic view of full field of view ``fov`` (radians) around a bearing, at
+        ``upsample`` × the equirect resolution, capped at ``max_view_px`` pixels."""
+        fov = min(max(fov, 1e-3), math.radians(150.0))
+        native = 2.0 * math.tan(fov / 2.0) / equirect.rad_per_px
+        size = int(min(max(math.ceil(native * upsample), self.params.roi_min_px), self.params.max_view_px))
+        return GnomonicView.around(equirect, centre, fov, size=size)
+
+    def _pole_views(self, equirect: Equirect):
+        key = (equirect.width, equirect.height)
+        if key not in self._pole_maps:
+            fov = 2.0 * math.radians(90.0 - self.params.pole_band_deg + 5.0)
+            views = []
+            for z in (1.0, -1.0):
+                view = self.view_around(equirect, np.array([0.0, 0.0, z]), fov)
+                views.append((view, _clipped_maps(view, equirect)))
+            self._pole_maps = {key: views}
+        return self._pole_maps[key]
+
+    # ---------------------------------------------------------------- the full pipeline
+
+    def detect(self, image: np.ndarray, what: str = "image") -> List[MarkerObservation]:
+        """All markers of an equirect frame (grey or BGR uint8, 2:1): full frame, the strip
+        around the ±180° seam, the two polar views; corners edge-refined in gnomonic views;
+        one observation per physical marker, sorted by id. Raises DetectionError for an
+        unusable image.
+        """
+        grey = to_grey(image, what)
+        eq = Equirect(grey.shape[1], grey.shape[0])
+        q = self.params
+        found = self.detect_columns(grey, eq, 0, eq.width, "full")
+        half = int(math.ceil(math.radians(q.seam_strip_deg) / eq.rad_per_px))
+        if half > 0:
+            seam = [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam")
+                    if _straddles_seam(o, eq)]
+            found = _dedupe(found + seam)
+        if q.pole_views:
+            band = math.radians(q.pole_band_deg)
+            for view, maps in self._pole_views(eq):
+                polar = [o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
+                         if abs(o.elevation) > band]
+                found = _dedupe(found + polar)
+        return sorted(found, key=lambda o: o.id)
+
+
+def _clipped_maps(view: GnomonicView, equirect: Equirect) -> Tuple[np.ndarray, np.ndarray]:
+    map_x, map_y = view.remap_maps(equirect)
+    np.clip(map_y, 0.0, equirect.height - 1.0, out=map_y)  # rows never wrap, as GnomonicView.render
+    return map_x, map_y
+
+
+def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
+    """True when the marker's corners lie on both sides of the ±180° seam (column −0.5 ≡ W−0.5)."""
+    u = obs.corners_px[:, 0]
+    return bool(u.min() < -0.5 < u.max() or u.min() < equirect.width - 0.5 < u.max())
+
+
+_METHOD_RANK = {"gnomonic": 0, "tracked": 0, "full": 1, "seam": 1}
+
+
+def _dedupe(observations: Sequence[MarkerObservation]) -> List[MarkerObservation]:
+    """One observation per physical marker: same id and centres closer than the marker's
+    size ⇒ the same marker; keep the gnomonic one, else the larger in pixels."""
+    ranked = sorted(observations, key=lambda o: (_METHOD_RANK[o.method], -o.side_px))
+    kept: List[MarkerObservation] = []
+    for o in ranked:
+        if not any(k.id == o.id and float(angle_between(k.centre, o.centre)) < max(k.angular_size, o.angular_size)
+                   for k in kept):
+            kept.append(o)
+    return kept
