@@ -1,0 +1,267 @@
+"""solver.py against exact synthetic geometry built here from transforms.py.
+
+Truth: base_link pose (R = Rz·Ry·Rx, p), static camera and prism lever arms, surveyed markers.
+Exact bearings are the markers seen from the camera; noisy ones are perturbed by known σ, and
+the propagated covariances are checked against Monte-Carlo scatter (normalised errors std ≈ 1).
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from aruco_abs_orient.solver import (
+    DegenerateGeometryError,
+    SolverError,
+    attitude_from_markers,
+    resection,
+    yaw_from_marker,
+)
+from aruco_abs_orient.transforms import make_T, matrix_to_rpy, rot_x, rot_y, rpy_to_matrix, wrap_angle
+
+finite = {"allow_nan": False, "allow_infinity": False}
+yaws = st.floats(-math.pi, math.pi, **finite)
+tilts = st.floats(-0.2, 0.2, **finite)
+seeds = st.integers(0, 2 ** 32 - 1)
+
+
+class Scene:
+    """A base_link pose, lever arms and markers at 1–20 m from the camera (metres, radians)."""
+
+    def __init__(self, seed, roll, pitch, yaw, n_markers):
+        rng = np.random.default_rng(seed)
+        self.rng = rng
+        self.roll, self.pitch, self.yaw = roll, pitch, yaw
+        self.R = rpy_to_matrix(roll, pitch, yaw)
+        self.p = rng.uniform(-30, 30, 3)
+        self.R_bc = rpy_to_matrix(*rng.uniform(-0.1, 0.1, 2), rng.uniform(-math.pi, math.pi))
+        self.t_cam = rng.uniform(-0.3, 0.3, 3) + [0, 0, 0.8]
+        self.t_prism = rng.uniform(-0.3, 0.3, 3) + [0, 0, 1.2]
+        self.base_T_camera = make_T(self.R_bc, self.t_cam)
+        self.C = self.p + self.R @ self.t_cam
+        self.P = self.p + self.R @ self.t_prism
+        d = rng.normal(size=(n_markers, 3))
+        d[:, 2] *= 0.3                      # markers mostly around the horizon
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        self.M = self.C + d * rng.uniform(1.0, 20.0, (n_markers, 1))
+
+    def bearings(self, M=None, sigma=0.0):
+        """Camera-frame unit bearings of markers M (default: the scene's), with isotropic noise σ (rad)."""
+        M = self.M if M is None else M
+        u = ((M - self.C) @ self.R) @ self.R_bc
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        if sigma:
+            u = np.array([perturb(x, sigma, self.rng) for x in u])
+        return u
+
+
+def perturb(u, sigma, rng):
+    """Unit vector u turned by a 2-D isotropic normal angle of σ (rad) per perpendicular axis."""
+    a = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    v = u + sigma * (rng.normal() * e1 + rng.normal() * e2)
+    return v / np.linalg.norm(v)
+
+
+# ----------------------------------------------------------------------------- yaw_from_marker
+
+
+@given(seeds, tilts, tilts, yaws)
+def test_yaw_exact_any_quadrant(seed, roll, pitch, yaw):
+    s = Scene(seed, roll, pitch, yaw, 1)
+    est = yaw_from_marker(s.bearings()[0], s.M[0], s.P, roll, pitch, s.base_T_camera, s.t_prism)
+    assert abs(wrap_angle(est.yaw - yaw)) < 1e-9
+    assert est.range == pytest.approx(np.linalg.norm(s.M[0] - s.C), abs=1e-9)
+    np.testing.assert_allclose(est.camera_position, s.C, atol=1e-9)
+    assert abs(est.elevation_residual) < 1e-9
+
+
+@pytest.mark.parametrize("yaw_deg", [-180.0, -135.0, -90.0, -45.0, 0.0, 45.0, 90.0, 135.0, 179.999])
+def test_yaw_unique_in_every_quadrant_with_a_long_lever_arm(yaw_deg):
+    """The paper's cosine solution has 4 candidates; the closed form returns the true one."""
+    s = Scene(7, 0.03, -0.02, math.radians(yaw_deg), 1)
+    s.t_cam = np.array([0.6, -0.4, 0.5])           # long lever arm: 0.7 m vs a 1.5 m marker
+    s.base_T_camera = make_T(s.R_bc, s.t_cam)
+    s.C = s.p + s.R @ s.t_cam
+    s.M = s.C + np.array([[1.2, 0.9, 0.1]])
+    est = yaw_from_marker(s.bearings()[0], s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism)
+    assert abs(wrap_angle(est.yaw - s.yaw)) < 1e-9
+
+
+def test_yaw_sigma_matches_monte_carlo():
+    """All five noise sources at once: normalised yaw errors have std 1 ± 20 %."""
+    s = Scene(3, 0.05, -0.04, 2.5, 1)
+    sb, sp, sm, st_, sl = 2e-3, 0.01, 0.005, 2e-3, 0.01
+    rng = np.random.default_rng(11)
+    u0 = s.bearings()[0]
+    errs, sig = [], []
+    for _ in range(1500):
+        u = perturb(u0, sb, rng)
+        P = s.P + sp * rng.normal(size=3)
+        M = s.M[0] + sm * rng.normal(size=3)
+        r, p = s.roll + st_ * rng.normal(), s.pitch + st_ * rng.normal()
+        t_cam = s.t_cam + sl * rng.normal(size=3)
+        est = yaw_from_marker(u, M, P, r, p, make_T(s.R_bc, t_cam), s.t_prism, sigma_bearing=sb,
+                              prism_cov=sp * sp * np.eye(3), marker_sigma=sm, tilt_sigma=st_, lever_sigma=sl)
+        errs.append(wrap_angle(est.yaw - s.yaw))
+        sig.append(est.sigma)
+    z = np.array(errs) / np.array(sig)
+    assert 0.8 < np.std(z) < 1.2
+    assert abs(np.mean(z)) < 0.15
+    # The range matters: a 2 mm survey error on a 5 m marker should not look like a 20 m one.
+    assert 1e-4 < np.median(sig) < 0.05
+
+
+def test_yaw_jacobian_matches_finite_differences():
+    """σ² for each noise source alone equals the squared finite-difference sensitivity."""
+    s = Scene(5, 0.1, 0.05, -1.0, 1)
+    u = s.bearings()[0]
+    base = yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism).yaw
+    h = 1e-6
+    for axis in range(3):
+        dP = np.zeros(3)
+        dP[axis] = h
+        fd = (yaw_from_marker(u, s.M[0], s.P + dP, s.roll, s.pitch, s.base_T_camera, s.t_prism).yaw
+              - yaw_from_marker(u, s.M[0], s.P - dP, s.roll, s.pitch, s.base_T_camera, s.t_prism).yaw) / (2 * h)
+        cov = np.zeros((3, 3))
+        cov[axis, axis] = 1.0
+        sig = yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism, prism_cov=cov).sigma
+        assert sig == pytest.approx(abs(fd), rel=1e-5, abs=1e-9)
+    fd_roll = (yaw_from_marker(u, s.M[0], s.P, s.roll + h, s.pitch, s.base_T_camera, s.t_prism).yaw
+               - yaw_from_marker(u, s.M[0], s.P, s.roll - h, s.pitch, s.base_T_camera, s.t_prism).yaw) / (2 * h)
+    fd_pitch = (yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch + h, s.base_T_camera, s.t_prism).yaw
+                - yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch - h, s.base_T_camera, s.t_prism).yaw) / (2 * h)
+    sig = yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism, tilt_sigma=1.0).sigma
+    assert sig == pytest.approx(math.hypot(fd_roll, fd_pitch), rel=1e-5)
+    assert abs(base - s.yaw) < 1e-9
+
+
+def test_false_id_shows_in_the_elevation_residual():
+    """A marker id swapped for one 1.5 m higher: the elevation check is far outside its σ."""
+    s = Scene(9, 0.0, 0.0, 0.4, 1)
+    u = s.bearings()[0]
+    wrong = s.M[0] + [0.0, 0.0, 1.5]
+    est = yaw_from_marker(u, wrong, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism, sigma_bearing=1e-3,
+                          prism_cov=0.005, marker_sigma=0.002)
+    assert abs(est.elevation_residual) > 10 * est.elevation_sigma
+
+
+def test_yaw_degenerate_geometry_is_reported():
+    s = Scene(1, 0.0, 0.0, 0.0, 1)
+    u = s.bearings()[0]
+    lever = np.linalg.norm(s.t_cam - s.t_prism)
+    near = s.P + np.array([0.5 * lever, 0.0, 0.0])          # marker inside the lever-arm sphere
+    with pytest.raises(DegenerateGeometryError, match="lever arm"):
+        yaw_from_marker(u, near, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism)
+    above = s.P + np.array([0.0, 0.0, 5.0])                 # straight above the prism
+    with pytest.raises(DegenerateGeometryError, match="vertical"):
+        yaw_from_marker(u, above, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism)
+    with pytest.raises(SolverError, match="prism"):
+        yaw_from_marker(u, s.M[0], [np.nan, 0, 0], 0.0, 0.0, s.base_T_camera, s.t_prism)
+
+
+# ----------------------------------------------------------------------------- attitude
+
+
+@given(seeds, tilts, tilts, yaws, st.integers(2, 6))
+def test_attitude_exact(seed, roll, pitch, yaw, n):
+    s = Scene(seed, roll, pitch, yaw, n)
+    d = (s.M - s.C) / np.linalg.norm(s.M - s.C, axis=1)[:, None]
+    assume(np.linalg.norm(np.cross(d[:, None], d[None]), axis=-1).max() > math.sin(math.radians(6)))
+    est = attitude_from_markers(s.bearings(), s.M, s.P, s.base_T_camera, s.t_prism, prism_cov=0.005,
+                                tilt=(0.0, 0.0))
+    np.testing.assert_allclose(est.R, s.R, atol=1e-9)
+    assert abs(wrap_angle(est.yaw - yaw)) < 1e-9
+    np.testing.assert_allclose(est.prism, s.P, atol=1e-9)
+    assert np.all(est.residuals < 1e-9) and np.all(est.weights == 1.0)
+
+
+def test_attitude_covariance_is_honest():
+    s = Scene(21, 0.04, -0.06, -2.8, 3)
+    sb, sp = 1.5e-3, 0.01
+    z = []
+    for _ in range(300):
+        P = s.P + sp * s.rng.normal(size=3)
+        est = attitude_from_markers(s.bearings(sigma=sb), s.M, P, s.base_T_camera, s.t_prism,
+                                    sigma_bearing=sb, prism_cov=sp, loss="none")
+        err = wrap_angle(np.array([est.roll - s.roll, est.pitch - s.pitch, est.yaw - s.yaw]))
+        z.append(err / np.sqrt(np.diag(est.cov)))
+    sd = np.std(np.array(z), axis=0)
+    assert np.all((sd > 0.8) & (sd < 1.2)), sd
+
+
+def test_attitude_rejects_a_false_marker_id():
+    s = Scene(4, 0.02, 0.01, 1.0, 5)
+    u = s.bearings(sigma=1e-3)
+    M = s.M.copy()
+    M[2] = s.M[2] + [3.0, -2.0, 0.5]           # the map position of another id
+    clean = attitude_from_markers(u[[0, 1, 3, 4]], s.M[[0, 1, 3, 4]], s.P, s.base_T_camera, s.t_prism,
+                                  sigma_bearing=1e-3)
+    robust = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3,
+                                   loss="cauchy", loss_scale=2.0)
+    plain = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3, loss="none")
+    assert robust.weights[2] < 0.01 and robust.normalized[2] > 20
+    assert abs(wrap_angle(robust.yaw - clean.yaw)) < 0.5 * math.sqrt(clean.cov[2, 2])
+    assert abs(wrap_angle(plain.yaw - s.yaw)) > 5 * abs(wrap_angle(robust.yaw - s.yaw))
+
+
+def test_attitude_degenerate_when_markers_in_one_direction():
+    s = Scene(2, 0.0, 0.0, 0.3, 1)
+    d = (s.M[0] - s.C) / np.linalg.norm(s.M[0] - s.C)
+    M = np.array([s.C + 3.0 * d, s.C + 9.0 * d, s.C - 4.0 * d])   # behind and in front, one line
+    with pytest.raises(DegenerateGeometryError, match="one line"):
+        attitude_from_markers(s.bearings(M), M, s.P, s.base_T_camera, s.t_prism)
+    with pytest.raises(SolverError, match="≥ 2"):
+        attitude_from_markers(s.bearings()[:1], s.M[:1], s.P, s.base_T_camera, s.t_prism)
+
+
+# ----------------------------------------------------------------------------- resection
+
+
+@given(seeds, tilts, tilts, yaws, st.integers(4, 7))
+def test_resection_exact(seed, roll, pitch, yaw, n):
+    s = Scene(seed, roll, pitch, yaw, n)
+    sv = np.linalg.svd(s.M - s.M.mean(axis=0), compute_uv=False)
+    assume(sv[1] > 0.1 * sv[0])            # not (nearly) collinear: that case is tested below
+    est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(roll, pitch))
+    np.testing.assert_allclose(est.R, s.R, atol=1e-9)
+    np.testing.assert_allclose(est.position, s.p, atol=1e-9)
+    np.testing.assert_allclose(est.map_T_base, make_T(s.R, s.p), atol=1e-9)
+
+
+def test_resection_three_markers_with_level_start():
+    s = Scene(8, 0.03, -0.02, 2.0, 3)
+    est = resection(s.bearings(), s.M, s.base_T_camera)
+    np.testing.assert_allclose(est.position, s.p, atol=1e-9)
+    assert abs(wrap_angle(est.yaw - s.yaw)) < 1e-9
+
+
+def test_resection_covariance_is_honest():
+    s = Scene(13, 0.02, 0.03, -1.2, 5)
+    sb = 1e-3
+    z = []
+    for _ in range(250):
+        est = resection(s.bearings(sigma=sb), s.M, s.base_T_camera, sigma_bearing=sb, loss="none",
+                        tilt=(s.roll, s.pitch))
+        err = np.concatenate([est.position - s.p,
+                              wrap_angle(np.array(matrix_to_rpy(est.R)) - [s.roll, s.pitch, s.yaw])])
+        z.append(err / np.sqrt(np.diag(est.cov)))
+    sd = np.std(np.array(z), axis=0)
+    assert np.all((sd > 0.8) & (sd < 1.2)), sd
+
+
+def test_resection_collinear_markers_are_degenerate():
+    s = Scene(6, 0.0, 0.0, 0.0, 1)
+    M = s.C + np.array([[4.0, 1.0, 0.5], [5.0, 2.0, 0.5], [6.0, 3.0, 0.5], [8.0, 5.0, 0.5]])
+    with pytest.raises(DegenerateGeometryError, match="collinear"):
+        resection(s.bearings(M), M, s.base_T_camera)
+
+
+def test_tilt_rotation_order_matches_transforms():
+    """R_t = Ry(pitch)·Rx(roll) is the tilt part of rpy_to_matrix (guards the convention used above)."""
+    r, p, y = 0.1, -0.2, 0.7
+    np.testing.assert_allclose(rpy_to_matrix(r, p, y), rpy_to_matrix(0, 0, y) @ rot_y(p) @ rot_x(r), atol=1e-15)
