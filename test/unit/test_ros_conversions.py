@@ -150,9 +150,9 @@ def test_pose_covariance_layout():
 
 def _result(**kw):
     """A FrameResult-shaped record with the documented fields (pipeline.FrameResult)."""
-    base = dict(stamp=0.0, observations=[], yaw=None, yaw_sigma=None, attitude_cov=None, map_T_base=None,
-                base_position_cov=None, map_T_odom=None, map_T_odom_cov=None, initialised=False, error=None,
-                timings={})
+    base = {"stamp": 0.0, "observations": [], "yaw": None, "yaw_sigma": None, "attitude_cov": None,
+            "map_T_base": None, "base_position_cov": None, "map_T_odom": None, "map_T_odom_cov": None,
+            "initialised": False, "error": None, "timings": {}}
     base.update(kw)
     return SimpleNamespace(**base)
 

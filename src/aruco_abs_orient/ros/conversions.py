@@ -19,8 +19,16 @@ from typing import Iterable, Mapping, Optional, Sequence, Tuple
 import numpy as np
 import rospy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import (Point, Pose, PoseStamped, PoseWithCovarianceStamped, Quaternion,
-                               Transform, TransformStamped, Vector3)
+from geometry_msgs.msg import (
+    Point,
+    Pose,
+    PoseStamped,
+    PoseWithCovarianceStamped,
+    Quaternion,
+    Transform,
+    TransformStamped,
+    Vector3,
+)
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker as VizMarker
 from visualization_msgs.msg import MarkerArray
@@ -253,7 +261,7 @@ def marker_array(marker_map: MarkerMap, stamp: rospy.Time, seen_ids: Iterable[in
                  namespace: str = "aruco_markers") -> MarkerArray:
     """rviz markers of the marker map: a cube of the marker's size at each surveyed centre (green
     when seen in the last frame, grey otherwise) and its id as text above it."""
-    seen = set(int(i) for i in seen_ids)
+    seen = {int(i) for i in seen_ids}
     out = MarkerArray()
     for m in marker_map:
         cube = VizMarker(header=_header(stamp, marker_map.frame_id), ns=namespace, id=2 * m.id,
