@@ -44,6 +44,9 @@ __all__ = [
     "sphere_centre_bearing",
     "pixel_centre_bearing",
     "marker_angular_size",
+    "refine_corners",
+    "decode_marker",
+    "dedupe_observations",
 ]
 
 METHODS = ("full", "seam", "gnomonic", "tracked")
@@ -84,6 +87,19 @@ class DetectorParams:
     - ``pole_views``: search two gnomonic views (zenith, nadir) for markers in the polar
       bands ``|el| > pole_band_deg`` (degrees), where equirect shapes are too distorted.
     - ``max_view_px``: cap on a view's side (pixels); larger views lower their resolution.
+
+    Corners and ids (this module's own steps after OpenCV's):
+
+    - ``edge_refine``: refine every marker's corners by fitting lines to its edges in a
+      gnomonic view (:func:`refine_corners`); OpenCV's subpixel corners are off by
+      0.2–0.6 px on blurred small markers.
+    - ``verify_decode``: re-read every OpenCV-decoded marker (:func:`decode_marker`) and drop
+      it unless the cells give the same id (OpenCV misreads small markers on texture).
+    - ``rescue_max_side_px``: quads OpenCV rejected with sides up to this (pixels of the
+      searched image per equirect pixel) are refined and decoded by :func:`decode_marker`;
+      this is what reaches 12 m (9–10 px markers at 3840 px).
+    - ``decode_min_contrast`` (grey levels), ``decode_min_correlation``, ``decode_min_lead``:
+      acceptance thresholds of :func:`decode_marker`.
 
     Noise model (1-σ centre bearing, radians, see :func:`bearing_sigma`):
 
@@ -133,6 +149,7 @@ class DetectorParams:
     max_view_px: int = 1024
 
     edge_refine: bool = True
+    verify_decode: bool = True
     rescue_max_side_px: float = 20.0
     decode_min_contrast: float = 30.0
     decode_min_correlation: float = 0.8
@@ -333,13 +350,14 @@ def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
         total = grad.sum(axis=2)
         edge = (grad * (0.5 * (offs[1:] + offs[:-1]))).sum(axis=2) / np.maximum(total, 1e-9)
         ok = total >= min_contrast
-        lines = []
-        for i in range(4):
-            if np.count_nonzero(ok[i]) < 3:
-                return None
-            lines.append(_fit_line(base[i][ok[i]] + edge[i][ok[i], None] * n[i]))
-        newq = np.array([_intersect(lines[i - 1], lines[i]) for i in range(4)])
-        if not np.all(np.isfinite(newq)) or np.max(np.linalg.norm(newq - q, axis=1)) > 0.5 * float(np.mean(length)):
+        if np.any(np.count_nonzero(ok, axis=1) < 3):
+            return None
+        normal, offset = _fit_lines(base + edge[..., None] * n[:, None, :], ok)
+        a = np.stack([np.roll(normal, 1, axis=0), normal], axis=1)  # corner i: sides i−1 and i
+        if np.any(np.abs(np.linalg.det(a)) < 1e-6):
+            return None
+        newq = np.linalg.solve(a, np.stack([np.roll(offset, 1), offset], axis=1)[..., None])[..., 0]
+        if np.max(np.linalg.norm(newq - q, axis=1)) > 0.5 * float(np.mean(length)):
             return None
         q = newq
     return view.pixel_to_bearing(q[:, 0], q[:, 1])
@@ -406,26 +424,26 @@ def _signed_area(q: np.ndarray) -> float:
     return 0.5 * float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
 
 
-def _fit_line(p: np.ndarray) -> Tuple[np.ndarray, float]:
-    """Line (unit normal n, offset c) with n·x = c, total least squares, one 3-MAD outlier pass."""
+def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Lines n·x = c (unit normals (L, 2), offsets (L,)) through the points p (L, k, 2) where
+    ``ok`` (L, k): total least squares, then again without points beyond 3 robust σ."""
+    w = ok.astype(float)
     for _ in range(2):
-        m = p.mean(axis=0)
-        _, _, vt = np.linalg.svd(p - m)
-        nrm = vt[1]
-        r = (p - m) @ nrm
-        mad = float(np.median(np.abs(r - np.median(r))))
-        keep = np.abs(r) <= max(3.0 * 1.4826 * mad, 1e-3)
-        if keep.all() or keep.sum() < 3:
+        sw = w.sum(axis=1)
+        m = (w[..., None] * p).sum(axis=1) / sw[:, None]
+        d = p - m[:, None, :]
+        cxx = (w * d[..., 0] ** 2).sum(axis=1)
+        cyy = (w * d[..., 1] ** 2).sum(axis=1)
+        cxy = (w * d[..., 0] * d[..., 1]).sum(axis=1)
+        theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of the line
+        normal = np.stack([-np.sin(theta), np.cos(theta)], axis=1)
+        r = np.abs(np.sum(d * normal[:, None, :], axis=2))
+        sigma = 1.4826 * np.nanmedian(np.where(w > 0, r, np.nan), axis=1)
+        keep = w * (r <= np.maximum(3.0 * sigma, 1e-3)[:, None])
+        if np.array_equal(keep, w) or np.any(keep.sum(axis=1) < 3):
             break
-        p = p[keep]
-    return nrm, float(nrm @ m)
-
-
-def _intersect(a: Tuple[np.ndarray, float], b: Tuple[np.ndarray, float]) -> np.ndarray:
-    m = np.array([a[0], b[0]])
-    if abs(np.linalg.det(m)) < 1e-9:
-        return np.array([np.nan, np.nan])
-    return np.linalg.solve(m, np.array([a[1], b[1]]))
+        w = keep
+    return normal, np.sum(normal * m, axis=1)
 
 
 # --------------------------------------------------------------------------- images
@@ -617,20 +635,26 @@ class MarkerDetector:
         out = []
         for i, c in zip(ids, corners):
             b = to_bearing(c[:, 0], c[:, 1])
-            if q.edge_refine:
-                r = refine_corners(grey, equirect, b, self.backend.bits)
-                b = r if r is not None else b
-            out.append(self.observation(equirect, i, b, method))
+            r = refine_corners(grey, equirect, b, self.backend.bits) if q.edge_refine else None
+            if q.verify_decode:
+                hit = self._decode(grey, equirect, b if r is None else r)
+                if hit is None or hit[0] != i:
+                    continue  # OpenCV's id is not what the cells say: a misread or a texture
+            out.append(self.observation(equirect, i, b if r is None else r, method))
         limit = q.rescue_max_side_px * 4.0 * scale
         for c in rejected:
             if np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) > limit:
                 continue
             r = refine_corners(grey, equirect, to_bearing(c[:, 0], c[:, 1]), self.backend.bits)
-            hit = decode_marker(grey, equirect, r, self.backend.codes, q.decode_min_contrast,
-                                q.decode_min_correlation, q.decode_min_lead) if r is not None else None
+            hit = self._decode(grey, equirect, r) if r is not None else None
             if hit is not None:
                 out.append(self.observation(equirect, hit[0], hit[1], method))
         return out
+
+    def _decode(self, grey: np.ndarray, equirect: Equirect, corners: np.ndarray):
+        q = self.params
+        return decode_marker(grey, equirect, corners, self.backend.codes, q.decode_min_contrast,
+                             q.decode_min_correlation, q.decode_min_lead)
 
     def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
                        maps: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> List[MarkerObservation]:
@@ -693,13 +717,13 @@ class MarkerDetector:
         if half > 0:
             seam = [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam")
                     if _straddles_seam(o, eq)]
-            found = _dedupe(found + seam)
+            found = dedupe_observations(found + seam)
         if q.pole_views:
             band = math.radians(q.pole_band_deg)
             for view, maps in self._pole_views(eq):
                 polar = [o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
                          if abs(o.elevation) > band]
-                found = _dedupe(found + polar)
+                found = dedupe_observations(found + polar)
         return sorted(found, key=lambda o: o.id)
 
 
@@ -718,7 +742,7 @@ def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
 _METHOD_RANK = {"gnomonic": 0, "tracked": 0, "full": 1, "seam": 1}
 
 
-def _dedupe(observations: Sequence[MarkerObservation]) -> List[MarkerObservation]:
+def dedupe_observations(observations: Sequence[MarkerObservation]) -> List[MarkerObservation]:
     """One observation per physical marker: same id and centres closer than the marker's
     size ⇒ the same marker; keep the gnomonic one, else the larger in pixels."""
     ranked = sorted(observations, key=lambda o: (_METHOD_RANK[o.method], -o.side_px))

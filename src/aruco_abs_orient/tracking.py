@@ -1,0 +1,163 @@
+"""Map-guided marker tracking in 360° frames (DESIGN §4 step 3): detect, don't search.
+
+With a predicted camera pose ``map_T_camera`` and the marker map, each marker's bearing and
+angular size are predicted and the marker is looked for only in a small gnomonic view
+around the prediction (upsampled for small far markers), instead of in the whole
+equirect frame. The whole frame is searched (:meth:`MarkerDetector.detect`) at start-up,
+when no pose is given, after a loss and every ``max_full_interval`` frames if set; while
+tracking, a vertical strip of the equirect sweeps around the panorama (one
+``sweep_tile_deg`` tile per frame, once around in ``sweep_period_frames`` frames) so
+markers the prediction misses are still found. Ids not in the map are rejected, and so is
+any observation farther than ``gate_deg`` from its prediction.
+
+Units: metres for positions, radians for angles inside the code (``*_deg`` parameters are
+degrees), milliseconds for the reported times. Python 3.8 compatible; numpy and OpenCV only.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from .camera import Equirect, angle_between
+from .detection import DetectionError, DetectorParams, MarkerDetector, MarkerObservation, dedupe_observations, to_grey
+from .markers import MarkerMap
+from .transforms import invert_T, transform_points
+
+__all__ = ["TrackingError", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
+
+
+class TrackingError(DetectionError):
+    """A pose or map the tracker cannot use."""
+
+
+@dataclass
+class MarkerPrediction:
+    """Where a map marker should appear: ``bearing`` (3,) unit, camera frame; ``angular_size``
+    (radians, side of a marker facing the camera); ``range`` (metres)."""
+
+    id: int
+    bearing: np.ndarray
+    angular_size: float
+    range: float
+
+
+@dataclass
+class TrackingStats:
+    """What one frame cost and found: ``mode`` 'full' or 'tracked'; ``predicted`` markers
+    looked for in ROI views; ``found`` accepted observations by method; ``rejected_unknown``
+    detections of ids not in the map; ``rejected_gate`` detections too far from their
+    prediction; ``sweep_u0`` first column of the sweeping tile (−1 when none); ``time_ms``
+    wall time of :meth:`MarkerTracker.process` (milliseconds)."""
+
+    mode: str
+    predicted: int = 0
+    found: Dict[str, int] = field(default_factory=dict)
+    rejected_unknown: int = 0
+    rejected_gate: int = 0
+    sweep_u0: int = -1
+    time_ms: float = 0.0
+
+
+@dataclass
+class TrackingResult:
+    observations: List[MarkerObservation]
+    stats: TrackingStats
+
+
+class MarkerTracker:
+    """Markers of a map, tracked frame to frame from a predicted camera pose.
+
+    >>> tracker = MarkerTracker(MarkerMap.load("markers.yaml"))    # doctest: +SKIP
+    >>> result = tracker.process(grey, map_T_camera)              # doctest: +SKIP
+    """
+
+    def __init__(self, marker_map: MarkerMap, params: Optional[DetectorParams] = None,
+                 api: Optional[str] = None):
+        self.map = marker_map
+        self.detector = MarkerDetector(marker_map.dictionary, params, api)
+        self.params = self.detector.params
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the tracking state: the next frame is searched whole."""
+        self.frame = 0
+        self._since_full: Optional[int] = None
+        self._misses = 0
+
+    def predict(self, map_T_camera, equirect: Equirect) -> List[MarkerPrediction]:
+        """Predicted bearings of all the map's markers, nearest first.
+
+        ``map_T_camera``: 4×4 pose of the camera frame in the map.
+        """
+        T = np.asarray(map_T_camera, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise TrackingError(f"map_T_camera: expected a finite 4×4 matrix, got shape {T.shape}")
+        ids = self.map.ids
+        p = transform_points(invert_T(T), self.map.positions(ids))
+        rng = np.linalg.norm(p, axis=1)
+        out = []
+        for mid, pc, r in zip(ids, p, rng):
+            if r <= 1e-6:
+                continue
+            size = 2.0 * math.atan(self.map[mid].size / (2.0 * r))
+            out.append(MarkerPrediction(mid, pc / r, size, float(r)))
+        return sorted(out, key=lambda m: m.range)
+
+    def process(self, image: np.ndarray, map_T_camera=None, what: str = "image") -> TrackingResult:
+        """Observations of map markers in one equirect frame (grey or BGR uint8, 2:1).
+
+        ``map_T_camera``: predicted 4×4 camera pose in the map, or None (unknown: the whole
+        frame is searched and every id in the map accepted). Raises DetectionError (or
+        TrackingError) for an unusable image or pose; the state is unchanged then.
+        """
+        t0 = time.perf_counter()
+        grey = to_grey(image, what)
+        eq = Equirect(grey.shape[1], grey.shape[0])
+        q = self.params
+        preds = self.predict(map_T_camera, eq) if map_T_camera is not None else []
+        by_id = {m.id: m for m in preds}
+        full = (map_T_camera is None or self._since_full is None or self._misses >= q.lost_after_frames
+                or (q.max_full_interval > 0 and self._since_full >= q.max_full_interval))
+        stats = TrackingStats(mode="full" if full else "tracked")
+        if full:
+            candidates = self.detector.detect(grey, what)
+            self._since_full = 0
+        else:
+            candidates = []
+            gate = math.radians(q.gate_deg)
+            for m in preds:
+                side = m.angular_size / eq.rad_per_px
+                if side < q.min_predicted_side_px:
+                    continue
+                stats.predicted += 1
+                up = min(max(q.roi_target_side_px / side, 1.0), q.roi_max_upsample)
+                fov = m.angular_size * (1.0 + 2.0 * q.roi_margin) + 2.0 * gate
+                view = self.detector.view_around(eq, m.bearing, fov, up)
+                candidates += self.detector.detect_in_view(grey, eq, view, "tracked")
+            step = eq.width / q.sweep_period_frames
+            width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
+            stats.sweep_u0 = int(self.frame * step) % eq.width
+            candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full")
+            self._since_full += 1
+        accepted = []
+        for o in candidates:
+            if o.id not in self.map:
+                stats.rejected_unknown += 1
+            elif map_T_camera is not None and (
+                    o.id not in by_id
+                    or float(angle_between(o.centre, by_id[o.id].bearing)) > math.radians(q.gate_deg)):
+                stats.rejected_gate += 1
+            else:
+                accepted.append(o)
+        accepted = sorted(dedupe_observations(accepted), key=lambda o: o.id)
+        for o in accepted:
+            stats.found[o.method] = stats.found.get(o.method, 0) + 1
+        self._misses = self._misses + 1 if (stats.predicted and not accepted) else 0
+        self.frame += 1
+        stats.time_ms = (time.perf_counter() - t0) * 1000.0
+        return TrackingResult(accepted, stats)
