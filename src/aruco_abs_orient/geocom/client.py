@@ -1,0 +1,253 @@
+"""Thread-safe GeoCOM client over pyserial (``serial.serial_for_url``).
+
+Ports are pyserial URLs: ``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://host:port``,
+``loop://``. Every request carries a transaction id; a reply with another id (a late answer to
+a request that already timed out) is discarded, as is any line that is not a reply (garbage,
+echoes): the reader resynchronises on the next ``%R1P,`` it sees. One call at a time holds the
+port (a lock), so several threads may share a client.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from typing import NamedTuple, Optional, Sequence, Tuple
+
+import serial
+
+from .protocol import (
+    EDM_CONT_FAST,
+    TMC_AUTO_INC,
+    CoordinateReading,
+    GeoComProtocolError,
+    Param,
+    Reply,
+    Rpc,
+    encode_request,
+    parse_coordinate,
+    parse_reply,
+)
+
+__all__ = ["GeoComError", "GeoComLinkError", "GeoComTimeout", "GeoComRcError", "TimedCoordinate",
+           "GeoComClient", "wire_time_s"]
+
+_REPLY_START = b"%R1P,"
+_MAX_LINE = 4096
+
+
+class GeoComError(Exception):
+    """Base class of the client's errors."""
+
+
+class GeoComLinkError(GeoComError):
+    """The port cannot be opened, read or written (names the port)."""
+
+
+class GeoComTimeout(GeoComError):
+    """No reply with the request's transaction id within the timeout."""
+
+
+class GeoComRcError(GeoComError):
+    """A procedure answered with a return code other than 0."""
+
+    def __init__(self, rpc: int, rc: int):
+        super().__init__(f"{Rpc(rpc).name if rpc in Rpc._value2member_map_ else rpc} returned rc {rc}")
+        self.rpc = rpc
+        self.rc = rc
+
+
+class TimedCoordinate(NamedTuple):
+    """A coordinate reply with its host reception time ``received_s`` (s, time.time() of the
+    last byte) and the reply's wire time ``reply_tx_s`` (s, 10 bits per byte at the baud)."""
+
+    reading: CoordinateReading
+    received_s: float
+    reply_tx_s: float
+
+
+def wire_time_s(n_bytes: int, baud: int) -> float:
+    """Seconds ``n_bytes`` take on a serial line at ``baud`` (8N1: 10 bits per byte)."""
+    return 10.0 * n_bytes / float(baud)
+
+
+class GeoComClient:
+    """GeoCOM over one pyserial port. ``timeout_s`` is the default reply timeout (s)."""
+
+    def __init__(self, url: str, baud: int = 115200, timeout_s: float = 0.5):
+        self.url = url
+        self.baud = int(baud)
+        self.timeout_s = float(timeout_s)
+        self._lock = threading.Lock()
+        self._buffer = bytearray()
+        self._trid = 0
+        self.garbage_bytes = 0
+        self.stale_replies = 0
+        self._stamp = 0.0
+        try:
+            self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0.05, write_timeout=1.0)
+        except (serial.SerialException, ValueError, OSError) as e:
+            raise GeoComLinkError(f"cannot open GeoCOM port {url!r}: {e}") from None
+
+    def close(self) -> None:
+        with contextlib.suppress(serial.SerialException, OSError):
+            self._serial.close()
+
+    def __enter__(self) -> GeoComClient:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- framing -------------------------------------------------------------------------
+    def _next_trid(self) -> int:
+        self._trid = self._trid % 9999 + 1
+        return self._trid
+
+    def _read_line(self, deadline: float) -> Tuple[bytes, float]:
+        """The next reply-looking line (starting at its ``%R1P,``) and its reception time."""
+        while True:
+            nl = self._buffer.find(b"\n")
+            while nl >= 0:
+                raw = bytes(self._buffer[: nl + 1])
+                del self._buffer[: nl + 1]
+                start = raw.rfind(_REPLY_START)
+                self.garbage_bytes += len(raw) if start < 0 else start
+                if start >= 0:
+                    return raw[start:], self._stamp
+                nl = self._buffer.find(b"\n")
+            if len(self._buffer) > _MAX_LINE:  # a flood without line ends: keep the tail only
+                self.garbage_bytes += len(self._buffer) - len(_REPLY_START)
+                del self._buffer[: -len(_REPLY_START)]
+            if time.time() >= deadline:
+                raise GeoComTimeout(f"no reply on {self.url!r} within the timeout")
+            try:
+                chunk = self._serial.read(max(1, self._serial.in_waiting))
+            except (serial.SerialException, OSError, TypeError, AttributeError) as e:
+                raise GeoComLinkError(f"reading {self.url!r} failed: {e}") from None
+            self._stamp = time.time()
+            if chunk:
+                self._buffer += chunk
+
+    def call(self, rpc: int, params: Sequence[Param] = (),
+             timeout_s: Optional[float] = None) -> Tuple[Reply, float, int]:
+        """Send one request and wait for its reply. Returns ``(reply, received_s, reply_bytes)``.
+
+        Raises GeoComTimeout, GeoComLinkError. Lines that are not replies and replies with
+        another transaction id are discarded (counted in ``garbage_bytes``/``stale_replies``)."""
+        timeout = self.timeout_s if timeout_s is None else float(timeout_s)
+        with self._lock:
+            trid = self._next_trid()
+            request = encode_request(rpc, params, trid)
+            try:
+                self._serial.write(request)
+                self._serial.flush()
+            except (serial.SerialException, OSError, TypeError, AttributeError) as e:
+                raise GeoComLinkError(f"writing to {self.url!r} failed: {e}") from None
+            deadline = time.time() + timeout
+            while True:
+                line, received = self._read_line(deadline)
+                try:
+                    reply = parse_reply(line)
+                except GeoComProtocolError:
+                    self.garbage_bytes += len(line)
+                    continue
+                if reply.trid != trid:
+                    self.stale_replies += 1
+                    continue
+                return reply, received, len(line)
+
+    def _checked(self, rpc: int, params: Sequence[Param] = (), timeout_s: Optional[float] = None) -> Reply:
+        reply = self.call(rpc, params, timeout_s)[0]
+        if reply.rc != 0:
+            raise GeoComRcError(rpc, reply.rc)
+        return reply
+
+    def _values(self, rpc: int, n: int, timeout_s: Optional[float] = None) -> Tuple[str, ...]:
+        reply = self._checked(rpc, (), timeout_s)
+        if len(reply.values) < n:
+            raise GeoComError(f"{Rpc(rpc).name} replied {len(reply.values)} values, expected {n}")
+        return reply.values[:n]
+
+    # --- procedures ----------------------------------------------------------------------
+    def null_proc(self, timeout_s: Optional[float] = None) -> None:
+        """COM_NullProc: checks that the instrument answers."""
+        self._checked(Rpc.COM_NullProc, (), timeout_s)
+
+    def instrument_name(self) -> str:
+        """CSV_GetInstrumentName, e.g. ``"MS60"``."""
+        return self._values(Rpc.CSV_GetInstrumentName, 1)[0]
+
+    def instrument_number(self) -> int:
+        """CSV_GetInstrumentNo: the serial number."""
+        return int(self._values(Rpc.CSV_GetInstrumentNo, 1)[0])
+
+    def firmware_version(self) -> str:
+        """CSV_GetSWVersion as ``release.version.subversion``."""
+        return ".".join(str(int(v)) for v in self._values(Rpc.CSV_GetSWVersion, 3))
+
+    def set_edm_mode(self, mode: int = EDM_CONT_FAST) -> None:
+        """TMC_SetEdmMode (EDM_MODE; 9 = EDM_CONT_FAST, tracking)."""
+        self._checked(Rpc.TMC_SetEdmMode, (int(mode),))
+
+    def set_meas_prg(self, program: int) -> None:
+        """BAP_SetMeasPrg (BAP_USER_MEASPRG)."""
+        self._checked(Rpc.BAP_SetMeasPrg, (int(program),))
+
+    def lock_in(self, timeout_s: Optional[float] = None) -> int:
+        """AUT_LockIn: start tracking the prism. Returns the rc (0 locked, 8710 no target)."""
+        return self.call(Rpc.AUT_LockIn, (), timeout_s)[0].rc
+
+    def set_user_lock_state(self, on: bool) -> None:
+        """AUS_SetUserLockState: enable (True) or disable the lock-in function."""
+        self._checked(Rpc.AUS_SetUserLockState, (bool(on),))
+
+    def lock_status(self) -> int:
+        """MOT_ReadLockStatus: 0 locked out, 1 locked in, 2 prediction."""
+        return int(self._values(Rpc.MOT_ReadLockStatus, 1)[0])
+
+    def set_prism_type(self, prism_type: int) -> None:
+        """BAP_SetPrismType (BAP_PRISMTYPE; 3 = 360° prism)."""
+        self._checked(Rpc.BAP_SetPrismType, (int(prism_type),))
+
+    def set_prism_constant(self, constant_m: float) -> None:
+        """TMC_SetPrismCorr: additive prism constant in metres."""
+        self._checked(Rpc.TMC_SetPrismCorr, (float(constant_m),))
+
+    def prism_constant(self) -> float:
+        """TMC_GetPrismCorr: additive prism constant in metres."""
+        return float(self._values(Rpc.TMC_GetPrismCorr, 1)[0])
+
+    def do_measure(self, command: int, inc_mode: int = TMC_AUTO_INC) -> None:
+        """TMC_DoMeasure (TMC_MEASURE_PRG: 2 tracking, 0 stop)."""
+        self._checked(Rpc.TMC_DoMeasure, (int(command), int(inc_mode)))
+
+    def get_coordinate(self, wait_ms: int = 0, inc_mode: int = TMC_AUTO_INC,
+                       timeout_s: Optional[float] = None) -> TimedCoordinate:
+        """TMC_GetCoordinate: E, N, H (m) and the instrument time (ms) of the measurement, with
+        the host reception time. The rc is in the reading (warnings keep their position)."""
+        reply, received, nbytes = self.call(Rpc.TMC_GetCoordinate, (int(wait_ms), int(inc_mode)), timeout_s)
+        try:
+            reading = parse_coordinate(reply)
+        except GeoComProtocolError as e:
+            raise GeoComError(str(e)) from None
+        return TimedCoordinate(reading, received, wire_time_s(nbytes, self.baud))
+
+    def get_simple_coord(self, wait_ms: int = 0, inc_mode: int = TMC_AUTO_INC) -> Tuple[int, float, float, float]:
+        """TMC_GetSimpleCoord: ``(rc, E, N, H)`` in metres (no instrument time)."""
+        reply = self.call(Rpc.TMC_GetSimpleCoord, (int(wait_ms), int(inc_mode)))[0]
+        v = [float(x) for x in reply.values[:3]] if len(reply.values) >= 3 else [float("nan")] * 3
+        return reply.rc, v[0], v[1], v[2]
+
+    def set_station(self, east: float, north: float, height: float, instrument_height: float) -> None:
+        """TMC_SetStation: station coordinates E0, N0, H0 and instrument height Hi (m)."""
+        self._checked(Rpc.TMC_SetStation, (float(east), float(north), float(height), float(instrument_height)))
+
+    def get_station(self) -> Tuple[float, float, float, float]:
+        """TMC_GetStation: ``(E0, N0, H0, Hi)`` in metres."""
+        e, n, h, hi = (float(v) for v in self._values(Rpc.TMC_GetStation, 4))
+        return e, n, h, hi
+
+    def set_orientation(self, hz_rad: float) -> None:
+        """TMC_SetOrientation: the current Hz direction becomes ``hz_rad`` (radians)."""
+        self._checked(Rpc.TMC_SetOrientation, (float(hz_rad),))

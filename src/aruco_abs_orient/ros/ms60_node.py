@@ -1,0 +1,164 @@
+"""Node ``ms60_driver``: a Leica MS60 (GeoCOM) tracking a prism → ``ms60/prism``.
+
+Publishes
+- ``ms60/prism`` (geometry_msgs/PointStamped, frame ``~frame_id``, default ``map``): the prism
+  position (m); the stamp is the instrument's measurement time mapped to ROS time, never the
+  reception time;
+- ``ms60/status`` (std_msgs/String, 1 Hz): a JSON object with the tracker's figures: ``state``
+  (connecting/searching/locked/lost/reconnecting), ``samples``, ``lost_samples``, ``rate_hz``,
+  ``warnings`` and ``no_position`` (counts per GeoCOM return code), ``timeouts``,
+  ``duplicates``, ``out_of_order``, ``reconnects``, ``relocks``, ``garbage_bytes``,
+  ``stale_replies``, ``clock_offset_s``, ``clock_drift_ppm``, ``instrument``;
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): the same figures as key/values;
+  level OK when locked at ≥ 90 % of ``~rate``, WARN while searching/lost or slower, ERROR while
+  (re)connecting.
+
+Private parameters (each checked; a bad one ends the node with one line and exit status 2):
+``~port`` pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``), ``~baud``
+(115200), ``~rate`` (Hz, 20), ``~timeout`` (s, 0.3), ``~frame_id`` (map), ``~prism_constant_mm``
+(optional), ``~min_latency_ms`` (the instrument's shortest measurement-to-reply time, 0),
+``~station/x``, ``~station/y``, ``~station/z``, ``~station/instrument_height`` (m, optional, all
+of x, y, z together) and ``~station/orientation_deg`` (optional).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from typing import Any, Dict, Tuple
+
+import rospy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PointStamped
+from std_msgs.msg import String
+
+from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerStats
+
+__all__ = ["config_from_params", "stats_to_json", "main"]
+
+
+def _number(params: Dict[str, Any], name: str, default=None, kind=float):
+    value = params.get(name, default)
+    if value is None:
+        return None
+    integral = isinstance(value, (int, float)) and float(value).is_integer()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not integral):
+        raise TrackerError(f"~{name}: expected {'an integer' if kind is int else 'a number'}, got {value!r}")
+    if not math.isfinite(float(value)):
+        raise TrackerError(f"~{name}: {value!r} is not finite")
+    return kind(value)
+
+
+def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
+    """Tracker settings and frame id from the node's private parameters (a dict as returned by
+    ``rospy.get_param("~")``). Raises TrackerError naming the parameter."""
+    port = params.get("port", "/dev/ttyUSB0")
+    if not isinstance(port, str) or not port.strip():
+        raise TrackerError(f"~port: expected a pyserial URL such as /dev/ttyUSB0 or socket://host:port, got {port!r}")
+    frame_id = params.get("frame_id", "map")
+    if not isinstance(frame_id, str) or not frame_id.strip():
+        raise TrackerError(f"~frame_id: expected a frame name, got {frame_id!r}")
+    baud = _number(params, "baud", 115200, int)
+    if baud not in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600):
+        raise TrackerError(f"~baud: {baud} is not a standard baud rate (115200 for 20 Hz)")
+    rate = _number(params, "rate", 20.0)
+    if not 0 < rate <= 100:
+        raise TrackerError(f"~rate: {rate} Hz is not in (0, 100]")
+    timeout = _number(params, "timeout", 0.3)
+    if not 0 < timeout <= 10:
+        raise TrackerError(f"~timeout: {timeout} s is not in (0, 10]")
+    prism_mm = _number(params, "prism_constant_mm")
+    if prism_mm is not None and not -1000 < prism_mm < 1000:
+        raise TrackerError(f"~prism_constant_mm: {prism_mm} mm is not within ±1000 mm")
+    min_latency_ms = _number(params, "min_latency_ms", 0.0)
+    if not 0 <= min_latency_ms <= 1000:
+        raise TrackerError(f"~min_latency_ms: {min_latency_ms} ms is not in [0, 1000]")
+    station_params = params.get("station", {})
+    if not isinstance(station_params, dict):
+        raise TrackerError(f"~station: expected a dictionary with x, y, z, instrument_height, orientation_deg, "
+                           f"got {station_params!r}")
+    unknown = set(station_params) - {"x", "y", "z", "instrument_height", "orientation_deg"}
+    if unknown:
+        raise TrackerError(f"~station: unknown key(s) {', '.join(sorted(unknown))}")
+    xyz = [_number(station_params, k) for k in ("x", "y", "z")]
+    station = None
+    if any(v is not None for v in xyz):
+        if any(v is None for v in xyz):
+            raise TrackerError("~station: x, y and z must be given together")
+        hi = _number(station_params, "instrument_height", 0.0)
+        station = (xyz[0], xyz[1], xyz[2], hi)
+    orientation_deg = _number(station_params, "orientation_deg")
+    config = TrackerConfig(
+        url=port.strip(), baud=baud, rate_hz=rate, timeout_s=timeout,
+        prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
+        orientation_rad=None if orientation_deg is None else math.radians(orientation_deg),
+        min_latency_s=min_latency_ms / 1000.0)
+    config.validate()
+    return config, frame_id.strip()
+
+
+def stats_to_json(stats: TrackerStats) -> str:
+    """The ``ms60/status`` JSON text (drift in ppm; NaN as null)."""
+    d = stats._asdict()
+    d["clock_drift_ppm"] = None if math.isnan(stats.clock_drift) else stats.clock_drift * 1e6
+    del d["clock_drift"]
+    d["clock_offset_s"] = None if math.isnan(stats.clock_offset_s) else stats.clock_offset_s
+    d["warnings"] = {str(k): v for k, v in stats.warnings.items()}
+    d["no_position"] = {str(k): v for k, v in stats.no_position.items()}
+    return json.dumps(d, sort_keys=True)
+
+
+def _diagnostics(stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
+    status = DiagnosticStatus(name="ms60_driver: prism tracking", hardware_id=stats.instrument or "MS60")
+    if stats.state in ("connecting", "reconnecting", "stopped"):
+        status.level, status.message = DiagnosticStatus.ERROR, f"no link to the instrument ({stats.state})"
+    elif stats.state != "locked":
+        status.level, status.message = DiagnosticStatus.WARN, f"prism not locked ({stats.state})"
+    elif stats.rate_hz < 0.9 * rate_hz:
+        status.level, status.message = DiagnosticStatus.WARN, f"locked, slow: {stats.rate_hz:.1f} Hz"
+    else:
+        status.level, status.message = DiagnosticStatus.OK, f"locked, {stats.rate_hz:.1f} Hz"
+    values = json.loads(stats_to_json(stats))
+    status.values = [KeyValue(key=k, value=json.dumps(v) if isinstance(v, dict) else str(v))
+                     for k, v in sorted(values.items())]
+    return status
+
+
+def main() -> None:
+    rospy.init_node("ms60_driver")
+    try:
+        config, frame_id = config_from_params(rospy.get_param("~", {}))
+    except TrackerError as e:
+        rospy.logfatal(f"ms60_driver: {e}")
+        sys.exit(2)
+    prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
+    status_pub = rospy.Publisher("ms60/status", String, queue_size=5, latch=True)
+    diag_pub = rospy.Publisher("/diagnostics", DiagnosticArray, queue_size=5)
+
+    def on_sample(sample: PrismSample) -> None:
+        msg = PointStamped()
+        # instrument time → host wall time (clock fit) → ROS time (equal unless sim time runs)
+        msg.header.stamp = rospy.Time.from_sec(sample.stamp_s + (rospy.get_time() - time.time()))
+        msg.header.frame_id = frame_id
+        msg.point.x, msg.point.y, msg.point.z = sample.east, sample.north, sample.height
+        prism_pub.publish(msg)
+
+    tracker = Ms60Tracker(config, on_sample=on_sample,
+                          on_state=lambda s: rospy.loginfo(f"ms60_driver: {s.value} ({config.url})"))
+
+    def report(_event) -> None:
+        stats = tracker.stats()
+        status_pub.publish(String(data=stats_to_json(stats)))
+        diag = DiagnosticArray()
+        diag.header.stamp = rospy.Time.now()
+        diag.status = [_diagnostics(stats, config.rate_hz)]
+        diag_pub.publish(diag)
+
+    rospy.loginfo(f"ms60_driver: {config.url} at {config.baud} baud, {config.rate_hz} Hz, frame {frame_id}")
+    tracker.start()
+    timer = rospy.Timer(rospy.Duration(1.0), report)
+    rospy.spin()
+    timer.shutdown()
+    tracker.stop()

@@ -1,0 +1,128 @@
+"""GeoCOM client against the simulator over a real pty and over TCP, and over loop://."""
+import time
+
+import numpy as np
+import pytest
+
+from aruco_abs_orient.geocom.client import GeoComClient, GeoComLinkError, GeoComRcError, GeoComTimeout, wire_time_s
+from aruco_abs_orient.geocom.protocol import MOT_LOCKED_IN, MOT_LOCKED_OUT, RC, TMC_TRK_DIST, RcClass
+from aruco_abs_orient.geocom.simulator import FaultRates, Ms60Simulator, SimConfig, builtin_track
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def sim_and_url(request):
+    sim = Ms60Simulator(SimConfig(latency_s=0.003, jitter_s=0.002), seed=3)
+    url = sim.serve_pty() if request.param == "pty" else f"socket://127.0.0.1:{sim.serve_tcp(0)}"
+    yield sim, url
+    sim.close()
+
+
+def test_session_rpcs(sim_and_url):
+    sim, url = sim_and_url
+    with GeoComClient(url, timeout_s=0.5) as client:
+        client.null_proc()
+        assert client.instrument_name() == "MS60"
+        assert client.instrument_number() == 1234567
+        assert client.firmware_version() == "7.10.2"
+        client.set_prism_constant(-0.0344)
+        assert client.prism_constant() == pytest.approx(-0.0344)
+        client.set_station(100.0, 200.0, 300.0, 1.55)
+        assert client.get_station() == (100.0, 200.0, 300.0, 1.55)
+        client.set_orientation(0.25)
+        client.set_user_lock_state(True)
+        client.set_edm_mode()
+        assert client.lock_status() == MOT_LOCKED_OUT
+        # not measuring, not locked: angles only, no position
+        assert client.get_coordinate().reading.rc == RC.TMC_ANGLE_OK
+        assert client.lock_in() == 0 and client.lock_status() == MOT_LOCKED_IN
+        client.do_measure(TMC_TRK_DIST)
+        timed = client.get_coordinate()
+        r = timed.reading
+        assert r.rc_class is RcClass.OK
+        truth = sim.truth[-1]
+        assert (r.east, r.north, r.height) == truth.position and r.time_ms == truth.instrument_ms
+        # measured before it was received, by at least the latency and the reply's wire time
+        assert timed.received_s - truth.time_s >= 0.001 + timed.reply_tx_s - 1e-4
+        n_bytes = round(timed.reply_tx_s * 115200 / 10)
+        assert timed.reply_tx_s == pytest.approx(wire_time_s(n_bytes, 115200)) and 60 < n_bytes < 200
+        rc, e, n, h = client.get_simple_coord()
+        assert rc == 0 and np.allclose((e, n, h), builtin_track(time.time() - sim.t_boot), atol=0.05)
+        sim.set_prism_visible(False)
+        assert client.get_coordinate().reading.rc == RC.TMC_ANGLE_OK
+        assert client.lock_in() == RC.AUT_NO_TARGET
+        sim.set_prism_visible(True)
+        assert client.lock_status() == MOT_LOCKED_OUT  # needs a lock-in again
+        assert client.lock_in() == 0
+
+
+def test_unknown_procedure_is_an_rc_error(sim_and_url):
+    _, url = sim_and_url
+    with GeoComClient(url) as client, pytest.raises(GeoComRcError) as info:
+        client._checked(4242)
+    assert info.value.rc == RC.COM_PROC_UNAVAIL
+
+
+def test_garbage_and_late_replies_are_discarded():
+    faults = FaultRates(garbage=0.5, late=0.15)
+    sim = Ms60Simulator(SimConfig(latency_s=0.003, jitter_s=0.002, late_s=0.25, faults=faults), seed=5)
+    url = sim.serve_pty()
+    try:
+        with GeoComClient(url, timeout_s=0.1) as client:
+            client.lock_in()
+            client.do_measure(TMC_TRK_DIST)
+            got, timeouts = [], 0
+            for _ in range(60):
+                try:
+                    got.append(client.get_coordinate().reading)
+                except GeoComTimeout:
+                    timeouts += 1
+            by_ms = {t.instrument_ms: t for t in sim.truth}
+            # every accepted reply is the answer to its own request: its values are that truth
+            for r in got:
+                if r.has_position:
+                    assert (r.east, r.north, r.height) == by_ms[r.time_ms].position
+            times = [r.time_ms for r in got]
+            assert times == sorted(times) and len(set(times)) == len(times)
+            assert timeouts > 0 and client.stale_replies > 0 and client.garbage_bytes > 0
+    finally:
+        sim.close()
+
+
+def test_loop_url_discards_its_own_echo_and_times_out():
+    with GeoComClient("loop://", timeout_s=0.15) as client:
+        t0 = time.time()
+        with pytest.raises(GeoComTimeout):
+            client.null_proc()
+        assert 0.14 < time.time() - t0 < 0.5
+        assert client.garbage_bytes >= len(b"%R1Q,0,1:\r\n")
+
+
+def test_loop_url_resyncs_after_noise_and_skips_other_trids():
+    with GeoComClient("loop://", timeout_s=0.2) as client:
+        # waiting in the line before the request (trid 1): a stale reply (trid 5), then the
+        # answer glued to noise; the request's own echo follows and is ignored
+        client._serial.write(b'%R1P,0,5:0,"OLD"\r\nnoise%R1P,0,1:0,"MS60"\r\n')
+        assert client.instrument_name() == "MS60"
+        assert client.stale_replies == 1 and client.garbage_bytes == len(b"noise")
+
+
+def test_bad_port_is_a_link_error():
+    with pytest.raises(GeoComLinkError, match="/nonexistent/tty"):
+        GeoComClient("/nonexistent/tty")
+
+
+def test_link_drop_on_tcp_is_a_link_error_or_timeout():
+    sim = Ms60Simulator(SimConfig(latency_s=0.003, jitter_s=0.002), seed=9)
+    port = sim.serve_tcp(0)
+    try:
+        with GeoComClient(f"socket://127.0.0.1:{port}", timeout_s=0.2) as client:
+            client.null_proc()
+            sim.link_down(0.5)
+            with pytest.raises((GeoComLinkError, GeoComTimeout)):
+                for _ in range(5):
+                    client.null_proc()
+        time.sleep(0.5)
+        with GeoComClient(f"socket://127.0.0.1:{port}", timeout_s=0.3) as client:
+            client.null_proc()
+    finally:
+        sim.close()
