@@ -39,8 +39,9 @@ from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerErr
 __all__ = ["config_from_params", "stats_to_json", "main"]
 
 
-def _number(params: Dict[str, Any], name: str, default=None, kind=float):
+def _number(params: Dict[str, Any], name: str, default=None, kind=float, prefix: str = ""):
     value = params.get(name, default)
+    name = prefix + name
     if value is None:
         return None
     integral = isinstance(value, (int, float)) and float(value).is_integer()
@@ -82,14 +83,14 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     unknown = set(station_params) - {"x", "y", "z", "instrument_height", "orientation_deg"}
     if unknown:
         raise TrackerError(f"~station: unknown key(s) {', '.join(sorted(unknown))}")
-    xyz = [_number(station_params, k) for k in ("x", "y", "z")]
+    xyz = [_number(station_params, k, prefix="station/") for k in ("x", "y", "z")]
     station = None
     if any(v is not None for v in xyz):
         if any(v is None for v in xyz):
             raise TrackerError("~station: x, y and z must be given together")
-        hi = _number(station_params, "instrument_height", 0.0)
+        hi = _number(station_params, "instrument_height", 0.0, prefix="station/")
         station = (xyz[0], xyz[1], xyz[2], hi)
-    orientation_deg = _number(station_params, "orientation_deg")
+    orientation_deg = _number(station_params, "orientation_deg", prefix="station/")
     config = TrackerConfig(
         url=port.strip(), baud=baud, rate_hz=rate, timeout_s=timeout,
         prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
