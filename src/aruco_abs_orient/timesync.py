@@ -600,10 +600,16 @@ class OnlineOffsetEstimator:
     bounded by ``horizon`` and ``max_samples`` per stream). ``latest`` is the last estimate (or
     None), ``last_error`` why the last attempt failed (or None); ``applied`` is the offset in use,
     changed only by an estimate with ``confidence ≥ min_confidence`` and ``sigma ≤ max_sigma``.
+
+    Confident estimates are fused (a scalar Kalman filter, ``applied_sigma`` its σ in s): the first
+    counts fully; each later one shares all but ``update_period`` s of its data with the previous,
+    so it enters with its variance × ``horizon / update_period``; the offset may wander as a random
+    walk of ``offset_walk`` s/√s (clock drift).
     """
 
     def __init__(self, horizon: float = 90.0, search=(-1.0, 1.0), update_period: float = 5.0,
-                 min_confidence: float = 0.5, max_sigma: float = 0.01, max_samples: int = 20000, **kwargs):
+                 min_confidence: float = 0.5, max_sigma: float = 0.01, max_samples: int = 20000,
+                 offset_walk: float = 1e-4, **kwargs):
         if horizon <= 0 or update_period <= 0:
             raise TimeSyncError("horizon and update_period must be > 0 s")
         self.horizon = float(horizon)
@@ -618,7 +624,10 @@ class OnlineOffsetEstimator:
         self._last_update: Optional[float] = None
         self.latest: Optional[OffsetEstimate] = None
         self.last_error: Optional[str] = None
+        self.offset_walk = float(offset_walk)
         self.applied: Optional[float] = None
+        self.applied_sigma: Optional[float] = None
+        self._applied_at: Optional[float] = None
 
     def add_vo(self, t: float, yaw: float) -> None:
         """A VO yaw (rad) of base_link stamped ``t`` (s, camera clock)."""
@@ -671,8 +680,19 @@ class OnlineOffsetEstimator:
         self.last_error = None
         self.latest = est
         if est.confidence >= self.min_confidence and est.sigma <= self.max_sigma:
-            self.applied = est.offset
+            self._fuse(est, now)
         return est
+
+    def _fuse(self, est: OffsetEstimate, now: float) -> None:
+        if self.applied is None or self.applied_sigma is None or self._applied_at is None:
+            self.applied, self.applied_sigma, self._applied_at = est.offset, est.sigma, now
+            return
+        prior_var = self.applied_sigma**2 + self.offset_walk**2 * max(0.0, now - self._applied_at)
+        new_var = est.sigma**2 * max(1.0, self.horizon / self.update_period)
+        gain = prior_var / (prior_var + new_var)
+        self.applied += gain * (est.offset - self.applied)
+        self.applied_sigma = math.sqrt((1.0 - gain) * prior_var)
+        self._applied_at = now
 
     def correct_stamp(self, t_camera: float) -> float:
         """Camera stamp (s) moved to the total-station clock with the applied offset (unchanged
