@@ -28,6 +28,8 @@ from aruco_abs_orient.timesync import (
 FPS = 30.0
 YAW_OFFSET = 1.234  # rad, VO yaw − true heading
 A, B = 4.0, 1.5  # m, half-axes of the ellipse
+NOISE_YAW = math.radians(0.2)  # rad, VO yaw noise per frame
+DRIFT = math.radians(3.0) / 60.0  # rad/s, VO yaw drift
 
 
 def ellipse_theta(t):
@@ -50,8 +52,7 @@ def true_speed(t):
     return dth * np.hypot(A * np.sin(th), B * np.cos(th))
 
 
-def scenario(tau, seed=0, duration=60.0, noise_xy=0.005, noise_yaw=math.radians(0.2),
-             drift=math.radians(3.0) / 60.0, prism_rate=19.0):
+def scenario(tau, seed=0, duration=60.0, noise_xy=0.005, noise_yaw=NOISE_YAW, drift=DRIFT, prism_rate=19.0):
     """(t_vo on the camera clock, yaw_vo, t_prism on the true clock, xy_prism)."""
     rng = np.random.default_rng(seed)
     t_true = np.arange(0.0, duration, 1.0 / FPS)
