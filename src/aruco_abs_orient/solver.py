@@ -41,6 +41,7 @@ __all__ = [
     "yaw_from_marker",
     "attitude_from_markers",
     "resection",
+    "yaw_consensus",
 ]
 
 
@@ -422,16 +423,25 @@ def _check_spread(directions: np.ndarray, min_spread: float, what: str) -> None:
             f"(min_spread {math.degrees(min_spread):.2f}°): the rotation about it is unobservable")
 
 
-def _circular_consensus(yaws: np.ndarray, sigmas: np.ndarray) -> float:
-    """The per-marker yaw (rad) with the most support (robust to a false id), averaged with its supporters."""
+def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float, np.ndarray]:
+    """Robust mean of yaw samples (rad) with 1-σ ``sigmas`` (rad): the sample with the most others
+    within ``max(3·hypot(σi, σj), floor)`` of it, averaged (weighted, on the circle) with them.
+
+    Returns the yaw (rad, wrapped) and the boolean mask (N,) of the samples used (false ids and
+    outliers are left out).
+    """
+    yaws = np.asarray(yaws, dtype=float)
+    sigmas = np.asarray(sigmas, dtype=float)
+    if yaws.ndim != 1 or yaws.shape != sigmas.shape or len(yaws) == 0:
+        raise SolverError("yaw_consensus: expected equally long, non-empty 1-D yaws and sigmas")
     diffs = np.abs(wrap_angle(yaws[:, None] - yaws[None, :]))
-    tol = np.maximum(3.0 * np.hypot(sigmas[:, None], sigmas[None, :]), math.radians(2.0))
+    tol = np.maximum(3.0 * np.hypot(sigmas[:, None], sigmas[None, :]), floor)
     support = (diffs <= tol).sum(axis=1)
     best = int(np.argmax(support))
     members = diffs[best] <= tol[best]
-    wts = 1.0 / np.maximum(sigmas[members], 1e-6) ** 2
+    wts = 1.0 / np.maximum(sigmas[members], 1e-9) ** 2
     offs = wrap_angle(yaws[members] - yaws[best])
-    return float(wrap_angle(yaws[best] + np.sum(wts * offs) / np.sum(wts)))
+    return float(wrap_angle(yaws[best] + np.sum(wts * offs) / np.sum(wts))), members
 
 
 def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base, *,
@@ -484,7 +494,7 @@ def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base
         yaws.append(est.yaw)
         sigs.append(est.sigma)
     if yaws:
-        yaw0 = _circular_consensus(np.array(yaws), np.array(sigs))
+        yaw0 = yaw_consensus(yaws, sigs, floor=math.radians(2.0))[0]
     elif initial_yaw is not None:
         yaw0 = float(initial_yaw)
     else:

@@ -1,0 +1,435 @@
+"""The map→odom correction (DESIGN §4.6): a small Kalman filter with gating and initialisation.
+
+State ``x = (δψ, tx, ty, tz)`` with ``map_T_odom = [Rz(δψ), t]`` (radians, metres): visual
+odometry is smooth but its yaw drifts, so δψ is a random walk; the translation follows from
+the total-station prism. Inputs, all time-stamped in seconds, each with the odometry pose
+``odom_T_base`` (4×4) at the measurement time (the caller interpolates odometry):
+
+* ``add_prism(t, p_map, cov, odom_T_base)`` — prism position in map (m, 3×3 m²):
+  ``p = Rz(δψ)·q + t`` with ``q`` the prism in odom (``odom_T_base · prism_in_base``).
+* ``add_yaw(t, yaw_abs, sigma, odom_T_base, marker_id)`` — absolute yaw of base_link (rad)
+  from :mod:`solver`: a direct measurement of ``δψ = ψ_abs − ψ_odom`` (exact: map→odom is a
+  rotation about z, so yaws add).
+
+Model details:
+
+* Process noise: δψ is a random walk (``yaw_random_walk`` rad/√s) that turns map→odom about the
+  robot's **current** position (VO heading drift does not teleport the robot: the translation
+  moves with it, ``dt = −dδψ · e_z × Rz(δψ) q``); the translation has its own random walk
+  (``translation_random_walk`` m/√s) for VO position drift. The odometry itself is taken as exact
+  over the short term.
+* Start-up: measurements are buffered until a **standstill** of ``standstill_duration`` s is seen
+  (odometry moved less than ``standstill_odom_tolerance`` m / ``standstill_yaw_tolerance`` rad and
+  the means of the first and second half of the prism positions differ by less than
+  ``standstill_prism_tolerance`` m) with at least
+  ``init_min_yaws`` mutually consistent marker yaws in it (:func:`solver.yaw_consensus`; false
+  ids left out). Then δψ is their mean, and the odom origin is tied to the averaged prism. Yaws of
+  one marker over a standstill share its bias, so each marker's mean counts with its own σ (not
+  σ/√n): conservative. With ``require_standstill = False`` the filter may start while moving,
+  from the consistent yaws and the latest prism.
+* Tracking: EKF updates with χ² innovation gating (``gate_chi2_yaw``, 1 dof; ``gate_chi2_prism``,
+  3 dof); rejected measurements are counted (per marker id too) and leave the state untouched.
+  Without markers the filter coasts: the covariance grows with the process noise.
+* Re-initialisation: when no yaw has been accepted for ``reinit_after`` s, yaws are collected
+  again as at start-up (no standstill needed) and δψ is reset to their consensus while the robot's
+  map position (tracked by the prism) is kept.
+* Out-of-order / late measurements: a measurement older than the filter time by at most
+  ``max_delay`` s is applied to the current state with its noise inflated by the process noise
+  accumulated over the delay (exact for a random walk up to the correlation with the updates in
+  between); older ones are rejected and counted as ``too_old``. The filter never goes back in time.
+
+numpy only, Python 3.8 compatible, no ROS.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, NamedTuple, Optional, Tuple
+
+import numpy as np
+
+from .solver import yaw_consensus
+from .transforms import make_T, rot_z, transform_points, wrap_angle, yaw_of
+
+__all__ = [
+    "CorrectionError",
+    "NotInitialisedError",
+    "MapOdomFilterParams",
+    "FilterStats",
+    "UpdateResult",
+    "MapOdomFilter",
+]
+
+
+
+def _ez_cross(v: np.ndarray) -> np.ndarray:
+    """e_z × v: the derivative of Rz(δψ)·q w.r.t. δψ when v = Rz(δψ)·q."""
+    return np.array([-v[1], v[0], 0.0])
+
+
+class CorrectionError(ValueError):
+    """Malformed input to the map→odom filter (wrong shapes, bad parameters)."""
+
+
+class NotInitialisedError(CorrectionError):
+    """map→odom was asked for before the filter was initialised."""
+
+
+@dataclass
+class MapOdomFilterParams:
+    """Tuning of :class:`MapOdomFilter` (flat scalars: exposed via dynamic_reconfigure)."""
+
+    yaw_random_walk: float = math.radians(0.1)      # rad/√s, VO yaw drift (3°/min tracked well)
+    translation_random_walk: float = 0.01           # m/√s, VO position drift
+    gate_chi2_yaw: float = 10.83                    # χ²(1 dof), p = 0.001
+    gate_chi2_prism: float = 16.27                  # χ²(3 dof), p = 0.001
+    standstill_duration: float = 2.0                # s of standstill needed at start-up
+    standstill_odom_tolerance: float = 0.01         # m, odometry displacement within the standstill
+    standstill_yaw_tolerance: float = math.radians(0.5)  # rad, odometry yaw change within it
+    standstill_prism_tolerance: float = 0.01        # m, prism motion (first vs second half mean) within it
+    require_standstill: bool = True                 # start only at standstill
+    init_min_yaws: int = 3                          # consistent marker yaws needed to (re)initialise
+    init_yaw_floor: float = math.radians(0.5)       # rad, consensus tolerance floor
+    reinit_after: float = 30.0                      # s without an accepted yaw ⇒ re-initialise
+    max_delay: float = 1.0                          # s, oldest late measurement still applied
+
+    def validate(self) -> None:
+        for name in ("yaw_random_walk", "translation_random_walk", "standstill_odom_tolerance",
+                     "standstill_yaw_tolerance", "standstill_prism_tolerance", "init_yaw_floor", "max_delay"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise CorrectionError(f"MapOdomFilterParams.{name}: expected a non-negative number, got {v!r}")
+        for name in ("gate_chi2_yaw", "gate_chi2_prism", "standstill_duration", "reinit_after"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise CorrectionError(f"MapOdomFilterParams.{name}: expected a positive number, got {v!r}")
+        if not (isinstance(self.init_min_yaws, int) and self.init_min_yaws >= 1):
+            raise CorrectionError(f"MapOdomFilterParams.init_min_yaws: expected an integer ≥ 1, "
+                                  f"got {self.init_min_yaws!r}")
+
+
+@dataclass
+class FilterStats:
+    """Counters for diagnostics; times in seconds (NaN: never)."""
+
+    state: str = "waiting"              # 'waiting' (start-up), 'tracking', 'reinitialising'
+    yaw_accepted: int = 0
+    yaw_rejected: int = 0
+    prism_accepted: int = 0
+    prism_rejected: int = 0
+    too_old: int = 0
+    invalid: int = 0
+    reinitialisations: int = 0
+    last_update: float = float("nan")
+    last_yaw: float = float("nan")
+    accepted_by_marker: Dict[int, int] = field(default_factory=dict)
+    rejected_by_marker: Dict[int, int] = field(default_factory=dict)
+
+
+class UpdateResult(NamedTuple):
+    """Outcome of one measurement: ``status`` is 'accepted', 'gated' (χ² test failed), 'buffered'
+    (kept for (re)initialisation), 'initialised' (it completed the initialisation), 'too_old' or
+    'invalid'; ``chi2`` the normalised innovation squared (NaN when not tested); ``innovation``
+    (rad for yaw, m (3,) for the prism; NaN when not tested)."""
+
+    status: str
+    chi2: float
+    innovation: object
+
+    @property
+    def accepted(self) -> bool:
+        return self.status in ("accepted", "initialised")
+
+
+class _Yaw(NamedTuple):
+    t: float
+    offset: float            # ψ_abs − ψ_odom (rad)
+    sigma: float
+    marker_id: Optional[int]
+    odom_yaw: float
+
+
+class _Prism(NamedTuple):
+    t: float
+    p: np.ndarray            # map (m)
+    cov: np.ndarray
+    q: np.ndarray            # prism in odom (m)
+
+
+def _pose(odom_T_base) -> Optional[np.ndarray]:
+    T = np.asarray(odom_T_base, dtype=float)
+    if T.shape != (4, 4):
+        raise CorrectionError(f"odom_T_base: expected a 4×4 transform, got shape {T.shape}")
+    return T if np.all(np.isfinite(T)) else None
+
+
+class MapOdomFilter:
+    """map→odom from prism positions and absolute marker yaws (see the module docstring).
+
+    Args:
+        prism_in_base: prism position in base_link (3,), metres (static tf base_link→prism).
+        params: tuning, :class:`MapOdomFilterParams` (defaults documented there).
+    """
+
+    def __init__(self, prism_in_base, params: Optional[MapOdomFilterParams] = None):
+        self.params = params if params is not None else MapOdomFilterParams()
+        self.params.validate()
+        t = np.asarray(prism_in_base, dtype=float)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise CorrectionError(f"prism_in_base: expected 3 finite numbers (m), got {prism_in_base!r}")
+        self.prism_in_base = t
+        self.stats = FilterStats()
+        self.x = np.zeros(4)
+        self.P = np.zeros((4, 4))
+        self.t = float("-inf")              # time of the state (s)
+        self._odom_pos = np.zeros(3)        # latest base_link position in odom (for the process noise)
+        self._odom_pos_t = float("-inf")
+        self._yaws: List[_Yaw] = []
+        self._prisms: List[_Prism] = []
+
+    # ------------------------------------------------------------------ queries
+
+    @property
+    def initialised(self) -> bool:
+        return self.stats.state != "waiting"
+
+    @property
+    def state(self) -> Tuple[float, np.ndarray, np.ndarray]:
+        """(time s, state (δψ rad, tx, ty, tz m), covariance 4×4)."""
+        return self.t, self.x.copy(), self.P.copy()
+
+    def map_T_odom(self, t: float) -> Tuple[np.ndarray, np.ndarray]:
+        """map→odom (4×4) and its covariance (4×4 over δψ rad, x, y, z m) predicted to time ``t`` (s).
+
+        Times before the state's time return the current estimate (the filter does not go back).
+        Raises NotInitialisedError before initialisation.
+        """
+        if not self.initialised:
+            raise NotInitialisedError("map→odom is not initialised yet (waiting for a standstill with "
+                                      f"{self.params.init_min_yaws} consistent marker yaws)")
+        P = self.P + self._process_noise(max(0.0, float(t) - self.t), self._odom_pos)
+        return make_T(rot_z(self.x[0]), self.x[1:]), P
+
+    # ------------------------------------------------------------------ inputs
+
+    def add_prism(self, t: float, p_map, cov, odom_T_base) -> UpdateResult:
+        """Prism position ``p_map`` (3,) in map (m) with covariance ``cov`` (3×3 m² or a σ in m) at
+        time ``t`` (s); ``odom_T_base`` the odometry pose (4×4) at ``t``."""
+        p = np.asarray(p_map, dtype=float)
+        if p.shape != (3,):
+            raise CorrectionError(f"add_prism: p_map: expected 3 numbers (m), got shape {p.shape}")
+        C = np.asarray(cov, dtype=float)
+        C = C * C * np.eye(3) if C.ndim == 0 else C
+        if C.shape != (3, 3):
+            raise CorrectionError(f"add_prism: cov: expected a 3×3 covariance (m²) or a σ (m), got {C.shape}")
+        T = _pose(odom_T_base)
+        t = float(t)
+        if (T is None or not math.isfinite(t) or not np.all(np.isfinite(p)) or not np.all(np.isfinite(C))
+                or np.linalg.eigvalsh(C)[0] <= 0):
+            self.stats.invalid += 1
+            return UpdateResult("invalid", float("nan"), float("nan"))
+        q = transform_points(T, self.prism_in_base)
+        self._note_odom(t, T)
+        if not self.initialised:
+            self._prisms.append(_Prism(t, p, C, q))
+            return self._try_initialise(t)
+        late = self._late(t)
+        if late is None:
+            return UpdateResult("too_old", float("nan"), float("nan"))
+        Rq = rot_z(self.x[0]) @ q
+        H = np.zeros((3, 4))
+        H[:, 0] = _ez_cross(Rq)
+        H[:, 1:] = np.eye(3)
+        nu = p - (Rq + self.x[1:])
+        R = C + H @ self._process_noise(late, q) @ H.T
+        res = self._update(H, nu, R, self.params.gate_chi2_prism, t)
+        if res.accepted:
+            self.stats.prism_accepted += 1
+        else:
+            self.stats.prism_rejected += 1
+        return res
+
+    def add_yaw(self, t: float, yaw_abs: float, sigma: float, odom_T_base,
+                marker_id: Optional[int] = None) -> UpdateResult:
+        """Absolute yaw of base_link ``yaw_abs`` (rad) with 1-σ ``sigma`` (rad) at time ``t`` (s), e.g.
+        from :func:`solver.yaw_from_marker`; ``odom_T_base`` the odometry pose (4×4) at ``t``;
+        ``marker_id`` for the per-marker statistics and the start-up consensus."""
+        T = _pose(odom_T_base)
+        t, yaw_abs, sigma = float(t), float(yaw_abs), float(sigma)
+        if T is None or not (math.isfinite(t) and math.isfinite(yaw_abs) and math.isfinite(sigma)) or sigma <= 0:
+            self.stats.invalid += 1
+            return UpdateResult("invalid", float("nan"), float("nan"))
+        self._note_odom(t, T)
+        odom_yaw = float(yaw_of(T[:3, :3]))
+        sample = _Yaw(t, float(wrap_angle(yaw_abs - odom_yaw)), sigma, marker_id, odom_yaw)
+        if self.stats.state == "tracking" and t - self.stats.last_yaw > self.params.reinit_after:
+            self.stats.state = "reinitialising"
+            self._yaws = []
+        if self.stats.state != "tracking":
+            self._yaws.append(sample)
+            return self._try_initialise(t)
+        late = self._late(t)
+        if late is None:
+            return UpdateResult("too_old", float("nan"), float("nan"))
+        H = np.array([[1.0, 0.0, 0.0, 0.0]])
+        nu = np.array([float(wrap_angle(sample.offset - self.x[0]))])
+        R = np.array([[sigma * sigma]]) + H @ self._process_noise(late, self._odom_pos) @ H.T
+        res = self._update(H, nu, R, self.params.gate_chi2_yaw, t)
+        res = UpdateResult(res.status, res.chi2, float(nu[0]))
+        self._count_yaw(res.accepted, marker_id, t)
+        return res
+
+    # ------------------------------------------------------------------ internals
+
+    def _note_odom(self, t: float, T: np.ndarray) -> None:
+        if t >= self._odom_pos_t:
+            self._odom_pos, self._odom_pos_t = T[:3, 3].copy(), t
+
+    def _count_yaw(self, accepted: bool, marker_id: Optional[int], t: float) -> None:
+        counts = self.stats.accepted_by_marker if accepted else self.stats.rejected_by_marker
+        if marker_id is not None:
+            counts[marker_id] = counts.get(marker_id, 0) + 1
+        if accepted:
+            self.stats.yaw_accepted += 1
+            self.stats.last_yaw = max(t, self.stats.last_yaw) if math.isfinite(self.stats.last_yaw) else t
+        else:
+            self.stats.yaw_rejected += 1
+
+    def _process_noise(self, dt: float, q_odom: np.ndarray) -> np.ndarray:
+        """Q (4×4) over ``dt`` s: yaw random walk about the robot at ``q_odom`` (odom, m) + translation walk."""
+        if dt <= 0:
+            return np.zeros((4, 4))
+        G = np.concatenate([[1.0], -_ez_cross(rot_z(self.x[0]) @ q_odom)])
+        Q = self.params.yaw_random_walk ** 2 * dt * np.outer(G, G)
+        Q[1:, 1:] += self.params.translation_random_walk ** 2 * dt * np.eye(3)
+        return Q
+
+    def _predict_to(self, t: float) -> None:
+        if t > self.t:
+            self.P = self.P + self._process_noise(t - self.t, self._odom_pos)
+            self.t = t
+
+    def _late(self, t: float) -> Optional[float]:
+        """Advance the state to ``t`` if newer; return the delay (s) of a late measurement, None if too old."""
+        if t >= self.t:
+            self._predict_to(t)
+            return 0.0
+        if self.t - t > self.params.max_delay:
+            self.stats.too_old += 1
+            return None
+        return self.t - t
+
+    def _update(self, H: np.ndarray, nu: np.ndarray, R: np.ndarray, gate: float, t: float) -> UpdateResult:
+        S = H @ self.P @ H.T + R
+        Sinv = np.linalg.inv(S)
+        chi2 = float(nu @ Sinv @ nu)
+        innovation = nu.copy() if len(nu) > 1 else float(nu[0])
+        if chi2 > gate:
+            return UpdateResult("gated", chi2, innovation)
+        K = self.P @ H.T @ Sinv
+        IKH = np.eye(4) - K @ H
+        self.x = self.x + K @ nu
+        self.x[0] = float(wrap_angle(self.x[0]))
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T          # Joseph form
+        self.P = 0.5 * (self.P + self.P.T)
+        self.stats.last_update = t if not math.isfinite(self.stats.last_update) else max(t, self.stats.last_update)
+        return UpdateResult("accepted", chi2, innovation)
+
+    def _consensus(self, yaws: List[_Yaw]) -> Optional[Tuple[float, float, List[_Yaw]]]:
+        """(δψ rad, variance rad², members) from buffered yaws, or None if fewer than init_min_yaws agree."""
+        if len(yaws) < self.params.init_min_yaws:
+            return None
+        off = np.array([y.offset for y in yaws])
+        sig = np.array([y.sigma for y in yaws])
+        mean, members = yaw_consensus(off, sig, self.params.init_yaw_floor)
+        if int(members.sum()) < self.params.init_min_yaws:
+            return None
+        used = [y for y, m in zip(yaws, members) if m]
+        # One marker's yaws share its bias: per marker, its σ (not σ/√n); markers are independent.
+        by_marker: Dict[object, List[float]] = {}
+        for i, y in enumerate(used):
+            by_marker.setdefault(y.marker_id if y.marker_id is not None else ("sample", i), []).append(y.sigma)
+        info = sum(1.0 / (float(np.mean(s)) ** 2) for s in by_marker.values())
+        return mean, 1.0 / info, used
+
+    def _try_initialise(self, t: float) -> UpdateResult:
+        p = self.params
+        horizon = t - max(p.standstill_duration, p.max_delay)
+        self._yaws = [y for y in self._yaws if y.t >= horizon]
+        self._prisms = [m for m in self._prisms if m.t >= horizon]
+        if self.stats.state == "reinitialising":
+            return self._reinitialise(t)
+        window_p = [m for m in self._prisms if m.t >= t - p.standstill_duration]
+        window_y = [y for y in self._yaws if y.t >= t - p.standstill_duration]
+        if not window_p:
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        still = self._is_standstill(window_p, window_y, t)
+        if not still and p.require_standstill:
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        cons = self._consensus(window_y)
+        if cons is None:
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        dpsi, var, used = cons
+        use_p = window_p if still else window_p[-1:]
+        n = len(use_p)
+        pbar = np.mean([m.p for m in use_p], axis=0)
+        qbar = np.mean([m.q for m in use_p], axis=0)
+        Cbar = np.mean([m.cov for m in use_p], axis=0) / n
+        Rz = rot_z(dpsi)
+        g = _ez_cross(Rz @ qbar)
+        self.x = np.concatenate([[dpsi], pbar - Rz @ qbar])
+        self.P = np.zeros((4, 4))
+        self.P[0, 0] = var
+        self.P[0, 1:] = self.P[1:, 0] = -g * var
+        self.P[1:, 1:] = Cbar + var * np.outer(g, g)
+        self.t = max(t, max(m.t for m in use_p))
+        self.stats.state = "tracking"
+        self.stats.prism_accepted += n
+        for y in used:
+            self._count_yaw(True, y.marker_id, y.t)
+        self.stats.last_update = self.t
+        self._yaws, self._prisms = [], []
+        return UpdateResult("initialised", float("nan"), float("nan"))
+
+    def _is_standstill(self, window_p: List[_Prism], window_y: List[_Yaw], t: float) -> bool:
+        p = self.params
+        if t - min(m.t for m in window_p) < 0.9 * p.standstill_duration or len(window_p) < 3:
+            return False
+        q = np.array([m.q for m in window_p])
+        pm = np.array([m.p for m in window_p])
+        if np.linalg.norm(q - q.mean(axis=0), axis=1).max() > p.standstill_odom_tolerance:
+            return False
+        half = len(pm) // 2                   # halves' means: insensitive to the prism noise
+        if np.linalg.norm(pm[:half].mean(axis=0) - pm[half:].mean(axis=0)) > p.standstill_prism_tolerance:
+            return False
+        oy = np.array([y.odom_yaw for y in window_y])
+        return len(oy) == 0 or float(np.abs(wrap_angle(oy - oy[0])).max()) <= p.standstill_yaw_tolerance
+
+    def _reinitialise(self, t: float) -> UpdateResult:
+        """Reset δψ to the consensus of recent yaws, keeping the robot's map position and its covariance."""
+        cons = self._consensus(self._yaws)
+        if cons is None:
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        dpsi, var, used = cons
+        self._predict_to(t)
+        q = self._odom_pos
+        g_old = _ez_cross(rot_z(self.x[0]) @ q)
+        A = np.eye(4)
+        A[1:, 0] = g_old                       # (δψ, t) → (δψ, m = Rz(δψ) q + t)
+        Py = A @ self.P @ A.T
+        m = rot_z(self.x[0]) @ q + self.x[1:]
+        Py[0, :] = Py[:, 0] = 0.0
+        Py[0, 0] = var
+        g_new = _ez_cross(rot_z(dpsi) @ q)
+        Ainv = np.eye(4)
+        Ainv[1:, 0] = -g_new
+        self.x = np.concatenate([[dpsi], m - rot_z(dpsi) @ q])
+        self.P = Ainv @ Py @ Ainv.T
+        self.stats.state = "tracking"
+        self.stats.reinitialisations += 1
+        for y in used:
+            self._count_yaw(True, y.marker_id, y.t)
+        self.stats.last_update = max(self.stats.last_update, t)
+        self._yaws, self._prisms = [], []
+        return UpdateResult("initialised", float("nan"), float("nan"))
