@@ -209,7 +209,7 @@ class Ms60Tracker:
                 self._reconnect()
             else:
                 self._stop.wait(self.config.backoff_s)
-        except GeoComError:  # malformed reply content: skip this slot
+        except (GeoComError, ValueError):  # malformed reply content: skip this slot
             pass
         return 0
 
@@ -296,7 +296,10 @@ class Ms60Tracker:
             self.samples += 1
             if r.rc != 0:
                 self.warnings[r.rc] = self.warnings.get(r.rc, 0) + 1
-            self._recent.append(time.time())
+            now = time.time()
+            self._recent.append(now)
+            while self._recent[0] < now - 60.0:
+                self._recent.popleft()
         if self.on_sample is not None:
             self.on_sample(sample)
         return 1

@@ -151,6 +151,8 @@ def main() -> None:
 
     def report(_event) -> None:
         stats = tracker.stats()
+        if stats.state in ("connecting", "reconnecting"):
+            rospy.logwarn_throttle(10.0, f"ms60_driver: no answer from the instrument on {config.url} ({stats.state})")
         status_pub.publish(String(data=stats_to_json(stats)))
         diag = DiagnosticArray()
         diag.header.stamp = rospy.Time.now()
