@@ -5,7 +5,6 @@ and cv2 encode the images we read; genpy serialises the messages we build. Needs
 (the package's generated messages): run with tools/env.sh sourced, as `make test` does.
 """
 import math
-from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -18,8 +17,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from std_msgs.msg import Header
 
+from aruco_abs_orient.camera import Equirect, azel_to_bearing
+from aruco_abs_orient.detection import MarkerObservation
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.msg import MarkerObservations
+from aruco_abs_orient.pipeline import FrameResult, ObservationResult
 from aruco_abs_orient.ros import conversions as cv
 from aruco_abs_orient.transforms import invert_T, make_T, matrix_to_rpy, rpy_to_matrix
 
@@ -149,20 +151,26 @@ def test_pose_covariance_layout():
 
 
 def _result(**kw):
-    """A FrameResult-shaped record with the documented fields (pipeline.FrameResult)."""
-    base = {"stamp": 0.0, "observations": [], "yaw": None, "yaw_sigma": None, "attitude_cov": None,
-            "map_T_base": None, "base_position_cov": None, "map_T_odom": None, "map_T_odom_cov": None,
-            "initialised": False, "error": None, "timings": {}}
-    base.update(kw)
-    return SimpleNamespace(**base)
+    """A FrameResult of the pipeline with the given fields."""
+    return FrameResult(stamp=kw.pop("stamp", 0.0), **kw)
+
+
+def _observation(marker_id, az, el, yaw=float("nan"), yaw_sigma=float("nan"), accepted=False, **kw):
+    """A detection at (az, el) as the pipeline returns it (pixel from camera.py's equirect model)."""
+    eq = Equirect(960, 480)
+    centre = azel_to_bearing(az, el)
+    obs = MarkerObservation(id=marker_id, corners=np.tile(centre, (4, 1)), centre=centre,
+                            pixel=tuple(float(x) for x in eq.bearing_to_pixel(centre)),
+                            corners_px=np.zeros((4, 2)), angular_size=0.02, sigma=3e-4, method="tracked")
+    return ObservationResult(obs, yaw=yaw, yaw_sigma=yaw_sigma, accepted=accepted, **kw)
 
 
 @given(small_angles, small_angles, angles, angles, st.floats(1e-4, 0.1))
-def test_orientation_without_pose_takes_tilt_from_odometry_and_yaw_from_markers(roll, pitch, odom_yaw, yaw, sigma):
+def test_orientation_takes_tilt_from_odometry_and_yaw_from_markers(roll, pitch, odom_yaw, yaw, sigma):
     odom_T_base = make_T(rpy_to_matrix(roll * 0.2, pitch * 0.2, odom_yaw), [1.0, 2.0, 0.0])
-    msg = cv.orientation_msg(_result(yaw=yaw, yaw_sigma=sigma), odom_T_base, rospy.Time(5), "map")
+    msg = cv.orientation_msg(yaw, sigma, odom_T_base, rospy.Time(5), "map")
     q = msg.pose.pose.orientation
-    buf = _buffer()  # read the quaternion back through tf2 rather than our own quat maths
+    buf = _buffer()  # read the quaternion back through tf2 rather than our own quaternion maths
     tr = cv.matrix_to_transform_stamped(np.eye(4), rospy.Time(5), "map", "base")
     tr.transform.rotation = q
     buf.set_transform(tr, "test")
@@ -175,13 +183,23 @@ def test_orientation_without_pose_takes_tilt_from_odometry_and_yaw_from_markers(
     assert msg.header.frame_id == "map" and msg.header.stamp == rospy.Time(5)
 
 
-def test_orientation_prism_and_pose_messages_follow_the_result():
+def test_marker_yaw_weights_accepted_markers_across_the_wrap():
+    a = math.radians(179.0)
+    obs = [_observation(1, 0.1, 0.0, yaw=a, yaw_sigma=0.01, accepted=True),
+           _observation(2, 1.0, 0.1, yaw=-a, yaw_sigma=0.02, accepted=True),   # 2° away, across ±180°
+           _observation(3, 2.0, 0.0, yaw=0.3, yaw_sigma=0.001, accepted=False),  # rejected: ignored
+           _observation(4, 2.5, 0.0)]                                           # no yaw: ignored
+    yaw, sigma = cv.marker_yaw(obs)
+    # hand-checked: weights 1e4 and 2.5e3 → 179° + 2° · 0.2 = 179.4°
+    assert abs(math.degrees(yaw) - 179.4) < 1e-9
+    assert math.isclose(sigma, (1e4 + 2.5e3) ** -0.5)
+    assert cv.marker_yaw(obs[2:]) is None and cv.marker_yaw([]) is None
+
+
+def test_prism_and_pose_messages_follow_the_result():
     T = make_T(rpy_to_matrix(0.01, -0.02, 1.2), [3.0, -4.0, 0.3])
-    A = np.diag([1e-5, 2e-5, 3e-6])
     P = np.diag([2.5e-5, 2.5e-5, 4e-5])
-    r = _result(yaw=1.2, yaw_sigma=0.002, attitude_cov=A, map_T_base=T, base_position_cov=P, initialised=True)
-    o = cv.orientation_msg(r, np.eye(4), rospy.Time(1))
-    np.testing.assert_array_equal(np.array(o.pose.covariance).reshape(6, 6)[3:, 3:], A)
+    r = _result(yaw=1.2, yaw_sigma=0.002, map_T_base=T, base_position_cov=P, initialised=True)
     p = cv.prism_pose_msg(r, rospy.Time(1))
     assert [p.pose.pose.position.x, p.pose.pose.position.y, p.pose.pose.position.z] == [3.0, -4.0, 0.3]
     C = np.array(p.pose.covariance).reshape(6, 6)
@@ -190,27 +208,26 @@ def test_orientation_prism_and_pose_messages_follow_the_result():
     s = cv.pose_msg(r, rospy.Time(1))
     assert s.pose == p.pose.pose
     empty = _result()
-    assert cv.orientation_msg(empty, np.eye(4), rospy.Time(1)) is None
     assert cv.prism_pose_msg(empty, rospy.Time(1)) is None and cv.pose_msg(empty, rospy.Time(1)) is None
 
 
 def test_observations_message_serialises_with_nan_for_unknowns():
     from io import BytesIO
 
-    obs = [SimpleNamespace(id=7, bearing=np.array([0.6, 0.8, 0.0]), azimuth=0.927, elevation=0.0, pixel=(100.5, 240.25),
-                           angular_size=0.02, sigma=3e-4, method="tracked", range=4.2, yaw=0.5, yaw_sigma=0.003,
-                           residual=-0.001, accepted=True),
-           SimpleNamespace(id=3, bearing=np.array([0.0, 0.0, 1.0]), azimuth=0.0, elevation=1.5707, pixel=(5.0, 1.0),
-                           angular_size=0.01, sigma=1e-3, method="full", range=None, yaw=None, yaw_sigma=None,
-                           residual=None, accepted=False)]
-    msg = cv.observations_msg(_result(observations=obs), rospy.Time(7, 1), "camera")
+    obs = [_observation(7, 0.927, 0.2, yaw=0.5, yaw_sigma=0.003, accepted=True, range=4.2, residual=-0.001),
+           _observation(3, -2.0, 1.2)]
+    msg = cv.observations_msg(obs, rospy.Time(7, 1), "camera")
     buf = BytesIO()
     msg.serialize(buf)
     back = MarkerObservations().deserialize(buf.getvalue())
     assert back.header.frame_id == "camera" and back.header.stamp == rospy.Time(7, 1)
     a, b = back.observations
-    assert (a.id, a.method, a.accepted, a.pixel_u, a.pixel_v) == (7, "tracked", True, 100.5, 240.25)
-    assert (a.bearing.x, a.bearing.y, a.range, a.yaw, a.residual) == (0.6, 0.8, 4.2, 0.5, -0.001)
+    assert (a.id, a.method, a.accepted, a.range, a.yaw, a.residual) == (7, "tracked", True, 4.2, 0.5, -0.001)
+    assert abs(a.azimuth - 0.927) < 1e-12 and abs(a.elevation - 0.2) < 1e-12
+    np.testing.assert_allclose([a.bearing.x, a.bearing.y, a.bearing.z], azel_to_bearing(0.927, 0.2), atol=1e-12)
+    # the pixel is camera.py's: back through its model to the same bearing
+    np.testing.assert_allclose(Equirect(960, 480).pixel_to_bearing(a.pixel_u, a.pixel_v), azel_to_bearing(0.927, 0.2),
+                               atol=1e-9)
     assert b.id == 3 and not b.accepted and all(math.isnan(x) for x in (b.range, b.yaw, b.yaw_sigma, b.residual))
 
 

@@ -35,7 +35,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..markers import MarkerMap
 from ..msg import MarkerObservation, MarkerObservations
-from ..transforms import make_T, matrix_to_quat, matrix_to_rpy, quat_to_matrix, rpy_to_matrix
+from ..transforms import make_T, matrix_to_quat, matrix_to_rpy, quat_to_matrix, rpy_to_matrix, wrap_angle
 
 __all__ = [
     "ConversionError",
@@ -49,6 +49,7 @@ __all__ = [
     "image_from_compressed",
     "image_from_raw",
     "pose_covariance",
+    "marker_yaw",
     "orientation_msg",
     "prism_pose_msg",
     "pose_msg",
@@ -187,28 +188,37 @@ def _header(stamp: rospy.Time, frame_id: str) -> Header:
     return Header(stamp=stamp, frame_id=frame_id)
 
 
-def orientation_msg(result, odom_T_base: np.ndarray, stamp: rospy.Time,
-                    frame_id: str = "map") -> Optional[PoseWithCovarianceStamped]:
-    """Absolute attitude of base_link in ``frame_id`` measured in one frame, or None without a yaw.
+def marker_yaw(observations) -> Optional[Tuple[float, float]]:
+    """The frame's absolute yaw of base_link from its accepted markers alone: (yaw, σ) in rad, or None.
 
-    The orientation is the result's ``map_T_base`` rotation; without one, roll and pitch come from the
-    odometry (``odom_T_base``: map→odom only turns about z) and the yaw from ``result.yaw``. The
-    covariance is ``result.attitude_cov`` when the frame saw enough markers for full attitude, else
-    ``yaw_sigma²`` on yaw only; the position is unobserved (UNOBSERVED_VARIANCE; the pose's position is
-    the corrected one, for display).
+    Inverse-variance weighted mean of the accepted per-marker yaws (``ObservationResult.yaw``/
+    ``.yaw_sigma``), taken on the circle around the most certain one; σ = (Σ σᵢ⁻²)^(-1/2). This is a
+    measurement for robot_localization: unlike ``FrameResult.yaw`` (the node's filtered yaw, which has
+    already used the odometry), it is independent of the odometry's yaw and may be fused with it.
     """
-    if result.yaw is None or result.yaw_sigma is None:
+    used = [(float(o.yaw), float(o.yaw_sigma)) for o in observations
+            if o.accepted and math.isfinite(o.yaw) and math.isfinite(o.yaw_sigma) and o.yaw_sigma > 0]
+    if not used:
         return None
-    if result.map_T_base is not None:
-        T = np.asarray(result.map_T_base, dtype=float)
-    else:
-        roll, pitch, _ = matrix_to_rpy(np.asarray(odom_T_base, dtype=float)[:3, :3])
-        T = make_T(rpy_to_matrix(roll, pitch, result.yaw), np.zeros(3))
+    yaws, sigmas = np.array(used).T
+    w = sigmas ** -2.0
+    ref = yaws[np.argmax(w)]
+    yaw = ref + float(np.sum(w * wrap_angle(yaws - ref)) / np.sum(w))
+    return float(wrap_angle(yaw)), float(np.sum(w) ** -0.5)
+
+
+def orientation_msg(yaw: float, yaw_sigma: float, odom_T_base: np.ndarray, stamp: rospy.Time,
+                    frame_id: str = "map") -> PoseWithCovarianceStamped:
+    """Absolute yaw of base_link in ``frame_id`` (rad, 1-σ rad) as a pose with covariance.
+
+    Roll and pitch are the odometry's (``odom_T_base``; map→odom turns about z only) and are not
+    measured: their variance, like the position's, is UNOBSERVED_VARIANCE; the position is zero.
+    """
+    roll, pitch, _ = matrix_to_rpy(np.asarray(odom_T_base, dtype=float)[:3, :3])
     msg = PoseWithCovarianceStamped()
     msg.header = _header(stamp, frame_id)
-    msg.pose.pose = matrix_to_pose(T)
-    msg.pose.covariance = pose_covariance(attitude_cov=result.attitude_cov,
-                                          yaw_variance=float(result.yaw_sigma) ** 2)
+    msg.pose.pose = matrix_to_pose(make_T(rpy_to_matrix(roll, pitch, yaw), np.zeros(3)))
+    msg.pose.covariance = pose_covariance(yaw_variance=float(yaw_sigma) ** 2)
     return msg
 
 
@@ -231,24 +241,21 @@ def pose_msg(result, stamp: rospy.Time, frame_id: str = "map") -> Optional[PoseS
     return PoseStamped(header=_header(stamp, frame_id), pose=matrix_to_pose(result.map_T_base))
 
 
-def _nan_if_none(x) -> float:
-    return float("nan") if x is None else float(x)
-
-
-def observations_msg(result, stamp: rospy.Time, frame_id: str = "camera") -> MarkerObservations:
-    """The frame's per-marker observations as the package's ``MarkerObservations`` (NaN for unknowns)."""
+def observations_msg(observations, stamp: rospy.Time, frame_id: str = "camera") -> MarkerObservations:
+    """A frame's per-marker results (``pipeline.ObservationResult``: ``.observation`` the detection,
+    ``.yaw/.yaw_sigma/.range/.residual/.accepted``) as the package's ``MarkerObservations``; unknown
+    values stay NaN."""
     out = MarkerObservations(header=_header(stamp, frame_id))
-    for o in result.observations:
-        b = np.asarray(o.bearing, dtype=float)
+    for r in observations:
+        o = r.observation
+        b = np.asarray(o.centre, dtype=float)
         u, v = o.pixel
         out.observations.append(MarkerObservation(
             id=int(o.id), azimuth=float(o.azimuth), elevation=float(o.elevation),
             bearing=Vector3(float(b[0]), float(b[1]), float(b[2])), pixel_u=float(u), pixel_v=float(v),
-            angular_size=float(o.angular_size), bearing_sigma=float(o.sigma),
-            range=_nan_if_none(getattr(o, "range", None)), yaw=_nan_if_none(getattr(o, "yaw", None)),
-            yaw_sigma=_nan_if_none(getattr(o, "yaw_sigma", None)),
-            residual=_nan_if_none(getattr(o, "residual", None)), accepted=bool(getattr(o, "accepted", False)),
-            method=str(o.method)))
+            angular_size=float(o.angular_size), bearing_sigma=float(o.sigma), range=float(r.range),
+            yaw=float(r.yaw), yaw_sigma=float(r.yaw_sigma), residual=float(r.residual),
+            accepted=bool(r.accepted), method=str(o.method)))
     return out
 
 

@@ -1,0 +1,550 @@
+"""The ``abs_orient`` node: marker bearings in 360° images → tf ``map → odom`` and absolute inputs for
+robot_localization (DESIGN §3). A thin shell around :class:`aruco_abs_orient.pipeline.AbsOrientPipeline`.
+
+Inputs: ``camera/image/compressed`` (``sensor_msgs/CompressedImage``) or, with ``~image_transport: raw``,
+``camera/image`` (``sensor_msgs/Image``); ``ms60/prism`` (``geometry_msgs/PointStamped`` in map); tf
+``odom → base_link`` (looked up at each image stamp) and the static lever arms ``base_link → camera``,
+``base_link → prism``; the marker map YAML ``~markers``.
+
+Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry they go with):
+- tf ``map → odom`` (``~publish_tf``, default true; false when a robot_localization EKF in map mode owns
+  it — never two owners);
+- ``abs_orient/orientation`` (``PoseWithCovarianceStamped``): the frame's yaw from its accepted markers
+  alone (a measurement, independent of the odometry's yaw), roll/pitch from odometry, unobserved parts
+  at variance 1e6; only when a marker was accepted;
+- ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
+  arm removed; ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
+  ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``/diagnostics``.
+
+Time. ``~time_offset`` (s): camera stamps = true (total-station) time + offset; the pipeline works in
+total-station time (``stamp − offset``), the published messages keep the image stamp. ``map → odom`` is
+stamped at the image time, never future-dated. When no image has been processed for ``1/~tf_rate`` s
+(camera stalled, frames dropped), it is re-published at the NEWEST ``odom → base_link`` stamp in the tf
+buffer, with the filter's prediction there, if that stamp is newer than the last one sent: tf2 needs
+strictly increasing stamps per edge (a repeated stamp is TF_REPEATED_DATA), so the stamp only ever
+advances. A stamp going back by more than ``~time_jump_tolerance`` s (sim time: a bag looped or
+restarted) resets the pipeline and clears the tf buffer.
+
+Real time. The image callback only drops the message into a one-slot mailbox (the newest wins; a
+replaced, unprocessed image is counted as dropped); the main thread processes the mailbox. Subscriber
+``queue_size=1`` with a large ``buff_size``: no queue can grow. Prism messages go through a bounded deque.
+
+Bad input never stops the node: a corrupt image, unknown ids, NaN/missing tf, no prism — each is counted,
+logged (throttled) and reported on ``/diagnostics``, and processing carries on with the next message. A
+marker map that does not load → one line (``[FATAL] ... abs_orient: <file>: <field>: <problem>``) and exit
+status 2.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass, fields
+from typing import Deque, Dict, Optional, Tuple
+
+import numpy as np
+
+from ..markers import MarkerMap, MarkerMapError
+from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
+from ..transforms import yaw_of
+
+__all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
+
+RECONFIGURABLE_NODE_PARAMS = ("time_offset",)
+"""Node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)."""
+
+
+class NodeConfigError(ValueError):
+    """A node parameter with a bad value: names the parameter."""
+
+
+@dataclass
+class NodeConfig:
+    """Private parameters of the node (names without ``~``); units in the names' docs.
+
+    - ``markers``: marker map YAML path (required).
+    - ``image_transport``: 'compressed' (``camera/image/compressed``) or 'raw' (``camera/image``).
+    - ``time_offset``: s, camera stamps = true time + offset.
+    - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
+    - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
+    - ``tf_timeout``: s (wall clock), how long to wait for ``odom → base_link`` at an image stamp.
+    - ``time_jump_tolerance``: s, a stamp going back by more than this resets the node.
+    - ``prism_timeout``: s, prism older than this → diagnostics warn.
+    - ``image_timeout``: s (wall clock), no image for this long → diagnostics warn.
+    - ``diagnostics_rate``: Hz.
+    - frames: ``map_frame``, ``odom_frame``, ``base_frame``, ``camera_frame``, ``prism_frame``.
+    """
+
+    markers: str = ""
+    image_transport: str = "compressed"
+    time_offset: float = 0.0
+    publish_tf: bool = True
+    tf_rate: float = 20.0
+    tf_timeout: float = 0.05
+    time_jump_tolerance: float = 0.5
+    prism_timeout: float = 1.0
+    image_timeout: float = 2.0
+    diagnostics_rate: float = 1.0
+    map_frame: str = "map"
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    camera_frame: str = "camera"
+    prism_frame: str = "prism"
+
+    @classmethod
+    def from_params(cls, get_param) -> NodeConfig:
+        """Read ``~name`` for every field through ``get_param(name, default)`` (rospy.get_param) and
+        validate. Raises NodeConfigError naming the parameter."""
+        kw = {}
+        for f in fields(cls):
+            default = f.default
+            value = get_param("~" + f.name, default)
+            if isinstance(default, bool):
+                if not isinstance(value, bool):
+                    raise NodeConfigError(f"~{f.name}: expected true or false, got {value!r}")
+            elif isinstance(default, float):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise NodeConfigError(f"~{f.name}: expected a number, got {value!r}")
+                value = float(value)
+            elif not isinstance(value, str):
+                raise NodeConfigError(f"~{f.name}: expected a string, got {value!r}")
+            kw[f.name] = value
+        config = cls(**kw)
+        if not config.markers:
+            raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
+        if config.image_transport not in ("compressed", "raw"):
+            raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
+        for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
+                     "image_timeout"):
+            if getattr(config, name) <= 0:
+                raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
+        return config
+
+
+class Mailbox:
+    """A one-slot hand-over from a subscriber callback to a worker: the newest item wins.
+
+    ``put`` never blocks; an item replaced before it was taken is counted in ``dropped``.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item = None
+        self.received = 0
+        self.dropped = 0
+
+    def put(self, item) -> None:
+        with self._cond:
+            self.received += 1
+            if self._item is not None:
+                self.dropped += 1
+            self._item = item
+            self._cond.notify()
+
+    def take(self, timeout: float):
+        """The newest item (and empty the slot), or None after ``timeout`` s (wall clock)."""
+        with self._cond:
+            if self._item is None:
+                self._cond.wait(timeout)
+            item, self._item = self._item, None
+            return item
+
+
+class _Throttle:
+    """Log a message at most once per ``period`` s (wall) per key, with the count since."""
+
+    def __init__(self, period: float = 5.0):
+        self.period = period
+        self._last: Dict[str, float] = {}
+
+    def due(self, key: str) -> bool:
+        now = time.monotonic()
+        if now - self._last.get(key, -math.inf) >= self.period:
+            self._last[key] = now
+            return True
+        return False
+
+
+class AbsOrientNode:
+    """The node's state and its main loop; constructed after ``rospy.init_node``."""
+
+    def __init__(self, config: NodeConfig, marker_map: MarkerMap):
+        import rospy
+        import tf2_ros
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped
+        from sensor_msgs.msg import CompressedImage, Image
+        from visualization_msgs.msg import MarkerArray
+
+        from ..msg import MarkerObservations
+        from . import conversions as cv
+
+        self.rospy, self.tf2_ros, self.cv = rospy, tf2_ros, cv
+        self.config = config
+        self.marker_map = marker_map
+        self.pipeline: Optional[AbsOrientPipeline] = None
+        self.time_offset = config.time_offset
+        self._param_lock = threading.Lock()
+        self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
+        self._pending_for_pipeline: Dict[str, object] = {}  # waiting for the pipeline to exist
+        self._throttle = _Throttle()
+
+        self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0), debug=False)
+        self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
+        self.tf_broadcaster = tf2_ros.TransformBroadcaster()
+        self.pub_orientation = rospy.Publisher("abs_orient/orientation", PoseWithCovarianceStamped, queue_size=10)
+        self.pub_prism_pose = rospy.Publisher("abs_orient/prism_pose", PoseWithCovarianceStamped, queue_size=10)
+        self.pub_pose = rospy.Publisher("abs_orient/pose", PoseStamped, queue_size=10)
+        self.pub_detections = rospy.Publisher("abs_orient/detections", MarkerObservations, queue_size=10)
+        self.pub_markers = rospy.Publisher("abs_orient/markers", MarkerArray, queue_size=1, latch=True)
+        self.pub_diagnostics = rospy.Publisher("/diagnostics", DiagnosticArray, queue_size=10)
+
+        # counters and state (main thread only, except the mailbox and the prism deque)
+        self.images = Mailbox()
+        self.prisms: Deque[Tuple[float, np.ndarray]] = collections.deque(maxlen=1000)
+        self.prism_errors: Deque[str] = collections.deque(maxlen=100)
+        self.counts: Dict[str, int] = collections.Counter()
+        self.last_error = ""
+        self.latencies_ms: Deque[float] = collections.deque(maxlen=600)
+        self.last_image_stamp: Optional[float] = None     # s, camera clock
+        self.last_prism_stamp: Optional[float] = None     # s, total-station clock
+        self.last_image_wall = time.monotonic()
+        self.last_tf_stamp: Optional[float] = None        # s, last map→odom stamp sent
+        self.last_tf_wall = -math.inf
+        self.last_result: Optional[FrameResult] = None
+        self.seen_ids: Tuple[int, ...] = ()
+        self._diag_prev: Dict[str, int] = {}
+        self._diag_wall = time.monotonic()
+
+        if config.image_transport == "compressed":
+            self.image_sub = rospy.Subscriber("camera/image/compressed", CompressedImage, self._on_image,
+                                              queue_size=1, buff_size=1 << 26, tcp_nodelay=True)
+            self._decode = cv.image_from_compressed
+        else:
+            self.image_sub = rospy.Subscriber("camera/image", Image, self._on_image, queue_size=1,
+                                              buff_size=1 << 26, tcp_nodelay=True)
+            self._decode = cv.image_from_raw
+        self.prism_sub = rospy.Subscriber("ms60/prism", PointStamped, self._on_prism, queue_size=50)
+        self.pub_markers.publish(cv.marker_array(marker_map, rospy.Time.now()))
+        self._start_reconfigure()
+
+    # ------------------------------------------------------------------ callbacks (rospy threads)
+    def _on_image(self, msg) -> None:
+        self.images.put((msg, time.monotonic()))
+
+    def _on_prism(self, msg) -> None:
+        try:
+            t, p = self.cv.point_stamped_to_array(msg, self.config.map_frame)
+        except self.cv.ConversionError as e:
+            self.prism_errors.append(str(e))
+            return
+        self.prisms.append((t, p))
+
+    def _start_reconfigure(self) -> None:
+        try:
+            from dynamic_reconfigure.server import Server
+
+            from ..cfg import AbsOrientConfig
+        except ImportError as e:
+            self.rospy.logwarn(f"abs_orient: dynamic_reconfigure unavailable ({e}): parameters fixed at start-up")
+            return
+        self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
+
+    def _on_reconfigure(self, config, level):
+        changes = {k: config[k] for k in reconfigurable_names() if k in config}
+        with self._param_lock:
+            self._pending_params.update(changes)
+        return config
+
+    # ------------------------------------------------------------------ main loop
+    def run(self) -> None:
+        """Process images until shutdown (the calling thread is the worker)."""
+        period = 1.0 / self.config.tf_rate
+        while not self.rospy.is_shutdown():
+            item = self.images.take(timeout=period)
+            self._apply_params()
+            if item is not None:
+                self._process(*item)
+            elif time.monotonic() - self.last_tf_wall >= period:
+                self._republish_map_odom()
+            if time.monotonic() - self._diag_wall >= 1.0 / self.config.diagnostics_rate:
+                self._publish_diagnostics()
+
+    def _apply_params(self) -> None:
+        with self._param_lock:
+            changes, self._pending_params = self._pending_params, {}
+        if not changes:
+            return
+        if "time_offset" in changes:
+            self.time_offset = float(changes.pop("time_offset"))
+        self._pending_for_pipeline.update(changes)
+        if self.pipeline is not None:
+            self._update_pipeline_params()
+
+    def _update_pipeline_params(self) -> None:
+        changes, self._pending_for_pipeline = self._pending_for_pipeline, {}
+        if not changes:
+            return
+        try:
+            self.pipeline.update_params(**changes)
+        except (PipelineError, ValueError, TypeError) as e:
+            self._error("bad_params", f"parameters not applied: {e}")
+
+    def _error(self, key: str, text: str) -> None:
+        self.counts[key] += 1
+        self.last_error = text
+        if self._throttle.due(key):
+            self.rospy.logwarn(f"abs_orient: {text} ({self.counts[key]} so far)")
+
+    def _reset(self, why: str) -> None:
+        self.rospy.logwarn(f"abs_orient: {why}: resetting (filter, tracking, prism history, tf buffer)")
+        self.counts["resets"] += 1
+        if self.pipeline is not None:
+            self.pipeline.reset()
+        self.tf_buffer.clear()  # static transforms survive a clear
+        self.last_image_stamp = self.last_prism_stamp = self.last_tf_stamp = None
+        self.last_result = None
+
+    def _ensure_pipeline(self) -> bool:
+        if self.pipeline is not None:
+            return True
+        arms = {}
+        c = self.config
+        for child in (c.camera_frame, c.prism_frame):
+            try:
+                tr = self.tf_buffer.lookup_transform(c.base_frame, child, self.rospy.Time(0))
+                arms[child] = self.cv.transform_to_matrix(tr.transform, f"{c.base_frame}->{child}")
+            except (self.tf2_ros.TransformException, self.cv.ConversionError) as e:
+                self._error("no_static_tf", f"waiting for the static tf {c.base_frame} -> {child}: {e}")
+                return False
+        try:
+            self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame])
+        except PipelineError as e:
+            self._error("no_static_tf", f"unusable lever arms from tf: {e}")
+            return False
+        self._update_pipeline_params()
+        self.rospy.loginfo(f"abs_orient: lever arms from tf: camera at {arms[c.camera_frame][:3, 3].round(3)} m, "
+                           f"prism at {arms[c.prism_frame][:3, 3].round(3)} m in {c.base_frame}")
+        return True
+
+    def _feed_prisms(self) -> None:
+        while self.prism_errors:
+            self._error("bad_prism", f"ms60/prism: {self.prism_errors.popleft()}")
+        while self.prisms:
+            t, p = self.prisms.popleft()
+            if self.last_prism_stamp is not None and t < self.last_prism_stamp - self.config.time_jump_tolerance:
+                self._reset(f"ms60/prism time jumped back by {self.last_prism_stamp - t:.3f} s")
+            self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
+            self.counts["prisms"] += 1
+            if self.pipeline is not None:
+                self.pipeline.add_prism(t, p)
+
+    def _odom_T_base(self, stamp) -> Optional[np.ndarray]:
+        """odom→base_link at ``stamp``, waiting up to ~tf_timeout (wall clock) for it to arrive."""
+        c = self.config
+        deadline = time.monotonic() + c.tf_timeout
+        while True:
+            try:
+                tr = self.tf_buffer.lookup_transform(c.odom_frame, c.base_frame, stamp)
+                break
+            except self.tf2_ros.ExtrapolationException as e:
+                if time.monotonic() < deadline:
+                    time.sleep(0.002)
+                    continue
+                self._error("tf_failures", f"tf {c.odom_frame} -> {c.base_frame} at the image time: {e}")
+                return None
+            except self.tf2_ros.TransformException as e:
+                self._error("tf_failures", f"tf {c.odom_frame} -> {c.base_frame}: {e}")
+                return None
+        try:
+            return self.cv.transform_to_matrix(tr.transform, f"tf {c.odom_frame}->{c.base_frame}")
+        except self.cv.ConversionError as e:
+            self._error("tf_nan", str(e))
+            return None
+
+    def _process(self, msg, received_wall: float) -> None:
+        cv = self.cv
+        stamp = msg.header.stamp
+        s = cv.stamp_to_sec(stamp)
+        self.last_image_wall = time.monotonic()
+        if self.last_image_stamp is not None:
+            if s < self.last_image_stamp - self.config.time_jump_tolerance:
+                self._reset(f"image time jumped back by {self.last_image_stamp - s:.3f} s")
+            elif s <= self.last_image_stamp:
+                self._error("out_of_order",
+                            f"image stamp {s:.3f} s not after the previous one, {self.last_image_stamp:.3f} s")
+                return
+        self.last_image_stamp = s
+        self._feed_prisms()
+        if not self._ensure_pipeline():
+            return
+        try:
+            image = self._decode(msg)
+        except cv.ConversionError as e:
+            self._error("bad_images", str(e))
+            return
+        odom_T_base = self._odom_T_base(stamp)
+        if odom_T_base is None:
+            return
+        self._feed_prisms()  # what arrived while waiting for tf
+        result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
+        self.counts["processed"] += 1
+        if result.error:
+            self._error("frame_errors", result.error)
+        unknown = result.tracking.rejected_unknown if result.tracking is not None else 0
+        if unknown:
+            self.counts["unknown_ids"] += unknown
+        self._publish(result, stamp, odom_T_base)
+        self.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+
+    # ------------------------------------------------------------------ outputs
+    def _publish(self, result: FrameResult, stamp, odom_T_base: np.ndarray) -> None:
+        cv, c = self.cv, self.config
+        self.last_result = result
+        self.pub_detections.publish(cv.observations_msg(result.observations, stamp, c.camera_frame))
+        if result.map_T_odom is not None:
+            self._send_map_odom(cv.stamp_to_sec(stamp), result.map_T_odom)
+        measured = cv.marker_yaw(result.observations)
+        if measured is not None:
+            self.pub_orientation.publish(cv.orientation_msg(measured[0], measured[1], odom_T_base, stamp, c.map_frame))
+            self.counts["frames_with_yaw"] += 1
+        prism_pose = cv.prism_pose_msg(result, stamp, c.map_frame)
+        if prism_pose is not None:
+            self.pub_prism_pose.publish(prism_pose)
+        pose = cv.pose_msg(result, stamp, c.map_frame)
+        if pose is not None:
+            self.pub_pose.publish(pose)
+        seen = tuple(sorted({r.id for r in result.observations if r.accepted}))
+        if seen != self.seen_ids:
+            self.seen_ids = seen
+            self.pub_markers.publish(cv.marker_array(self.marker_map, stamp, seen))
+
+    def _send_map_odom(self, stamp_sec: float, map_T_odom: np.ndarray) -> None:
+        if self.last_tf_stamp is not None and stamp_sec <= self.last_tf_stamp:
+            return  # tf2 wants increasing stamps per edge
+        self.last_tf_stamp = stamp_sec
+        self.last_tf_wall = time.monotonic()
+        if self.config.publish_tf:
+            c = self.config
+            self.tf_broadcaster.sendTransform(
+                self.cv.matrix_to_transform_stamped(map_T_odom, self.cv.sec_to_stamp(stamp_sec), c.map_frame,
+                                                    c.odom_frame))
+            self.counts["tf_published"] += 1
+
+    def _republish_map_odom(self) -> None:
+        if self.pipeline is None or self.last_result is None or not self.last_result.initialised:
+            return
+        c = self.config
+        try:
+            latest = self.tf_buffer.get_latest_common_time(c.odom_frame, c.base_frame)
+        except self.tf2_ros.TransformException:
+            return
+        s = self.cv.stamp_to_sec(latest)
+        if self.last_tf_stamp is not None and s <= self.last_tf_stamp:
+            return
+        map_T_odom, _ = self.pipeline.map_T_odom(s - self.time_offset)
+        self._send_map_odom(s, map_T_odom)
+        self.counts["tf_republished"] += 1
+
+    def health(self, now_wall: float, now_ros: float) -> Tuple[str, str, Dict[str, object]]:
+        """(level, message, values) of the node for /diagnostics; levels from what happened since the
+        last report (so the status recovers as soon as the input is good again)."""
+        c = self.config
+        delta = {k: v - self._diag_prev.get(k, 0) for k, v in self.counts.items()}
+        dt = max(now_wall - self._diag_wall, 1e-6)
+        received = self.images.received
+        dropped = self.images.dropped
+        lat = np.array(self.latencies_ms) if self.latencies_ms else np.array([np.nan])
+        prism_age = now_ros - self.last_prism_stamp if self.last_prism_stamp is not None else math.inf
+        image_age = now_wall - self.last_image_wall
+        r = self.last_result
+        values: Dict[str, object] = {
+            "initialised": bool(r is not None and r.initialised),
+            "markers seen": len(self.seen_ids),
+            "marker ids": " ".join(str(i) for i in self.seen_ids) or "-",
+            "rate [Hz]": delta.get("processed", 0) / dt,
+            "images received": received,
+            "images processed": self.counts["processed"],
+            "images dropped": dropped,
+            "dropped fraction": dropped / received if received else 0.0,
+            "latency median [ms]": float(np.median(lat)),
+            "latency p95 [ms]": float(np.percentile(lat, 95)),
+            "time offset [s]": self.time_offset,
+            "prism age [s]": prism_age,
+            "frames with marker yaw": self.counts["frames_with_yaw"],
+            "unknown marker ids": self.counts["unknown_ids"],
+            "tf failures": self.counts["tf_failures"],
+            "tf NaN": self.counts["tf_nan"],
+            "bad images": self.counts["bad_images"],
+            "frame errors": self.counts["frame_errors"],
+            "resets": self.counts["resets"],
+            "publish_tf": c.publish_tf,
+            "map->odom sent": self.counts["tf_published"],
+            "last error": self.last_error or "-",
+        }
+        if r is not None and r.map_T_odom is not None:
+            values["map->odom yaw [deg]"] = math.degrees(float(yaw_of(r.map_T_odom[:3, :3])))
+        if self.pipeline is not None:
+            for k, v in sorted(self.pipeline.stats.items()):
+                values["pipeline " + k] = v
+        problems = []
+        level = "ok"
+        if self.pipeline is None and delta.get("no_static_tf", 0):
+            level = "error"
+            problems.append(f"no static tf {c.base_frame} -> {c.camera_frame}/{c.prism_frame}")
+        if image_age > c.image_timeout:
+            problems.append(f"no image for {image_age:.1f} s")
+        if prism_age > c.prism_timeout:
+            problems.append("no prism yet" if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
+        for key, text in (("bad_images", "corrupt images"), ("tf_failures", "tf lookups failed"),
+                          ("tf_nan", "NaN in tf"), ("frame_errors", "frame errors"), ("unknown_ids", "unknown ids"),
+                          ("bad_prism", "bad prism messages"), ("resets", "time jumped back: reset")):
+            if delta.get(key, 0):
+                problems.append(f"{delta[key]} {text}")
+        if problems and level == "ok":
+            level = "warn"
+        if not problems and (r is None or not r.initialised):
+            level = "warn"
+            problems.append("initialising (needs a standstill with the prism and a marker)")
+        message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
+        return level, message, values
+
+    def _publish_diagnostics(self) -> None:
+        now_wall = time.monotonic()
+        level, message, values = self.health(now_wall, self.cv.stamp_to_sec(self.rospy.Time.now()))
+        status = self.cv.diagnostic_status("abs_orient: pipeline", level, message, values,
+                                           hardware_id=self.rospy.get_name())
+        self.pub_diagnostics.publish(self.cv.diagnostic_array(self.rospy.Time.now(), [status]))
+        self._diag_prev = dict(self.counts)
+        self._diag_wall = now_wall
+
+
+def reconfigurable_names() -> Tuple[str, ...]:
+    """Names cfg/AbsOrient.cfg may expose: the node's own plus every pipeline tunable."""
+    return RECONFIGURABLE_NODE_PARAMS + tuple(name for _, name, _ in all_param_fields())
+
+
+def main(argv=None) -> int:
+    """Entry point of ``scripts/abs_orient``; returns the exit status."""
+    import rospy
+
+    rospy.init_node("abs_orient", argv=argv)
+    try:
+        config = NodeConfig.from_params(rospy.get_param)
+        marker_map = MarkerMap.load(config.markers)
+    except (NodeConfigError, MarkerMapError) as e:
+        rospy.logfatal(f"abs_orient: {e}")
+        return 2
+    node = AbsOrientNode(config, marker_map)
+    rospy.loginfo(f"abs_orient: {len(marker_map)} markers from {config.markers}; "
+                  f"{'publishing' if config.publish_tf else 'NOT publishing (EKF owns it)'} "
+                  f"{config.map_frame} -> {config.odom_frame}")
+    node.run()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""The abs_orient node's ROS-free parts: its parameters, its one-slot mailbox, and cfg/AbsOrient.cfg run
+through dynamic_reconfigure's real generator and checked against the pipeline's tunables.
+
+(The node itself runs in the rostests test/abs_orient_*.test.) Needs tools/env.sh sourced, as `make test`.
+"""
+import importlib.util
+import math
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from aruco_abs_orient.pipeline import all_param_fields
+from aruco_abs_orient.ros.abs_orient_node import Mailbox, NodeConfig, NodeConfigError, reconfigurable_names
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _getter(values):
+    return lambda name, default: values.get(name, default)
+
+
+def test_node_config_defaults_and_values():
+    c = NodeConfig.from_params(_getter({"~markers": "/m.yaml", "~time_offset": 1, "~publish_tf": False}))
+    assert c.markers == "/m.yaml" and c.time_offset == 1.0 and isinstance(c.time_offset, float)
+    assert c.publish_tf is False and c.image_transport == "compressed" and c.map_frame == "map"
+
+
+@pytest.mark.parametrize("values,message", [
+    ({}, "~markers: no marker map given"),
+    ({"~markers": "m", "~image_transport": "theora"}, "~image_transport: expected 'compressed' or 'raw'"),
+    ({"~markers": "m", "~tf_rate": 0.0}, "~tf_rate: expected a positive number"),
+    ({"~markers": "m", "~time_offset": "0.3"}, "~time_offset: expected a number, got '0.3'"),
+    ({"~markers": "m", "~time_offset": float("nan")}, "~time_offset: expected a number"),
+    ({"~markers": "m", "~publish_tf": "false"}, "~publish_tf: expected true or false"),
+    ({"~markers": 3}, "~markers: expected a string"),
+])
+def test_node_config_errors_name_the_parameter(values, message):
+    with pytest.raises(NodeConfigError, match=message.replace("(", r"\(")):
+        NodeConfig.from_params(_getter(values))
+
+
+def test_mailbox_keeps_the_newest_and_counts_what_it_replaced():
+    box = Mailbox()
+    assert box.take(timeout=0.01) is None
+    taken = []
+    stop = threading.Event()
+
+    def worker():  # a slow consumer: 5 ms per item
+        while not stop.is_set():
+            item = box.take(timeout=0.05)
+            if item is not None:
+                taken.append(item)
+                time.sleep(0.005)
+
+    t = threading.Thread(target=worker)
+    t.start()
+    for i in range(300):  # a fast producer: ~ every 0.5 ms
+        box.put(i)
+        time.sleep(0.0005)
+    time.sleep(0.05)
+    stop.set()
+    t.join()
+    assert box.received == 300
+    assert taken[-1] == 299                      # the newest always gets through
+    assert taken == sorted(taken)                # never an older one after a newer one
+    assert len(taken) + box.dropped == 300       # every item is taken or counted as dropped
+    assert box.dropped > 100                     # the producer was ~10x faster
+
+
+@pytest.fixture(scope="module")
+def generated_cfg(tmp_path_factory):
+    """cfg/AbsOrient.cfg through dynamic_reconfigure's own generator; the generated Python module."""
+    out = tmp_path_factory.mktemp("cfg")
+    proc = subprocess.run([sys.executable, str(ROOT / "cfg" / "AbsOrient.cfg"), "/usr/share/dynamic_reconfigure",
+                           str(out / "bin"), str(out / "cpp"), str(out / "py")], cwd=str(out),
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout
+    spec = importlib.util.spec_from_file_location("AbsOrientConfig", str(out / "py" / "cfg" / "AbsOrientConfig.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_cfg_entries_are_pipeline_tunables_with_their_defaults(generated_cfg):
+    tunables = {name: default for _, name, default in all_param_fields()}
+    names = set(generated_cfg.defaults)
+    assert "time_offset" in names
+    unknown = names - set(reconfigurable_names())
+    assert not unknown, f"cfg/AbsOrient.cfg exposes names the pipeline does not know: {sorted(unknown)}"
+    for name in sorted(names - {"time_offset"}):
+        default, cfg_type = tunables[name], generated_cfg.type[name]
+        cfg_default = generated_cfg.defaults[name]
+        expected_type = {bool: "bool", int: "int", float: "double"}[type(default)]
+        assert cfg_type == expected_type, f"{name}: cfg type {cfg_type}, pipeline default {default!r}"
+        assert math.isclose(cfg_default, default, rel_tol=1e-12), f"{name}: cfg default {cfg_default} != {default}"
+        if cfg_type != "bool":
+            assert generated_cfg.min[name] <= cfg_default <= generated_cfg.max[name], name
+
+
+def test_cfg_covers_every_pipeline_knob(generated_cfg):
+    """The pipeline's own knobs (PipelineParams) are all reconfigurable; detection/filter ones selectively."""
+    pipeline_names = {name for group, name, _ in all_param_fields() if group == "pipeline"}
+    assert pipeline_names <= set(generated_cfg.defaults)
