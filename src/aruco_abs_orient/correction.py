@@ -32,7 +32,9 @@ Model details:
   Without markers the filter coasts: the covariance grows with the process noise.
 * Re-initialisation: when no yaw has been accepted for ``reinit_after`` s, yaws are collected
   again as at start-up (no standstill needed) and δψ is reset to their consensus while the robot's
-  map position (tracked by the prism) is kept.
+  map position (tracked by the prism) is kept. Likewise, when no prism has been accepted for
+  ``reinit_after`` s (a gap of minutes, a station re-set-up, a VO position jump), two consecutive
+  prisms that agree re-anchor the translation, keeping δψ.
 * Out-of-order / late measurements: a measurement older than the filter time by at most
   ``max_delay`` s is applied to the current state with its noise inflated by the process noise
   accumulated over the delay (exact for a random walk up to the correlation with the updates in
@@ -123,6 +125,8 @@ class FilterStats:
     reinitialisations: int = 0
     last_update: float = float("nan")
     last_yaw: float = float("nan")
+    last_prism: float = float("nan")
+    prism_reanchors: int = 0
     accepted_by_marker: Dict[int, int] = field(default_factory=dict)
     rejected_by_marker: Dict[int, int] = field(default_factory=dict)
 
@@ -168,7 +172,8 @@ class MapOdomFilter:
     """map→odom from prism positions and absolute marker yaws (see the module docstring).
 
     Args:
-        prism_in_base: prism position in base_link (3,), metres (static tf base_link→prism).
+        prism_in_base: prism position in base_link (3,), metres, or the static transform
+            ``base_T_prism`` (4×4) whose translation it is (tf base_link→prism).
         params: tuning, :class:`MapOdomFilterParams` (defaults documented there).
     """
 
@@ -176,6 +181,8 @@ class MapOdomFilter:
         self.params = params if params is not None else MapOdomFilterParams()
         self.params.validate()
         t = np.asarray(prism_in_base, dtype=float)
+        if t.shape == (4, 4):
+            t = t[:3, 3]
         if t.shape != (3,) or not np.all(np.isfinite(t)):
             raise CorrectionError(f"prism_in_base: expected 3 finite numbers (m), got {prism_in_base!r}")
         self.prism_in_base = t
@@ -234,6 +241,8 @@ class MapOdomFilter:
         if not self.initialised:
             self._prisms.append(_Prism(t, p, C, q))
             return self._try_initialise(t)
+        if t - self.stats.last_prism > self.params.reinit_after:
+            return self._reanchor(t, p, C, q)
         late = self._late(t)
         if late is None:
             return UpdateResult("too_old", float("nan"), float("nan"))
@@ -246,6 +255,7 @@ class MapOdomFilter:
         res = self._update(H, nu, R, self.params.gate_chi2_prism, t)
         if res.accepted:
             self.stats.prism_accepted += 1
+            self.stats.last_prism = max(t, self.stats.last_prism)
         else:
             self.stats.prism_rejected += 1
         return res
@@ -373,24 +383,49 @@ class MapOdomFilter:
         dpsi, var, used = cons
         use_p = window_p if still else window_p[-1:]
         n = len(use_p)
-        pbar = np.mean([m.p for m in use_p], axis=0)
-        qbar = np.mean([m.q for m in use_p], axis=0)
-        Cbar = np.mean([m.cov for m in use_p], axis=0) / n
-        Rz = rot_z(dpsi)
-        g = _ez_cross(Rz @ qbar)
-        self.x = np.concatenate([[dpsi], pbar - Rz @ qbar])
-        self.P = np.zeros((4, 4))
-        self.P[0, 0] = var
-        self.P[0, 1:] = self.P[1:, 0] = -g * var
-        self.P[1:, 1:] = Cbar + var * np.outer(g, g)
+        self._anchor(dpsi, var, np.mean([m.p for m in use_p], axis=0), np.mean([m.cov for m in use_p], axis=0) / n,
+                     np.mean([m.q for m in use_p], axis=0))
         self.t = max(t, max(m.t for m in use_p))
         self.stats.state = "tracking"
         self.stats.prism_accepted += n
+        self.stats.last_prism = max(m.t for m in use_p)
         for y in used:
             self._count_yaw(True, y.marker_id, y.t)
         self.stats.last_update = self.t
         self._yaws, self._prisms = [], []
         return UpdateResult("initialised", float("nan"), float("nan"))
+
+    def _anchor(self, dpsi: float, var: float, p: np.ndarray, C: np.ndarray, q: np.ndarray) -> None:
+        """State from δψ (rad, variance rad²) and a prism position p (m, cov C m²) seen at q in odom (m)."""
+        Rq = rot_z(dpsi) @ q
+        g = _ez_cross(Rq)
+        self.x = np.concatenate([[dpsi], p - Rq])
+        self.P = np.zeros((4, 4))
+        self.P[0, 0] = var
+        self.P[0, 1:] = self.P[1:, 0] = -g * var
+        self.P[1:, 1:] = C + var * np.outer(g, g)
+
+    def _reanchor(self, t: float, p: np.ndarray, C: np.ndarray, q: np.ndarray) -> UpdateResult:
+        """After ``reinit_after`` s without an accepted prism: two consecutive prisms that agree (χ² gate on
+        the implied translations) re-anchor the translation, keeping δψ and its variance."""
+        cand = _Prism(t, p, C, q)
+        prev = self._prisms[-1] if self._prisms else None
+        self._prisms = [cand]
+        if prev is None or abs(t - prev.t) > max(self.params.max_delay, 1.0):
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        Rz = rot_z(self.x[0])
+        d = (prev.p - Rz @ prev.q) - (p - Rz @ q)
+        chi2 = float(d @ np.linalg.solve(prev.cov + C, d))
+        if chi2 > self.params.gate_chi2_prism:
+            return UpdateResult("buffered", chi2, d)
+        self._predict_to(t)
+        self._anchor(float(self.x[0]), float(self.P[0, 0]), p, C, q)
+        self._prisms = []
+        self.stats.prism_reanchors += 1
+        self.stats.prism_accepted += 1
+        self.stats.last_prism = max(t, self.stats.last_prism)
+        self.stats.last_update = max(t, self.stats.last_update)
+        return UpdateResult("initialised", chi2, d)
 
     def _is_standstill(self, window_p: List[_Prism], window_y: List[_Yaw], t: float) -> bool:
         p = self.params

@@ -226,3 +226,24 @@ def test_covariance_is_honest_over_monte_carlo_runs():
         z.append(err / np.sqrt(np.diag(f.P)))
     sd = np.std(np.array(z), axis=0)
     assert np.all((sd > 0.8) & (sd < 1.2)), sd
+
+
+def test_prism_gap_of_minutes_with_a_vo_position_jump_is_reanchored():
+    """No prism for 90 s, during which VO position jumps by 1.5 m: the first two agreeing prisms re-anchor."""
+    d = Drive(9, 110.0, drift_rate=math.radians(3.0) / 60.0)
+    jump = np.array([1.5, -0.5, 0.0])
+    d.p_odom[d.t >= 40.0] += jump
+    d.odom_T_base[:, :3, 3] = d.p_odom
+    f = MapOdomFilter(make_T(np.eye(3), PRISM_IN_BASE), MapOdomFilterParams(reinit_after=30.0))
+    out = []
+    for k, tk in enumerate(d.t):
+        if not 10.0 <= tk < 100.0:
+            f.add_prism(tk, d.prism(k), SIGMA_PRISM, d.odom_T_base[k])
+        if k % 2 == 0:
+            f.add_yaw(tk, d.yaw(k), SIGMA_YAW, d.odom_T_base[k], marker_id=1)
+        if f.initialised:
+            base = f.map_T_odom(tk)[0] @ d.odom_T_base[k]
+            out.append((tk, np.linalg.norm(base[:3, 3] - d.p[k])))
+    assert f.stats.prism_reanchors == 1
+    assert max(e for tk, e in out if 40.0 <= tk < 100.0) > 1.0        # the jump was real and showed
+    assert max(e for tk, e in out if tk >= 101.0) < 0.01
