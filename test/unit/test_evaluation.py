@@ -1,0 +1,212 @@
+"""Yaw evaluation against hand-checked numbers; plots and reports are real files checked byte-wise."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aruco_abs_orient.evaluation import (
+    EvaluationError,
+    error_by_frame_position,
+    error_stats,
+    interp_yaw,
+    pairwise_differences,
+    per_marker_series,
+    plot_coherence,
+    plot_frame_position,
+    plot_marker_yaws,
+    plot_yaw_errors,
+    write_report,
+    yaw_ape,
+    yaw_rpe,
+)
+from aruco_abs_orient.timesync import OffsetEstimate
+
+rad = math.radians
+
+
+def png_size(path):
+    with open(path, "rb") as f:
+        head = f.read(24)
+    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR"
+    return struct.unpack(">II", head[16:24])
+
+
+def test_interp_yaw_across_the_wrap():
+    t = np.array([0.0, 1.0, 3.0])
+    yaw = np.array([rad(179.0), rad(-179.0), rad(-170.0)])
+    q, ok = interp_yaw([0.5, 0.25, 1.0, 2.0, 4.0, -1.0], t, yaw, max_gap=1.5)
+    assert ok.tolist() == [True, True, True, False, False, False]  # 1→3 s gap is 2 s > 1.5 s
+    assert abs(math.degrees(q[0])) == pytest.approx(180.0, abs=1e-9)
+    assert math.degrees(q[1]) == pytest.approx(179.5, abs=1e-3)
+    assert math.degrees(q[2]) == pytest.approx(-179.0, abs=1e-12)
+    assert np.isnan(q[3:]).all()
+    # max_gap 0: only samples at the very same stamps
+    q, ok = interp_yaw([1.0 + 1e-7, 0.5], t, yaw, max_gap=0.0)
+    assert ok.tolist() == [True, False] and math.degrees(q[0]) == pytest.approx(-179.0)
+
+
+def test_wrap_179_vs_minus_179_is_2_degrees():
+    e = yaw_ape([0.0, 1.0], [rad(179.0), rad(179.0)], [0.0, 1.0], [rad(-179.0), rad(-179.0)])
+    assert np.degrees(e.error) == pytest.approx([-2.0, -2.0])
+    assert math.degrees(e.stats.rmse) == pytest.approx(2.0)
+    assert math.degrees(e.stats.bias) == pytest.approx(-2.0)
+
+
+@settings(max_examples=20, deadline=None)
+@given(offset_deg=st.floats(-20.0, 20.0), start_deg=st.floats(-180.0, 180.0))
+def test_constant_offset_gives_known_stats_anywhere_on_the_circle(offset_deg, start_deg):
+    t_ref = np.arange(0.0, 20.0, 0.1)
+    yaw_ref = wrap(rad(start_deg) + 0.8 * t_ref)  # crosses ±180° several times
+    t_est = np.arange(0.05, 19.9, 1.0 / 30.0)  # other stamps: the reference is interpolated
+    yaw_est = wrap(rad(start_deg) + 0.8 * t_est + rad(offset_deg))
+    s = yaw_ape(t_est, yaw_est, t_ref, yaw_ref).stats
+    assert math.degrees(s.rmse) == pytest.approx(abs(offset_deg), abs=0.02)
+    assert math.degrees(s.mean) == pytest.approx(abs(offset_deg), abs=0.02)
+    assert math.degrees(s.bias) == pytest.approx(offset_deg, abs=0.02)
+    assert math.degrees(s.std) < 0.02
+    assert s.coverage == 1.0
+    # RPE does not see a constant offset
+    r = yaw_rpe(t_est, yaw_est, t_ref, yaw_ref, delta=1.0).stats
+    assert math.degrees(r.max) < 0.02
+
+
+def wrap(a):
+    return (np.asarray(a) + math.pi) % (2 * math.pi) - math.pi
+
+
+def test_error_stats_hand_checked():
+    s = error_stats(np.radians([0.0, -1.0, 2.0, -3.0, 4.0]), thresholds=np.radians([0.5, 1.5, 2.5]))
+    assert math.degrees(s.rmse) == pytest.approx(math.sqrt(6.0))  # (0+1+4+9+16)/5 = 6
+    assert math.degrees(s.mean) == pytest.approx(2.0)
+    assert math.degrees(s.median) == pytest.approx(2.0)
+    assert math.degrees(s.std) == pytest.approx(math.sqrt(2.0))  # of |e| = 0..4
+    assert math.degrees(s.p95) == pytest.approx(3.8)  # linear between 3 and 4
+    assert math.degrees(s.max) == pytest.approx(4.0)
+    assert math.degrees(s.bias) == pytest.approx(0.4)
+    assert s.share_under == pytest.approx((0.2, 0.4, 0.6))  # < 0.5°, < 1.5°, < 2.5°
+    d = s.report_dict()
+    assert d["rmse_deg"] == pytest.approx(math.sqrt(6.0)) and d["share_under_2.5_deg"] == pytest.approx(0.6)
+    with pytest.raises(EvaluationError, match="no samples"):
+        error_stats([], n_total=3)
+
+
+def test_ape_coverage_and_rpe_drift():
+    t_ref = np.arange(0.0, 4.75, 0.5)  # reference only for the first half
+    t_est = np.arange(0.0, 10.0, 0.5)
+    drift = rad(1.0)  # estimate drifts 1°/s away from the reference
+    e = yaw_ape(t_est, 0.3 + drift * t_est, t_ref, np.full(len(t_ref), 0.3))
+    assert e.stats.coverage == pytest.approx(10 / 20)
+    assert math.degrees(e.stats.max) == pytest.approx(4.5)
+    r = yaw_rpe(t_est, 0.3 + drift * t_est, t_est, np.full(len(t_est), 0.3), delta=2.0)
+    assert np.degrees(r.error) == pytest.approx(np.full(len(r.error), 2.0))
+    assert len(r.error) == 16  # stamps 0 … 7.5 s have t + 2 s inside
+    with pytest.raises(EvaluationError, match="delta"):
+        yaw_rpe(t_est, t_est, t_est, t_est, delta=0.0)
+    with pytest.raises(EvaluationError, match="2 stamps but 3"):
+        yaw_ape([0, 1], [0, 1, 2], t_ref, t_ref)
+
+
+def test_per_marker_series_and_pairwise_statistics_hand_checked():
+    t = np.arange(0.0, 5.0, 0.1)
+    base = wrap(rad(179.8) + 0.01 * t)  # near the wrap: marker 2 crosses it
+    records_t = np.concatenate([t, t, t, [7.0]])
+    ids = np.concatenate([np.full(len(t), 1), np.full(len(t), 2), np.full(len(t), 3), [4]])
+    yaws = np.concatenate([base, wrap(base + rad(1.2)), wrap(base - rad(0.4)), [0.0]])
+    order = np.random.default_rng(1).permutation(len(records_t))  # records arrive unordered
+    series = per_marker_series(records_t[order], ids[order], yaws[order])
+    assert sorted(series) == [1, 2, 3, 4]
+    assert np.all(np.diff(series[1][0]) > 0)
+    pw = pairwise_differences(series)
+    assert sorted(pw.pairs) == [(1, 2), (1, 3), (2, 3)]  # marker 4 never seen with another
+    assert np.degrees(pw.pairs[(1, 2)][1]) == pytest.approx(np.full(len(t), -1.2))
+    assert np.degrees(pw.pairs[(2, 3)][1]) == pytest.approx(np.full(len(t), 1.6))
+    s = pw.stats  # |d| = 1.2, 0.4, 1.6 (each 50 times)
+    assert math.degrees(s.median) == pytest.approx(1.2)
+    assert math.degrees(s.mean) == pytest.approx(3.2 / 3)
+    assert math.degrees(s.std) == pytest.approx(math.sqrt(0.746667 / 3), abs=1e-5)
+    assert s.share_under == pytest.approx((1 / 3, 1 / 3, 1.0))
+    assert set(pw.report_dict()) == {"all_pairs", "1-2", "1-3", "2-3"}
+
+
+def test_pairwise_needs_common_times_unless_interpolating():
+    series = {1: (np.array([0.0, 1.0, 2.0]), np.zeros(3)), 2: (np.array([0.5, 1.5]), np.full(2, rad(0.3)))}
+    with pytest.raises(EvaluationError, match="common times"):
+        pairwise_differences(series)
+    pw = pairwise_differences(series, max_gap=1.0)
+    assert np.degrees(pw.pairs[(1, 2)][1]) == pytest.approx([-0.3])  # marker 1 at 1.0 s vs 2 between
+
+
+def test_error_by_frame_position_finds_an_elevation_bias():
+    rng = np.random.default_rng(4)
+    n = 4000
+    az = rng.uniform(-math.pi, math.pi, n)
+    el = np.where(rng.random(n) < 0.5, -0.5, 0.5) + rng.uniform(-0.1, 0.1, n)
+    err = np.where(el > 0, rad(0.2), rad(-0.2))  # a bias that depends on elevation only
+    b = error_by_frame_position(az, el, err, az_bins=8, el_bins=2, el_range=(-0.7, 0.7))
+    assert np.degrees(b.by_elevation) == pytest.approx([-0.2, 0.2])
+    assert math.degrees(b.max_abs_bias) == pytest.approx(0.2)
+    assert b.count.sum() == n and b.count.shape == (2, 8)
+    # a lone outlier in an otherwise empty bin does not count as a bias (min_count)
+    b2 = error_by_frame_position(np.append(az, 0.0), np.append(el, 0.1), np.append(err, rad(5.0)),
+                                 az_bins=8, el_bins=4, el_range=(-0.7, 0.7), min_count=5)
+    assert math.degrees(b2.max_abs_bias) == pytest.approx(0.2)
+    with pytest.raises(EvaluationError, match="no marker observations"):
+        error_by_frame_position([], [], [])
+
+
+def make_estimate():
+    taus = np.linspace(-1.0, 1.0, 101)
+    return OffsetEstimate(offset=0.367, sigma=0.002, confidence=0.9, coherence=0.999, taus=taus,
+                          curve=1.0 - 0.01 * (taus - 0.367) ** 2, method="coherence", n_samples=1800, overlap=60.0)
+
+
+def test_plots_are_pngs_of_the_requested_size(tmp_path):
+    t = np.arange(0.0, 10.0, 0.1)
+    ape = yaw_ape(t, 0.01 * np.sin(t), t, np.zeros_like(t))
+    series = {1: (t, 0.01 * t), 2: (t, 0.01 * t + rad(0.5))}
+    bias = error_by_frame_position(np.linspace(-3, 3, 100), np.linspace(-0.5, 0.5, 100), np.full(100, 0.001))
+    base = make_estimate()
+    base = OffsetEstimate(offset=0.367, sigma=0.0167, confidence=0.8, coherence=0.8, taus=base.taus,
+                          curve=0.8 - 0.1 * np.abs(base.taus), method="xcorr", n_samples=1800, overlap=60.0)
+    paths = [
+        (plot_yaw_errors(str(tmp_path / "ape.png"), {"ours": ape}), (1200, 500)),
+        (plot_marker_yaws(str(tmp_path / "markers.png"), series, pairwise_differences(series)), (1200, 800)),
+        (plot_frame_position(str(tmp_path / "frame.png"), bias, size=(900, 450)), (900, 450)),
+        (plot_coherence(str(tmp_path / "sync.png"), make_estimate(), baseline=base), (1000, 500)),
+    ]
+    for path, size in paths:
+        assert png_size(path) == size
+        assert os.path.getsize(path) > 5000  # something was drawn
+    assert sorted(os.listdir(tmp_path)) == ["ape.png", "frame.png", "markers.png", "sync.png"]  # no temp files
+
+
+def test_report_contains_the_numbers_in_degrees(tmp_path):
+    t = np.arange(0.0, 10.0, 0.1)
+    ape = yaw_ape(t, np.full(len(t), rad(1.5)), t, np.zeros_like(t))
+    plot = plot_yaw_errors(str(tmp_path / "plots_ape.png"), {"ours": ape})
+    bias = error_by_frame_position([0.1, 0.2], [0.0, 0.1], [0.0, 0.0], el_bins=2, min_count=5)  # no full bin
+    md, js = write_report(str(tmp_path / "out"), {
+        "ape": ape, "timesync": make_estimate(), "frame_position": bias,
+        "scenario": {"name": "demo", "laps": 3}, "plots": {"heading error": plot}})
+    with open(js) as f:
+        data = json.load(f)
+    assert data["ape"]["rmse_deg"] == pytest.approx(1.5)
+    assert data["ape"]["share_under_2_deg"] == 1.0
+    assert data["timesync"]["offset_ms"] == pytest.approx(367.0)
+    assert data["frame_position"]["max_abs_bias_deg"] is None  # NaN → null, never a made-up number
+    assert data["scenario"] == {"name": "demo", "laps": 3}
+    assert data["plots"] == {"heading error": "../plots_ape.png"}
+    with open(md) as f:
+        text = f.read()
+    assert "| rmse_deg | 1.5 |" in text
+    assert "| offset_ms | 367 |" in text
+    assert "![heading error](../plots_ape.png)" in text
+    assert sorted(os.listdir(tmp_path / "out")) == ["report.json", "report.md"]
