@@ -57,7 +57,7 @@ from .transforms import make_T, rot_z, transform_points, wrap_angle, yaw_of
 __all__ = [
     "CorrectionError",
     "NotInitialisedError",
-    "MapOdomFilterParams",
+    "FilterParams",
     "FilterStats",
     "UpdateResult",
     "MapOdomFilter",
@@ -79,7 +79,7 @@ class NotInitialisedError(CorrectionError):
 
 
 @dataclass
-class MapOdomFilterParams:
+class FilterParams:
     """Tuning of :class:`MapOdomFilter` (flat scalars: exposed via dynamic_reconfigure)."""
 
     yaw_random_walk: float = math.radians(0.1)      # rad/√s, VO yaw drift (3°/min tracked well)
@@ -101,13 +101,13 @@ class MapOdomFilterParams:
                      "standstill_yaw_tolerance", "standstill_prism_tolerance", "init_yaw_floor", "max_delay"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise CorrectionError(f"MapOdomFilterParams.{name}: expected a non-negative number, got {v!r}")
+                raise CorrectionError(f"FilterParams.{name}: expected a non-negative number, got {v!r}")
         for name in ("gate_chi2_yaw", "gate_chi2_prism", "standstill_duration", "reinit_after"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
-                raise CorrectionError(f"MapOdomFilterParams.{name}: expected a positive number, got {v!r}")
+                raise CorrectionError(f"FilterParams.{name}: expected a positive number, got {v!r}")
         if not (isinstance(self.init_min_yaws, int) and self.init_min_yaws >= 1):
-            raise CorrectionError(f"MapOdomFilterParams.init_min_yaws: expected an integer ≥ 1, "
+            raise CorrectionError(f"FilterParams.init_min_yaws: expected an integer ≥ 1, "
                                   f"got {self.init_min_yaws!r}")
 
 
@@ -145,6 +145,10 @@ class UpdateResult(NamedTuple):
     def accepted(self) -> bool:
         return self.status in ("accepted", "initialised")
 
+    def __bool__(self) -> bool:
+        """True when the measurement was used (``if filt.add_yaw(...):``)."""
+        return self.accepted
+
 
 class _Yaw(NamedTuple):
     t: float
@@ -174,11 +178,11 @@ class MapOdomFilter:
     Args:
         prism_in_base: prism position in base_link (3,), metres, or the static transform
             ``base_T_prism`` (4×4) whose translation it is (tf base_link→prism).
-        params: tuning, :class:`MapOdomFilterParams` (defaults documented there).
+        params: tuning, :class:`FilterParams` (defaults documented there).
     """
 
-    def __init__(self, prism_in_base, params: Optional[MapOdomFilterParams] = None):
-        self.params = params if params is not None else MapOdomFilterParams()
+    def __init__(self, prism_in_base, params: Optional[FilterParams] = None):
+        self.params = params if params is not None else FilterParams()
         self.params.validate()
         t = np.asarray(prism_in_base, dtype=float)
         if t.shape == (4, 4):
@@ -194,6 +198,11 @@ class MapOdomFilter:
         self._odom_pos_t = float("-inf")
         self._yaws: List[_Yaw] = []
         self._prisms: List[_Prism] = []
+
+    def update_params(self, params: FilterParams) -> None:
+        """New tuning (dynamic_reconfigure), effective from the next measurement; the state is kept."""
+        params.validate()
+        self.params = params
 
     # ------------------------------------------------------------------ queries
 

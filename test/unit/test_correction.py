@@ -14,8 +14,8 @@ import pytest
 
 from aruco_abs_orient.correction import (
     CorrectionError,
+    FilterParams,
     MapOdomFilter,
-    MapOdomFilterParams,
     NotInitialisedError,
 )
 from aruco_abs_orient.transforms import make_T, rot_z, rpy_to_matrix, wrap_angle
@@ -97,7 +97,7 @@ def test_does_not_start_while_moving_unless_allowed():
     f = MapOdomFilter(PRISM_IN_BASE)
     d.run(f)
     assert not f.initialised and f.stats.state == "waiting"
-    g = MapOdomFilter(PRISM_IN_BASE, MapOdomFilterParams(require_standstill=False))
+    g = MapOdomFilter(PRISM_IN_BASE, FilterParams(require_standstill=False))
     errs = Drive(2, 6.0, still=0.0).run(g)
     assert g.initialised
     assert abs(errs[-1][1]) < math.radians(0.1) and errs[-1][2] < 0.01
@@ -144,7 +144,7 @@ def test_false_ids_at_start_up_are_left_out():
 
 
 def test_coasting_grows_the_covariance_then_recovers():
-    p = MapOdomFilterParams()
+    p = FilterParams()
     d = Drive(6, 40.0, drift_rate=math.radians(3.0) / 60.0)
     f = MapOdomFilter(PRISM_IN_BASE, p)
     errs = d.run(f, yaw_gap=(10.0, 30.0))
@@ -177,19 +177,19 @@ def test_reinitialises_after_a_long_loss_with_a_vo_jump():
         d.odom_T_base = make_T(rpy_to_matrix(d.roll, d.pitch, d.heading - d.dpsi), d.p_odom)
         return d
 
-    f = MapOdomFilter(PRISM_IN_BASE, MapOdomFilterParams(reinit_after=30.0))
+    f = MapOdomFilter(PRISM_IN_BASE, FilterParams(reinit_after=30.0))
     errs = drive().run(f, yaw_gap=(15.0, 55.0))
     assert f.stats.reinitialisations == 1
     late = np.array([abs(e[1]) for e in errs if e[0] >= 60.0])
     assert np.max(late) < math.radians(0.2)
-    stuck = MapOdomFilter(PRISM_IN_BASE, MapOdomFilterParams(reinit_after=1e9))
+    stuck = MapOdomFilter(PRISM_IN_BASE, FilterParams(reinit_after=1e9))
     drive().run(stuck, yaw_gap=(15.0, 55.0))
     assert stuck.stats.reinitialisations == 0 and stuck.stats.yaw_rejected > 50
 
 
 def test_late_measurements_policy():
     d = Drive(8, 8.0)
-    f = MapOdomFilter(PRISM_IN_BASE, MapOdomFilterParams(max_delay=0.5))
+    f = MapOdomFilter(PRISM_IN_BASE, FilterParams(max_delay=0.5))
     d.run(f)
     k = len(d.t) - 1
     k_late = k - 6          # 0.3 s old: applied
@@ -210,12 +210,12 @@ def test_bad_inputs():
     with pytest.raises(CorrectionError, match="odom_T_base"):
         f.add_prism(0.0, [1.0, 2.0, 3.0], SIGMA_PRISM, np.eye(3))
     with pytest.raises(CorrectionError, match="yaw_random_walk"):
-        MapOdomFilter(PRISM_IN_BASE, MapOdomFilterParams(yaw_random_walk=-1.0))
+        MapOdomFilter(PRISM_IN_BASE, FilterParams(yaw_random_walk=-1.0))
 
 
 def test_covariance_is_honest_over_monte_carlo_runs():
     """Truth drawn from the filter's own model: normalised final errors have std 1 ± 20 %."""
-    p = MapOdomFilterParams(yaw_random_walk=math.radians(0.1), translation_random_walk=0.01)
+    p = FilterParams(yaw_random_walk=math.radians(0.1), translation_random_walk=0.01)
     z = []
     for run in range(150):
         d = Drive(100 + run, 12.0, yaw_walk=p.yaw_random_walk, trans_walk=p.translation_random_walk,
@@ -234,7 +234,7 @@ def test_prism_gap_of_minutes_with_a_vo_position_jump_is_reanchored():
     jump = np.array([1.5, -0.5, 0.0])
     d.p_odom[d.t >= 40.0] += jump
     d.odom_T_base[:, :3, 3] = d.p_odom
-    f = MapOdomFilter(make_T(np.eye(3), PRISM_IN_BASE), MapOdomFilterParams(reinit_after=30.0))
+    f = MapOdomFilter(make_T(np.eye(3), PRISM_IN_BASE), FilterParams(reinit_after=30.0))
     out = []
     for k, tk in enumerate(d.t):
         if not 10.0 <= tk < 100.0:
@@ -247,3 +247,16 @@ def test_prism_gap_of_minutes_with_a_vo_position_jump_is_reanchored():
     assert f.stats.prism_reanchors == 1
     assert max(e for tk, e in out if 40.0 <= tk < 100.0) > 1.0        # the jump was real and showed
     assert max(e for tk, e in out if tk >= 101.0) < 0.01
+
+
+def test_update_result_truthiness_and_params_update():
+    d = Drive(10, 4.0)
+    f = MapOdomFilter(PRISM_IN_BASE)
+    d.run(f)
+    k = len(d.t) - 1
+    assert f.add_yaw(d.t[k], d.heading[k], SIGMA_YAW, d.odom_T_base[k])
+    assert not f.add_yaw(d.t[k], d.heading[k] + 0.5, SIGMA_YAW, d.odom_T_base[k])
+    f.update_params(FilterParams(gate_chi2_yaw=1e9))
+    assert f.add_yaw(d.t[k], d.heading[k] + 0.5, SIGMA_YAW, d.odom_T_base[k]).status == "accepted"
+    with pytest.raises(CorrectionError, match="gate_chi2_yaw"):
+        f.update_params(FilterParams(gate_chi2_yaw=0.0))
