@@ -10,6 +10,7 @@ port (a lock), so several threads may share a client.
 from __future__ import annotations
 
 import contextlib
+import select
 import threading
 import time
 from typing import NamedTuple, Optional, Sequence, Tuple
@@ -85,9 +86,15 @@ class GeoComClient:
         self.stale_replies = 0
         self._stamp = 0.0
         try:
-            self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0.05, write_timeout=1.0)
+            # non-blocking reads; waiting is done with select() on the port's descriptor so that
+            # a reply is taken in one piece the moment it arrives (its reception time matters)
+            self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
         except (serial.SerialException, ValueError, OSError) as e:
             raise GeoComLinkError(f"cannot open GeoCOM port {url!r}: {e}") from None
+        try:
+            self._fileno: Optional[int] = self._serial.fileno()
+        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+            self._fileno = None  # loop://, rfc2217://: poll every millisecond
 
     def close(self) -> None:
         with contextlib.suppress(serial.SerialException, OSError):
@@ -119,11 +126,16 @@ class GeoComClient:
             if len(self._buffer) > _MAX_LINE:  # a flood without line ends: keep the tail only
                 self.garbage_bytes += len(self._buffer) - len(_REPLY_START)
                 del self._buffer[: -len(_REPLY_START)]
-            if time.time() >= deadline:
+            remaining = deadline - time.time()
+            if remaining <= 0:
                 raise GeoComTimeout(f"no reply on {self.url!r} within the timeout")
             try:
-                chunk = self._serial.read(max(1, self._serial.in_waiting))
-            except (serial.SerialException, OSError, TypeError, AttributeError) as e:
+                if self._fileno is not None:
+                    select.select([self._fileno], [], [], min(remaining, 0.05))
+                else:
+                    time.sleep(min(remaining, 0.001))
+                chunk = self._serial.read(4096)
+            except (serial.SerialException, OSError, TypeError, AttributeError, ValueError) as e:
                 raise GeoComLinkError(f"reading {self.url!r} failed: {e}") from None
             self._stamp = time.time()
             if chunk:
