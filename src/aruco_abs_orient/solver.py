@@ -14,8 +14,9 @@ bearing ``u`` in the camera frame (from ``camera``/``detection``).
   horizontal azimuths of ``D`` and ``R_t (l + s b)``. σψ is propagated with the analytic
   Jacobian from bearing, prism, survey, tilt and lever-arm noise.
 * :func:`attitude_from_markers` — ≥ 2 markers + prism ⇒ roll, pitch, yaw by robust
-  (Huber/Cauchy IRLS) Gauss-Newton on SO(3), with the prism position as a parameter under
-  its measured prior (so the prism noise common to all markers is handled correctly).
+  (Cauchy/Huber IRLS) Gauss-Newton on SO(3), then least squares on the markers that pass a
+  residual gate (false ids dropped, covariance honest), with the prism position as a parameter
+  under its measured prior (so the prism noise common to all markers is handled correctly).
 * :func:`resection` — ≥ 3 markers, no prism ⇒ position and attitude of base_link.
 
 Units: metres, radians, everything in ``map`` unless named otherwise. numpy only,
@@ -83,7 +84,8 @@ class AttitudeEstimate(NamedTuple):
     over (roll, pitch, yaw) in rad² from the a-priori σ (variance factor 1);
     ``prism`` the adjusted prism position (m); ``residuals`` (N,) angle between observed
     and predicted bearing (rad); ``normalized`` (N,) residual / its σ; ``weights`` (N,) final
-    robust weights (1 = full inlier); ``variance_factor`` Σ w·r²/σ² / redundancy (≈ 1 when the σ
+    weights (1 inlier, 0 outlier after the gate; robust weights if the gate left too few);
+    ``variance_factor`` Σ w·r²/σ² / redundancy (≈ 1 when the σ
     are right; NaN without redundancy); ``iterations``.
     """
 
@@ -353,12 +355,17 @@ class _Fit(NamedTuple):
 
 
 def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p: bool, loss: str,
-                  loss_scale: float, max_iterations: int) -> _Fit:
-    """Robust (IRLS) GN over R (right perturbation R·Exp(δ)) and, if ``estimate_p``, the reference point p.
+                  loss_scale: float, outlier_gate: Optional[float], min_inliers: int,
+                  max_iterations: int) -> _Fit:
+    """Robust GN over R (right perturbation R·Exp(δ)) and, if ``estimate_p``, the reference point p.
 
     Model: camera C = p + R a; predicted camera bearing ``R_bcᵀ Rᵀ (M − C) / |·|``; residual its
     difference from the observed bearing in the observed bearing's tangent plane (≈ rad).
     ``prior`` is None or (p_measured, L⁻¹) with L Lᵀ its covariance (m²).
+
+    Two stages: IRLS with the robust ``loss`` finds the outliers; then, if at least ``min_inliers``
+    markers have normalised residuals ≤ ``outlier_gate``, plain least squares on those (weights 1/0)
+    gives the estimate and an honest covariance. Otherwise the robust solution is kept.
     """
     if loss not in ("huber", "cauchy", "none"):
         raise SolverError(f"loss: expected 'huber', 'cauchy' or 'none', got {loss!r}")
@@ -367,8 +374,8 @@ def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p
     E = _tangent_basis(u_obs)                                   # (N, 3, 2)
     use_prior = prior is not None and estimate_p
 
-    def linearise(R, p):
-        """Residuals (N, 2), σ (N,), Jacobian (N, 2, npar), predicted bearings, normal equations."""
+    def linearise(R, p, loss, mask):
+        """Predicted bearings, normalised residuals, weights, normal equations and χ² at (R, p)."""
         g = (M - p) @ R                                         # Rᵀ(M − p), (N, 3)
         q = g - a
         rng = np.linalg.norm(q, axis=1)
@@ -382,7 +389,7 @@ def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p
         dnorm = (np.eye(3) - qh[:, :, None] * qh[:, None, :]) / rng[:, None, None]
         J = np.einsum("nij,ki,nkl,nlm->njm", E, R_bc, dnorm, dq)
         e = np.linalg.norm(r, axis=1) / sig
-        w = _robust_weights(e, loss, loss_scale)
+        w = _robust_weights(e, loss, loss_scale) * mask
         H = np.einsum("n,nji,njk->ik", w / sig ** 2, J, J)
         gvec = np.einsum("n,nji,nj->i", w / sig ** 2, J, r)
         chi2 = float(np.sum(w * e ** 2))
@@ -394,24 +401,36 @@ def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p
             chi2 += float(rp @ rp)
         return u_pred, e, w, H, gvec, chi2
 
-    R, p = R0.copy(), p0.copy()
-    it = 0
-    for it in range(1, max_iterations + 1):  # noqa: B007  (it is reported)
-        _, _, _, H, gvec, _ = linearise(R, p)
-        cond = np.linalg.cond(H)
-        if not math.isfinite(cond) or cond > 1e14:
-            raise DegenerateGeometryError("the normal equations are singular: the markers do not "
-                                          "determine the pose (collinear or too few)")
-        step = -np.linalg.solve(H, gvec)
-        R = R @ _so3_exp(step[:3])
-        if estimate_p:
-            p = p + step[3:]
-        if np.linalg.norm(step) < 1e-13:
-            break
-    u_pred, e, weights, H, _, chi2 = linearise(R, p)
-    dof = 2 * n + (3 if use_prior else 0) - npar
+    def solve(R, p, loss, mask):
+        it = 0
+        for it in range(1, max_iterations + 1):  # noqa: B007  (it is reported)
+            H, gvec = linearise(R, p, loss, mask)[3:5]
+            cond = np.linalg.cond(H)
+            if not math.isfinite(cond) or cond > 1e14:
+                raise DegenerateGeometryError("the normal equations are singular: the markers do not "
+                                              "determine the pose (collinear or too few)")
+            step = -np.linalg.solve(H, gvec)
+            R = R @ _so3_exp(step[:3])
+            if estimate_p:
+                p = p + step[3:]
+            if np.linalg.norm(step) < 1e-13:
+                break
+        return R, p, it
+
+    mask = np.ones(n)
+    R, p, iterations = solve(R0.copy(), p0.copy(), loss, mask)
+    final_loss = loss
+    if loss != "none" and outlier_gate is not None:
+        inliers = linearise(R, p, "none", mask)[1] <= outlier_gate
+        if int(inliers.sum()) >= min_inliers:
+            mask = inliers.astype(float)
+            final_loss = "none"
+            R, p, it2 = solve(R, p, "none", mask)
+            iterations += it2
+    u_pred, e, weights, H, _, chi2 = linearise(R, p, final_loss, mask)
+    dof = 2 * int(np.count_nonzero(mask)) + (3 if use_prior else 0) - npar
     vf = chi2 / dof if dof > 0 else float("nan")
-    return _Fit(R, p, np.linalg.inv(H), angle_between(u_pred, u_obs), e, weights, vf, it)
+    return _Fit(R, p, np.linalg.inv(H), angle_between(u_pred, u_obs), e, weights, vf, iterations)
 
 
 def _check_spread(directions: np.ndarray, min_spread: float, what: str) -> None:
@@ -447,8 +466,8 @@ def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float
 def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base, *,
                           sigma_bearing=1e-3, prism_cov=None, marker_sigma=0.0,
                           tilt: Tuple[float, float] = (0.0, 0.0), initial_yaw: Optional[float] = None,
-                          loss: str = "huber", loss_scale: float = 2.0, min_spread: float = math.radians(3.0),
-                          max_iterations: int = 50) -> AttitudeEstimate:
+                          loss: str = "cauchy", loss_scale: float = 2.0, outlier_gate: Optional[float] = 4.0,
+                          min_spread: float = math.radians(3.0), max_iterations: int = 50) -> AttitudeEstimate:
     """Full attitude of base_link from ≥ 2 marker bearings and the prism position.
 
     Args:
@@ -463,7 +482,10 @@ def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base
         marker_sigma: survey 1-σ (m), scalar or (N,), added as σ_M/range to the bearing σ.
         tilt: (roll, pitch) in rad to start from (VO tilt); yaw starts from the consensus of the
             per-marker closed-form yaws (:func:`yaw_from_marker`), else ``initial_yaw``.
-        loss: 'huber' (default), 'cauchy' or 'none'; ``loss_scale`` in units of σ.
+        loss: robust loss of the first stage, 'cauchy' (default), 'huber' or 'none'; ``loss_scale`` in σ.
+        outlier_gate: markers whose normalised residual (|r|/σ, 2-D) exceeds it after the robust stage
+            are dropped (weight 0) and the rest re-solved by plain least squares (if ≥ 2 remain);
+            None keeps the robust solution.
         min_spread: smallest angle (rad) between marker directions seen from the camera.
 
     Raises:
@@ -512,7 +534,7 @@ def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base
             raise SolverError("prism_cov: must be positive definite (or None for an exact prism)") from None
         prior = (P, Linv)
     fit = _gauss_newton(u, M, R_bc, t_cam - t_prism, R0, P.copy(), sb, sm, prior, estimate_p, loss,
-                        loss_scale, max_iterations)
+                        loss_scale, outlier_gate, 2, max_iterations)
     K = _rpy_jacobian(fit.R)
     cov = K @ fit.cov[:3, :3] @ K.T
     r, pch, y = (float(x) for x in matrix_to_rpy(fit.R))
@@ -535,15 +557,16 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
 
 
 def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_sigma=0.0,
-              tilt: Tuple[float, float] = (0.0, 0.0), initial_pose=None, loss: str = "huber",
-              loss_scale: float = 2.0, min_spread: float = math.radians(3.0),
+              tilt: Tuple[float, float] = (0.0, 0.0), initial_pose=None, loss: str = "cauchy",
+              loss_scale: float = 2.0, outlier_gate: Optional[float] = 4.0, min_spread: float = math.radians(3.0),
               max_iterations: int = 50) -> ResectionEstimate:
     """Position and attitude of base_link from ≥ 3 marker bearings (no prism).
 
     Args:
         bearings: (N, 3) bearings in the camera frame; markers: (N, 3) centres in map (m).
         base_T_camera: static transform base_link ← camera (4×4).
-        sigma_bearing, marker_sigma, loss, loss_scale: as in :func:`attitude_from_markers`.
+        sigma_bearing, marker_sigma, loss, loss_scale, outlier_gate: as in :func:`attitude_from_markers`
+            (at least 3 inliers are needed for the least-squares stage).
         tilt: (roll, pitch) (rad) assumed for the start (small-tilt platforms: the default 0, 0).
         initial_pose: optional map_T_base (4×4) start instead of the yaw scan.
         min_spread: markers closer than this (rad) to one line (collinear) are degenerate.
@@ -572,7 +595,8 @@ def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_si
         yaw0, C0 = _scan_yaw(u @ (Rt @ R_bc).T, M)
         R0 = rpy_to_matrix(float(tilt[0]), float(tilt[1]), yaw0)
         p0 = C0 - R0 @ t_cam
-    fit = _gauss_newton(u, M, R_bc, t_cam, R0, p0, sb, sm, None, True, loss, loss_scale, max_iterations)
+    fit = _gauss_newton(u, M, R_bc, t_cam, R0, p0, sb, sm, None, True, loss, loss_scale, outlier_gate, 3,
+                        max_iterations)
     K = _rpy_jacobian(fit.R)
     T = np.zeros((6, 6))
     T[:3, 3:] = np.eye(3)          # position block: p (map, additive)

@@ -187,7 +187,7 @@ def test_attitude_covariance_is_honest():
     for _ in range(300):
         P = s.P + sp * s.rng.normal(size=3)
         est = attitude_from_markers(s.bearings(sigma=sb), s.M, P, s.base_T_camera, s.t_prism,
-                                    sigma_bearing=sb, prism_cov=sp, loss="none")
+                                    sigma_bearing=sb, prism_cov=sp)   # default: robust, then gated LS
         err = wrap_angle(np.array([est.roll - s.roll, est.pitch - s.pitch, est.yaw - s.yaw]))
         z.append(err / np.sqrt(np.diag(est.cov)))
     sd = np.std(np.array(z), axis=0)
@@ -201,12 +201,18 @@ def test_attitude_rejects_a_false_marker_id():
     M[2] = s.M[2] + [3.0, -2.0, 0.5]           # the map position of another id
     clean = attitude_from_markers(u[[0, 1, 3, 4]], s.M[[0, 1, 3, 4]], s.P, s.base_T_camera, s.t_prism,
                                   sigma_bearing=1e-3)
-    robust = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3,
-                                   loss="cauchy", loss_scale=2.0)
     plain = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3, loss="none")
-    assert robust.weights[2] < 0.01 and robust.normalized[2] > 20
-    assert abs(wrap_angle(robust.yaw - clean.yaw)) < 0.5 * math.sqrt(clean.cov[2, 2])
-    assert abs(wrap_angle(plain.yaw - s.yaw)) > 5 * abs(wrap_angle(robust.yaw - s.yaw))
+    for loss in ("cauchy", "huber"):
+        robust = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3, loss=loss)
+        np.testing.assert_array_equal(robust.weights, [1, 1, 0, 1, 1])
+        assert robust.normalized[2] > 20
+        # The gated least-squares stage is the clean solution on the four true markers.
+        np.testing.assert_allclose(robust.R, clean.R, atol=1e-12)
+        np.testing.assert_allclose(robust.cov, clean.cov, rtol=1e-6)
+        assert abs(wrap_angle(plain.yaw - s.yaw)) > 5 * abs(wrap_angle(robust.yaw - s.yaw))
+    robust_only = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3,
+                                        outlier_gate=None)
+    assert 0 < robust_only.weights[2] < 0.01
 
 
 def test_attitude_degenerate_when_markers_in_one_direction():
