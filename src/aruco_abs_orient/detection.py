@@ -72,6 +72,11 @@ class DetectorParams:
     - ``polygonal_approx_accuracy_rate``: polygon fit tolerance (fraction of the perimeter).
     - ``min_corner_distance_rate``: (fraction of the perimeter).
     - ``min_distance_to_border``: pixels.
+    - ``min_marker_distance_rate``: candidates closer than this fraction of the perimeter
+      are merged; 0 keeps the OpenCV version's own default, which suits its merging logic
+      (0.125 since 4.10, 0.05 before: 4.11 loses close markers with 0.05, 4.6 small ones
+      with 0.125). The merge may keep the outline around a small marker's quiet zone
+      instead of its black square: the rescue also tries that quad shrunk (see below).
     - ``perspective_remove_pixel_per_cell``: pixels per bit cell of the unwarped code.
     - ``perspective_remove_ignored_margin_per_cell``: fraction of a cell.
     - ``max_erroneous_bits_in_border_rate``, ``error_correction_rate``: bit decoding
@@ -98,8 +103,10 @@ class DetectorParams:
     - ``rescue_max_side_px``: quads OpenCV rejected with sides up to this (pixels of the
       searched image per equirect pixel) are refined and decoded by :func:`decode_marker`;
       this is what reaches 12 m (9–10 px markers at 3840 px).
-    - ``decode_min_contrast`` (grey levels), ``decode_min_correlation``, ``decode_min_lead``:
-      acceptance thresholds of :func:`decode_marker`.
+    - ``close_range_size_deg``: so are rejected quads with sides above this (degrees): close
+      markers whose equirect image is too curved for OpenCV to read.
+    - ``decode_min_contrast`` (grey levels), ``decode_min_correlation``, ``decode_min_lead``,
+      ``decode_min_pattern_correlation``: acceptance thresholds of :func:`decode_marker`.
 
     Noise model (1-σ centre bearing, radians, see :func:`bearing_sigma`):
 
@@ -134,6 +141,7 @@ class DetectorParams:
     polygonal_approx_accuracy_rate: float = 0.05
     min_corner_distance_rate: float = 0.05
     min_distance_to_border: int = 1
+    min_marker_distance_rate: float = 0.0
     perspective_remove_pixel_per_cell: int = 8
     perspective_remove_ignored_margin_per_cell: float = 0.13
     max_erroneous_bits_in_border_rate: float = 0.35
@@ -143,7 +151,8 @@ class DetectorParams:
     corner_refine_max_iter: int = 50
     corner_refine_min_accuracy: float = 0.01
 
-    seam_strip_deg: float = 15.0
+    close_range_size_deg: float = 8.0
+    seam_strip_deg: float = 25.0
     pole_views: bool = True
     pole_band_deg: float = 55.0
     max_view_px: int = 1024
@@ -151,11 +160,12 @@ class DetectorParams:
     edge_refine: bool = True
     verify_decode: bool = True
     rescue_max_side_px: float = 20.0
-    decode_min_contrast: float = 30.0
-    decode_min_correlation: float = 0.8
-    decode_min_lead: float = 0.25
+    decode_min_contrast: float = 40.0
+    decode_min_correlation: float = 0.75
+    decode_min_lead: float = 0.15
+    decode_min_pattern_correlation: float = 0.9
 
-    corner_sigma_px: float = 0.15
+    corner_sigma_px: float = 0.05
     small_marker_side_px: float = 16.0
 
     roi_margin: float = 0.5
@@ -364,8 +374,8 @@ def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
 
 
 def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
-                  min_contrast: float = 30.0, min_correlation: float = 0.8,
-                  min_lead: float = 0.25) -> Optional[Tuple[int, np.ndarray]]:
+                  min_contrast: float = 40.0, min_correlation: float = 0.75,
+                  min_lead: float = 0.15, min_pattern_correlation: float = 0.9) -> Optional[Tuple[int, np.ndarray]]:
     """Read a candidate quad (corner bearings (4, 3)) straight from the equirect:
     ``(id, corner bearings in ArUco order)`` or None.
 
@@ -376,7 +386,9 @@ def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarr
     border cell by ≥ ``min_contrast`` grey levels, and the Pearson correlation of the inner
     cells' grey levels with one code's bits, in one of the four corner orders, is
     ≥ ``min_correlation`` and leads every other code/order by ≥ ``min_lead`` (a soft
-    decision: blur lowers isolated white bits below any fixed threshold, not their rank).
+    decision: blur lowers isolated white bits below any fixed threshold, not their rank),
+    and the whole 8×8 pattern (quiet zone, border, bits) correlates ≥ ``min_pattern_correlation``
+    with the grey levels.
     ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
     """
     view, q = _marker_view(equirect, corners)
@@ -393,29 +405,30 @@ def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarr
     templates = codes.astype(float)
     templates -= templates.mean(axis=(1, 2), keepdims=True)
     templates /= np.maximum(np.linalg.norm(templates, axis=(1, 2), keepdims=True), 1e-12)
-    scores = np.full((4, len(codes)), -1.0)
-    quads = []
-    for shift in range(4):
-        quad = np.roll(q, -shift, axis=0)
-        quads.append(quad)
-        h = cv2.getPerspectiveTransform(square, quad.astype(np.float32))
-        pts = cv2.perspectiveTransform(grid, h).reshape(len(gx), len(gx), 2)
-        m = _sample(grey, equirect, view, pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
-        if shift == 0:
-            ring = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])
-            border = np.concatenate([m[1, 1:-1], m[-2, 1:-1], m[2:-2, 1], m[2:-2, -2]])
-            if float(np.min(ring)) - float(np.max(border)) < min_contrast:
-                return None
-        z = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
-        norm = float(np.linalg.norm(z))
-        if norm == 0.0:
-            return None
-        scores[shift] = np.tensordot(templates, z / norm, axes=([1, 2], [0, 1]))
+    h = cv2.getPerspectiveTransform(square, q.astype(np.float32))
+    pts = cv2.perspectiveTransform(grid, h).reshape(len(gx), len(gx), 2)
+    m = _sample(grey, equirect, view, pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
+    ring = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])  # quiet zone
+    border = np.concatenate([m[1, 1:-1], m[-2, 1:-1], m[2:-2, 1], m[2:-2, -2]])
+    if float(np.min(ring)) - float(np.max(border)) < min_contrast:
+        return None
+    inner = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
+    norm = float(np.linalg.norm(inner))
+    if norm == 0.0:
+        return None
+    # starting the quad at its corner k (np.roll(q, -k)) rotates the cell grid by np.rot90(·, k)
+    scores = np.stack([np.tensordot(templates, np.rot90(inner, k) / norm, axes=([1, 2], [0, 1]))
+                       for k in range(4)])
     flat = np.sort(scores.reshape(-1))
     best = np.unravel_index(int(np.argmax(scores)), scores.shape)
     if flat[-1] < min_correlation or flat[-1] - flat[-2] < min_lead:
         return None
-    quad = quads[best[0]]
+    whole = np.ones((cells + 2, cells + 2))  # the whole pattern: quiet zone, border, bits
+    whole[1:-1, 1:-1] = 0.0
+    whole[2:-2, 2:-2] = codes[best[1]]
+    if np.corrcoef(np.rot90(m, int(best[0])).reshape(-1), whole.reshape(-1))[0, 1] < min_pattern_correlation:
+        return None
+    quad = np.roll(q, -int(best[0]), axis=0)
     return int(best[1]), view.pixel_to_bearing(quad[:, 0], quad[:, 1])
 
 
@@ -438,7 +451,8 @@ def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         theta = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of the line
         normal = np.stack([-np.sin(theta), np.cos(theta)], axis=1)
         r = np.abs(np.sum(d * normal[:, None, :], axis=2))
-        sigma = 1.4826 * np.nanmedian(np.where(w > 0, r, np.nan), axis=1)
+        ranked = np.sort(np.where(w > 0, r, np.inf), axis=1)
+        sigma = 1.4826 * ranked[np.arange(len(r)), (w.sum(axis=1).astype(int) - 1) // 2]
         keep = w * (r <= np.maximum(3.0 * sigma, 1e-3)[:, None])
         if np.array_equal(keep, w) or np.any(keep.sum(axis=1) < 3):
             break
@@ -491,11 +505,12 @@ def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:
         simplejpeg = None
     if simplejpeg is not None:
         try:
-            if reduce == 1:
-                return simplejpeg.decode_jpeg(buf, colorspace="GRAY")
-            return simplejpeg.decode_jpeg(buf, colorspace="GRAY", min_factor=float(reduce))
+            h, w = simplejpeg.decode_jpeg_header(buf)[:2]
+            img = simplejpeg.decode_jpeg(buf, colorspace="GRAY", min_height=h // reduce, min_width=w // reduce,
+                                         min_factor=float(reduce))
         except ValueError as e:
             raise DetectionError(f"{what}: corrupt JPEG: {e}") from None
+        return img[:, :, 0] if img.ndim == 3 else img
     flag = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
             8: cv2.IMREAD_REDUCED_GRAYSCALE_8}[reduce]
     img = cv2.imdecode(np.frombuffer(buf, dtype=np.uint8), flag)
@@ -554,6 +569,8 @@ class ArucoBackend:
         p.polygonalApproxAccuracyRate = float(q.polygonal_approx_accuracy_rate)
         p.minCornerDistanceRate = float(q.min_corner_distance_rate)
         p.minDistanceToBorder = int(q.min_distance_to_border)
+        if q.min_marker_distance_rate > 0:
+            p.minMarkerDistanceRate = float(q.min_marker_distance_rate)
         p.perspectiveRemovePixelPerCell = int(q.perspective_remove_pixel_per_cell)
         p.perspectiveRemoveIgnoredMarginPerCell = float(q.perspective_remove_ignored_margin_per_cell)
         p.maxErroneousBitsInBorderRate = float(q.max_erroneous_bits_in_border_rate)
@@ -623,51 +640,68 @@ class MarkerDetector:
             sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px), method=method, side_px=side_px)
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
-                List[np.ndarray]], to_bearing, scale: float, method: str) -> List[MarkerObservation]:
+                List[np.ndarray]], to_bearing, scale: float, method: str,
+                expect_id: Optional[int] = None) -> List[MarkerObservation]:
         """Observations from a backend result in some image: edge-refined corners of the
         decoded markers, plus small rejected quads decoded here (``rescue_max_side_px``).
 
         ``to_bearing(x, y)``: that image's pixels to bearings; ``scale``: its pixels per
-        equirect pixel.
+        equirect pixel; ``expect_id``: keep only this id (tracking: OpenCV's reading of the
+        predicted id at the predicted place is not re-verified).
         """
         q = self.params
         ids, corners, rejected = found
         out = []
         for i, c in zip(ids, corners):
+            if expect_id is not None and i != expect_id:
+                continue
             b = to_bearing(c[:, 0], c[:, 1])
             r = refine_corners(grey, equirect, b, self.backend.bits) if q.edge_refine else None
-            if q.verify_decode:
+            if q.verify_decode and expect_id is None:
                 hit = self._decode(grey, equirect, b if r is None else r)
                 if hit is None or hit[0] != i:
                     continue  # OpenCV's id is not what the cells say: a misread or a texture
             out.append(self.observation(equirect, i, b if r is None else r, method))
-        limit = q.rescue_max_side_px * 4.0 * scale
+        if expect_id is not None and out:
+            return out
+        small = q.rescue_max_side_px * 4.0 * scale
+        large = math.radians(q.close_range_size_deg) / equirect.rad_per_px * 4.0 * scale
         for c in rejected:
-            if np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) > limit:
+            perimeter = np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1))
+            if small < perimeter < large:
                 continue
-            r = refine_corners(grey, equirect, to_bearing(c[:, 0], c[:, 1]), self.backend.bits)
-            hit = self._decode(grey, equirect, r) if r is not None else None
-            if hit is not None:
-                out.append(self.observation(equirect, hit[0], hit[1], method))
-        return out
+            # the quad is the black square, the outline of its white quiet zone (6/8 of the
+            # 4×4 case), or a looser outline around it; a large one is a close marker whose
+            # curved equirect image OpenCV could not decode
+            for shrink in _RESCUE_SHRINK:
+                quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
+                r = refine_corners(grey, equirect, to_bearing(quad[:, 0], quad[:, 1]), self.backend.bits)
+                hit = self._decode(grey, equirect, r) if r is not None else None
+                if hit is not None and (expect_id is None or hit[0] == expect_id):
+                    out.append(self.observation(equirect, hit[0], hit[1], method))
+                    break
+        return dedupe_observations(out)
+
+    def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
+                       maps: Optional[Tuple[np.ndarray, np.ndarray]] = None, map_step: int = 1,
+                       expect_id: Optional[int] = None) -> List[MarkerObservation]:
+        """Markers in a gnomonic view of the equirect frame (corners refined in a view).
+
+        ``maps``: precomputed clipped remap maps, for fixed views; else computed exactly
+        (``map_step`` 1) or interpolated between every ``map_step`` view pixels.
+        ``expect_id``: only this id is wanted (see :meth:`_finish`).
+        """
+        if maps is None:
+            maps = _clipped_maps(view, equirect, map_step)
+        img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
+        found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
+        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, expect_id)
 
     def _decode(self, grey: np.ndarray, equirect: Equirect, corners: np.ndarray):
         q = self.params
         return decode_marker(grey, equirect, corners, self.backend.codes, q.decode_min_contrast,
-                             q.decode_min_correlation, q.decode_min_lead)
-
-    def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
-                       maps: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> List[MarkerObservation]:
-        """Markers in a gnomonic view of the equirect frame (corners refined in a view).
-
-        ``maps``: precomputed clipped ``view.remap_maps(equirect)``, for fixed views.
-        """
-        if maps is None:
-            maps = _clipped_maps(view, equirect)
-        img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
-        found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
-        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method)
+                             q.decode_min_correlation, q.decode_min_lead, q.decode_min_pattern_correlation)
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
                        method: str = "full") -> List[MarkerObservation]:
@@ -727,9 +761,27 @@ class MarkerDetector:
         return sorted(found, key=lambda o: o.id)
 
 
-def _clipped_maps(view: GnomonicView, equirect: Equirect) -> Tuple[np.ndarray, np.ndarray]:
-    map_x, map_y = view.remap_maps(equirect)
-    np.clip(map_y, 0.0, equirect.height - 1.0, out=map_y)  # rows never wrap, as GnomonicView.render
+def _clipped_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:
+    """``cv2.remap`` maps from the equirect to ``view`` (as GnomonicView.render: rows clamped,
+    columns wrapped). With ``step`` > 1 the exact mapping is computed every ``step`` view
+    pixels and interpolated bilinearly in between (≪ 0.1 px off for small views; the
+    corners are refined on the sphere afterwards anyway), ~step² times cheaper.
+    """
+    if step <= 1:
+        map_x, map_y = view.remap_maps(equirect)
+    else:
+        nx = -(-(view.width - 1) // step) + 1
+        ny = -(-(view.height - 1) // step) + 1
+        gx, gy = np.meshgrid(np.arange(nx, dtype=float) * step, np.arange(ny, dtype=float) * step)
+        u, v = equirect.bearing_to_pixel(view.pixel_to_bearing(gx, gy))
+        u = equirect.unwrap_u(u, u[ny // 2, nx // 2])  # no jump at the seam; remap wraps columns
+        fx, fy = np.meshgrid(np.arange(view.width, dtype=np.float32) / step,
+                             np.arange(view.height, dtype=np.float32) / step)
+        map_x = cv2.remap(u.astype(np.float32), fx, fy, cv2.INTER_LINEAR)
+        map_y = cv2.remap(v.astype(np.float32), fx, fy, cv2.INTER_LINEAR)
+    map_x = map_x.astype(np.float32)
+    map_y = map_y.astype(np.float32)
+    np.clip(map_y, 0.0, equirect.height - 1.0, out=map_y)
     return map_x, map_y
 
 
@@ -739,6 +791,7 @@ def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
     return bool(u.min() < -0.5 < u.max() or u.min() < equirect.width - 0.5 < u.max())
 
 
+_RESCUE_SHRINK = (1.0, 0.75, 0.55)
 _METHOD_RANK = {"gnomonic": 0, "tracked": 0, "full": 1, "seam": 1}
 
 

@@ -138,7 +138,7 @@ class MarkerTracker:
                 up = min(max(q.roi_target_side_px / side, 1.0), q.roi_max_upsample)
                 fov = m.angular_size * (1.0 + 2.0 * q.roi_margin) + 2.0 * gate
                 view = self.detector.view_around(eq, m.bearing, fov, up)
-                candidates += self.detector.detect_in_view(grey, eq, view, "tracked")
+                candidates += self.detector.detect_in_view(grey, eq, view, "tracked", map_step=8, expect_id=m.id)
             step = eq.width / q.sweep_period_frames
             width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
             stats.sweep_u0 = int(self.frame * step) % eq.width
