@@ -66,8 +66,10 @@ def test_rate_and_stamp_error_without_faults(transport):
         time.sleep(3.0)
         rate = (len(run.samples) - n0) / (time.time() - t0)
         errors = run.check_stream()
+        assert run.sim.measuring
     finally:
         run.close()
+    assert not run.sim.measuring  # stop() ended the tracking measurement
     assert rate >= 19.0
     assert np.percentile(errors, 95) < 0.002 and errors.max() < 0.004
     assert run.tracker.stats().lost_samples <= 2

@@ -14,6 +14,7 @@ envelope needs a few low-latency replies before its stamps can be trusted.
 from __future__ import annotations
 
 import collections
+import contextlib
 import enum
 import threading
 import time
@@ -21,7 +22,7 @@ from typing import Callable, Deque, Dict, List, NamedTuple, Optional, Tuple
 
 from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout
 from .clock import InstrumentClock
-from .protocol import BAP_PRISM_360, EDM_CONT_FAST, MOT_LOCKED_OUT, TMC_AUTO_INC, TMC_TRK_DIST, RcClass
+from .protocol import BAP_PRISM_360, EDM_CONT_FAST, MOT_LOCKED_OUT, TMC_AUTO_INC, TMC_STOP, TMC_TRK_DIST, RcClass
 
 __all__ = ["TrackerError", "TrackerState", "TrackerConfig", "PrismSample", "TrackerStats", "Ms60Tracker"]
 
@@ -151,9 +152,14 @@ class Ms60Tracker:
         self._thread.start()
 
     def stop(self) -> None:
+        """End the loop, stop the instrument's tracking measurement (TMC_DoMeasure TMC_STOP) and
+        close the port."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
+        if self._client is not None and self.state in (TrackerState.LOCKED, TrackerState.LOST, TrackerState.SEARCHING):
+            with contextlib.suppress(GeoComError):  # leave the instrument idle
+                self._client.do_measure(TMC_STOP, TMC_AUTO_INC)
         self._close_client()
         self._set_state(TrackerState.STOPPED)
 
