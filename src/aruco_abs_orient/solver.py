@@ -17,6 +17,8 @@ bearing ``u`` in the camera frame (from ``camera``/``detection``).
   (Cauchy/Huber IRLS) Gauss-Newton on SO(3), then least squares on the markers that pass a
   residual gate (false ids dropped, covariance honest), with the prism position as a parameter
   under its measured prior (so the prism noise common to all markers is handled correctly).
+* :func:`fuse_yaws` — the per-marker yaws of one frame fused with their correlation (they share
+  the prism, tilt and lever-arm errors), false ids gated out.
 * :func:`resection` — ≥ 3 markers, no prism ⇒ position and attitude of base_link.
 
 Units: metres, radians, everything in ``map`` unless named otherwise. numpy only,
@@ -43,6 +45,8 @@ __all__ = [
     "attitude_from_markers",
     "resection",
     "yaw_consensus",
+    "FusedYaw",
+    "fuse_yaws",
 ]
 
 
@@ -65,7 +69,9 @@ class YawEstimate(NamedTuple):
     ``elevation_residual`` (rad) = elevation of ``M − P`` minus the predicted one (zero for
     consistent data: a check on the marker id, the tilt and the lever arm) with its 1-σ
     ``elevation_sigma`` (rad); ``cov`` the 2×2 covariance of (yaw, elevation_residual) in rad²;
-    ``camera_position`` the camera centre in map (m).
+    ``camera_position`` the camera centre in map (m). ``shared_gradient`` (8,) is ∂yaw/∂ of the
+    inputs every marker of one frame shares — (prism x, y, z in m; roll, pitch in rad; lever arm
+    x, y, z in m) — and ``shared_cov`` (8×8) their covariance, for :func:`fuse_yaws`.
     """
 
     yaw: float
@@ -75,6 +81,18 @@ class YawEstimate(NamedTuple):
     elevation_sigma: float
     cov: np.ndarray
     camera_position: np.ndarray
+    shared_gradient: np.ndarray
+    shared_cov: np.ndarray
+
+
+class FusedYaw(NamedTuple):
+    """Yaw of base_link (rad) fused from the markers of one frame, with its 1-σ ``sigma`` (rad);
+    ``normalized`` (N,) each marker's residual over its σ (rad/rad), ``used`` (N,) the markers kept."""
+
+    yaw: float
+    sigma: float
+    normalized: np.ndarray
+    used: np.ndarray
 
 
 class AttitudeEstimate(NamedTuple):
@@ -125,6 +143,7 @@ class ResectionEstimate(NamedTuple):
 
 
 _EX = np.array([1.0, 0.0, 0.0])
+_SHARED = [2, 3, 4, 8, 9, 10, 11, 12]   # prism, roll, pitch, lever arm in yaw_from_marker's Jacobian
 _EY = np.array([0.0, 1.0, 0.0])
 
 
@@ -329,7 +348,47 @@ def yaw_from_marker(bearing, marker, prism, roll: float, pitch: float, base_T_ca
     cov = J @ Sigma @ J.T
     camera = P + rot_z(yaw) @ Rt @ l
     return YawEstimate(yaw, math.sqrt(max(cov[0, 0], 0.0)), s, float(elev_res),
-                       math.sqrt(max(cov[1, 1], 0.0)), cov, camera)
+                       math.sqrt(max(cov[1, 1], 0.0)), cov, camera, J[0, _SHARED].copy(),
+                       Sigma[np.ix_(_SHARED, _SHARED)])
+
+
+def fuse_yaws(estimates, gate: Optional[float] = 4.0) -> FusedYaw:
+    """Fuse the per-marker yaws of one frame (:func:`yaw_from_marker`, same prism, tilt and lever arm).
+
+    Their errors are correlated through the shared inputs (prism, tilt, lever arm), so they are
+    combined by generalised least squares with the full covariance
+    ``C_ij = g_i Σ g_jᵀ + δ_ij·(own variance_i)``; treating them as independent would overstate the
+    precision. Outliers (false ids): a consensus first (:func:`yaw_consensus`), then the marker with
+    the largest normalised residual beyond ``gate`` is dropped until all pass (None: keep all).
+
+    Returns :class:`FusedYaw`. Raises SolverError for an empty list.
+    """
+    est = list(estimates)
+    if not est:
+        raise SolverError("fuse_yaws: no yaw estimates")
+    y = np.array([e.yaw for e in est])
+    G = np.array([e.shared_gradient for e in est])
+    S = est[0].shared_cov
+    shared = G @ S @ G.T
+    own = np.maximum(np.array([e.sigma ** 2 for e in est]) - np.diag(shared), 0.0)
+    C = shared + np.diag(own)
+    ref = y[0]
+    used = yaw_consensus(y, np.sqrt(np.diag(C)))[1] if len(est) > 2 else np.ones(len(est), bool)
+    while True:
+        idx = np.flatnonzero(used)
+        Ci = np.linalg.pinv(C[np.ix_(idx, idx)])
+        info = float(Ci.sum())
+        off = wrap_angle(y - ref)
+        mean = float(Ci.sum(axis=0) @ off[idx]) / info
+        res = wrap_angle(off - mean)
+        # residual variance: C_ii − 2·cov(y_i, ŷ) + var(ŷ), with cov(y_i, ŷ) = (C[i, idx] Ci 1) / info
+        cov_i_hat = C[:, idx] @ Ci.sum(axis=1) / info
+        var_res = np.maximum(np.diag(C) - 2 * cov_i_hat + 1.0 / info, 1e-30)
+        z = np.abs(res) / np.sqrt(var_res)
+        if gate is None or len(idx) <= 1 or z[idx].max() <= gate:
+            break
+        used[idx[int(np.argmax(z[idx]))]] = False
+    return FusedYaw(float(wrap_angle(ref + mean)), math.sqrt(1.0 / info), z, used)
 
 
 # ----------------------------------------------------------------------------- several markers

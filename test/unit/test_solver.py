@@ -16,6 +16,7 @@ from aruco_abs_orient.solver import (
     DegenerateGeometryError,
     SolverError,
     attitude_from_markers,
+    fuse_yaws,
     resection,
     yaw_from_marker,
 )
@@ -162,6 +163,43 @@ def test_yaw_degenerate_geometry_is_reported():
         yaw_from_marker(u, above, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism)
     with pytest.raises(SolverError, match="prism"):
         yaw_from_marker(u, s.M[0], [np.nan, 0, 0], 0.0, 0.0, s.base_T_camera, s.t_prism)
+
+
+def test_fused_frame_yaw_is_honest_where_independent_fusion_is_not():
+    """Four markers on one side share one prism (2 cm) and tilt error: their yaw errors are correlated.
+    GLS with the shared covariance stays honest; inverse-variance fusion as if independent does not."""
+    s = Scene(17, 0.03, 0.02, -0.7, 4)
+    az = np.radians([10.0, 25.0, 40.0, 55.0])
+    s.M = s.C + np.stack([np.cos(az), np.sin(az), [0.1, -0.05, 0.2, 0.0]], axis=1) * [[3.0], [4.0], [5.0], [3.5]]
+    sb, sp, st_ = 1e-3, 0.02, 1e-3
+    z_gls, z_naive = [], []
+    for _ in range(400):
+        P = s.P + sp * s.rng.normal(size=3)
+        r, p = s.roll + st_ * s.rng.normal(), s.pitch + st_ * s.rng.normal()
+        u = s.bearings(sigma=sb)
+        est = [yaw_from_marker(u[i], s.M[i], P, r, p, s.base_T_camera, s.t_prism, sigma_bearing=sb,
+                               prism_cov=sp, tilt_sigma=st_) for i in range(4)]
+        fused = fuse_yaws(est)
+        z_gls.append(wrap_angle(fused.yaw - s.yaw) / fused.sigma)
+        w = np.array([1 / e.sigma ** 2 for e in est])
+        naive = np.sum(w * np.array([e.yaw for e in est])) / w.sum()
+        z_naive.append(wrap_angle(naive - s.yaw) * math.sqrt(w.sum()))
+    assert 0.8 < np.std(z_gls) < 1.2
+    assert np.std(z_naive) > 1.3
+
+
+def test_fuse_yaws_drops_a_false_id():
+    s = Scene(18, 0.0, 0.0, 3.0, 5)
+    u = s.bearings(sigma=5e-4)
+    M = s.M.copy()
+    M[1] = s.M[1] + [2.0, 1.0, 0.0]
+    est = [yaw_from_marker(u[i], M[i], s.P, 0.0, 0.0, s.base_T_camera, s.t_prism, sigma_bearing=5e-4,
+                           prism_cov=0.005) for i in range(5)]
+    fused = fuse_yaws(est)
+    np.testing.assert_array_equal(fused.used, [True, False, True, True, True])
+    assert abs(wrap_angle(fused.yaw - s.yaw)) < 4 * fused.sigma
+    with pytest.raises(SolverError):
+        fuse_yaws([])
 
 
 # ----------------------------------------------------------------------------- attitude
