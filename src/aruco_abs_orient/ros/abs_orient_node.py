@@ -18,12 +18,15 @@ Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry th
 
 Time. ``~time_offset`` (s): camera stamps = true (total-station) time + offset; the pipeline works in
 total-station time (``stamp − offset``), the published messages keep the image stamp. ``map → odom`` is
-stamped at the image time, never future-dated. When no image has been processed for ``1/~tf_rate`` s
-(camera stalled, frames dropped), it is re-published at the NEWEST ``odom → base_link`` stamp in the tf
-buffer, with the filter's prediction there, if that stamp is newer than the last one sent: tf2 needs
-strictly increasing stamps per edge (a repeated stamp is TF_REPEATED_DATA), so the stamp only ever
-advances. A stamp going back by more than ``~time_jump_tolerance`` s (sim time: a bag looped or
-restarted) resets the pipeline and clears the tf buffer.
+stamped at the image time (every processed frame once the filter is initialised), never future-dated.
+When the newest ``odom → base_link`` stamp in the tf buffer is ``1/~tf_rate`` s past the newest map→odom
+sent (no marker seen, camera stalled, frames dropped, images slower than tf_rate), map→odom is
+re-published AT THAT ODOMETRY STAMP with the filter's prediction there: the stamp advances with the
+odometry, never beyond it. A stamp already sent is never sent again (tf2 drops a repeated stamp of an
+edge as TF_REPEATED_DATA); an image-time value a little older than a re-published one is still sent
+(tf2 inserts out-of-order stamps within its cache), so no measurement is lost. A stamp going back by
+more than ``~time_jump_tolerance`` s (sim time: a bag looped or restarted) resets the pipeline and
+clears the tf buffer.
 
 Real time. The image callback only drops the message into a one-slot mailbox (the newest wins; a
 replaced, unprocessed image is counted as dropped); the main thread processes the mailbox. Subscriber
@@ -212,8 +215,9 @@ class AbsOrientNode:
         self.last_image_stamp: Optional[float] = None     # s, camera clock
         self.last_prism_stamp: Optional[float] = None     # s, total-station clock
         self.last_image_wall = time.monotonic()
-        self.last_tf_stamp: Optional[float] = None        # s, last map→odom stamp sent
-        self.last_tf_wall = -math.inf
+        self.last_tf_stamp: Optional[float] = None        # s, newest map→odom stamp sent
+        self.sent_tf_stamps: Deque[float] = collections.deque(maxlen=64)
+        self.initialised = False                          # the pipeline's filter, from the last good frame
         self.last_result: Optional[FrameResult] = None
         self.seen_ids: Tuple[int, ...] = ()
         self._diag_prev: Dict[str, int] = {}
@@ -268,8 +272,7 @@ class AbsOrientNode:
             self._apply_params()
             if item is not None:
                 self._process(*item)
-            elif time.monotonic() - self.last_tf_wall >= period:
-                self._republish_map_odom()
+            self._republish_map_odom()
             if time.monotonic() - self._diag_wall >= 1.0 / self.config.diagnostics_rate:
                 self._publish_diagnostics()
 
@@ -306,7 +309,9 @@ class AbsOrientNode:
             self.pipeline.reset()
         self.tf_buffer.clear()  # static transforms survive a clear
         self.last_image_stamp = self.last_prism_stamp = self.last_tf_stamp = None
+        self.sent_tf_stamps.clear()
         self.last_result = None
+        self.initialised = False
 
     def _ensure_pipeline(self) -> bool:
         if self.pipeline is not None:
@@ -390,10 +395,14 @@ class AbsOrientNode:
         if odom_T_base is None:
             return
         self._feed_prisms()  # what arrived while waiting for tf
+        bad_before = self.pipeline.stats.get("bad_images", 0)
         result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
         self.counts["processed"] += 1
         if result.error:
-            self._error("frame_errors", result.error)
+            corrupt = self.pipeline.stats.get("bad_images", 0) > bad_before
+            self._error("bad_images" if corrupt else "frame_errors", result.error)
+        else:
+            self.initialised = result.initialised
         unknown = result.tracking.rejected_unknown if result.tracking is not None else 0
         if unknown:
             self.counts["unknown_ids"] += unknown
@@ -423,10 +432,10 @@ class AbsOrientNode:
             self.pub_markers.publish(cv.marker_array(self.marker_map, stamp, seen))
 
     def _send_map_odom(self, stamp_sec: float, map_T_odom: np.ndarray) -> None:
-        if self.last_tf_stamp is not None and stamp_sec <= self.last_tf_stamp:
-            return  # tf2 wants increasing stamps per edge
-        self.last_tf_stamp = stamp_sec
-        self.last_tf_wall = time.monotonic()
+        if stamp_sec in self.sent_tf_stamps:
+            return  # tf2 drops a repeated stamp of an edge (TF_REPEATED_DATA) and complains
+        self.sent_tf_stamps.append(stamp_sec)
+        self.last_tf_stamp = stamp_sec if self.last_tf_stamp is None else max(stamp_sec, self.last_tf_stamp)
         if self.config.publish_tf:
             c = self.config
             self.tf_broadcaster.sendTransform(
@@ -435,7 +444,9 @@ class AbsOrientNode:
             self.counts["tf_published"] += 1
 
     def _republish_map_odom(self) -> None:
-        if self.pipeline is None or self.last_result is None or not self.last_result.initialised:
+        """map→odom at the newest odometry stamp when it is 1/tf_rate past the newest one sent (images
+        stalled, dropped or slower than tf_rate): the filter's prediction there."""
+        if self.pipeline is None or not self.initialised:
             return
         c = self.config
         try:
@@ -443,7 +454,7 @@ class AbsOrientNode:
         except self.tf2_ros.TransformException:
             return
         s = self.cv.stamp_to_sec(latest)
-        if self.last_tf_stamp is not None and s <= self.last_tf_stamp:
+        if self.last_tf_stamp is not None and s < self.last_tf_stamp + 1.0 / c.tf_rate:
             return
         map_T_odom, _ = self.pipeline.map_T_odom(s - self.time_offset)
         self._send_map_odom(s, map_T_odom)
@@ -462,7 +473,7 @@ class AbsOrientNode:
         image_age = now_wall - self.last_image_wall
         r = self.last_result
         values: Dict[str, object] = {
-            "initialised": bool(r is not None and r.initialised),
+            "initialised": self.initialised,
             "markers seen": len(self.seen_ids),
             "marker ids": " ".join(str(i) for i in self.seen_ids) or "-",
             "rate [Hz]": delta.get("processed", 0) / dt,
@@ -506,7 +517,7 @@ class AbsOrientNode:
                 problems.append(f"{delta[key]} {text}")
         if problems and level == "ok":
             level = "warn"
-        if not problems and (r is None or not r.initialised):
+        if not problems and not self.initialised:
             level = "warn"
             problems.append("initialising (needs a standstill with the prism and a marker)")
         message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
