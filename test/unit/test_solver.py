@@ -222,7 +222,7 @@ def test_attitude_covariance_is_honest():
     s = Scene(21, 0.04, -0.06, -2.8, 3)
     sb, sp = 1.5e-3, 0.01
     z = []
-    for _ in range(300):
+    for _ in range(200):
         P = s.P + sp * s.rng.normal(size=3)
         est = attitude_from_markers(s.bearings(sigma=sb), s.M, P, s.base_T_camera, s.t_prism,
                                     sigma_bearing=sb, prism_cov=sp)   # default: robust, then gated LS
