@@ -187,6 +187,18 @@ def heading_from_track(t, xy, query_t=None, smooth: float = 0.5, min_speed: floa
     return TrackHeading(tq, heading, speed, turn_rate, valid)
 
 
+def _grid_smooth(values: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing (σ = ``sigma`` samples) of a regular series over its ``valid`` samples
+    (normalised convolution); NaN where no valid sample is near."""
+    half = max(1, int(math.ceil(3.0 * sigma)))
+    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
+    v = np.where(valid, values, 0.0)
+    num = np.convolve(v, kernel)[half:half + len(v)]
+    den = np.convolve(valid.astype(float), kernel)[half:half + len(v)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 1e-6, num / den, np.nan)
+
+
 class _HeadingGrid:
     """The track's velocity on a regular grid, interpolated linearly (the unit circle, not the
     angle, is interpolated), with a per-time weight speed² (0 where the heading is invalid)."""
@@ -205,8 +217,19 @@ class _HeadingGrid:
         grid = self.t0 + step * np.arange(n)
         h = heading_from_track(t, xy2, grid, smooth=smooth, min_speed=min_speed)
         self.max_speed = float(np.max(h.speed, initial=0.0))
-        self.ux = np.where(h.valid, np.cos(h.heading), 0.0)
-        self.uy = np.where(h.valid, np.sin(h.heading), 0.0)
+        # The fit returns the Gaussian-smoothed velocity G*(v·e^{iψ}), whose direction is
+        # ψ + σ²(v'ψ'/v + ψ''/2) + O(σ⁴). Where the speed changes in a turn (braking into a curve,
+        # stopping mid-turn) that term is not time-symmetric and would bias τ: remove it, with the
+        # derivatives taken from the smoothed speed and turn rate (smoothed once more: the
+        # correction is slow, its noise is not).
+        sig = smooth / step
+        speed = _grid_smooth(h.speed, h.valid, sig)
+        rate = _grid_smooth(h.turn_rate, h.valid, sig)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            bias = smooth**2 * (np.gradient(speed, step) * rate / speed + 0.5 * np.gradient(rate, step))
+        heading = np.where(h.valid & np.isfinite(bias), h.heading - bias, h.heading)
+        self.ux = np.where(h.valid, np.cos(heading), 0.0)
+        self.uy = np.where(h.valid, np.sin(heading), 0.0)
         self.weight = np.where(h.valid, h.speed**2, 0.0)
         self.turn_rate = np.where(h.valid, h.turn_rate, 0.0)
         self.valid = h.valid
@@ -530,36 +553,54 @@ def estimate_offset_from_marker_yaws(t_marker, yaw_marker, t_track, xy_track, ma
 # --------------------------------------------------------------------------- baseline
 
 
+def _detrend(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``x`` minus its least-squares straight line in ``t``."""
+    tc = t - t.mean()
+    den = float(tc @ tc)
+    slope = float(tc @ (x - x.mean())) / den if den > 0 else 0.0
+    return x - x.mean() - slope * tc
+
+
 def cross_correlation_offset(t_vo, yaw_vo, t_track, xy_track, search=(-1.0, 1.0), *,
-                             min_speed: float = 0.05) -> OffsetEstimate:
+                             min_speed: float = 0.05, track_heading: str = "paper",
+                             smooth: float = 0.5) -> OffsetEstimate:
     """The paper's baseline: τ (s, camera stamp = total-station time + τ) at whole-frame resolution.
 
-    Track heading at each prism fix = circular mean of the headings towards the previous and the
-    next fix (the paper's), unwrapped and interpolated linearly to the VO stamps shifted by k
-    frames; τ = k·(median VO frame period) maximising the normalised (Pearson) correlation of the
-    unwrapped headings, over the VO samples where the prism moves at ≥ ``min_speed`` m/s (the
-    paper's heading-rate variant is worse still: differencing amplifies the prism noise).
-    ``sigma`` is half a frame; ``confidence`` the peak correlation.
+    Track heading at each prism fix (``track_heading="paper"``) = circular mean of the headings
+    towards the previous and the next fix, as in the paper — noisy at low speed, where a single
+    wrong 2π unwrap spoils the correlation; ``"smoothed"`` uses ``heading_from_track`` (σ =
+    ``smooth`` s) instead, to show the method's own limit. Fixes where the prism moves slower than
+    ``min_speed`` m/s are dropped; the heading is unwrapped and interpolated linearly to the VO
+    stamps shifted by k frames; τ = k·(median VO frame period) maximises the normalised correlation
+    of the unwrapped headings, each linearly detrended over the overlap (the paper does not say;
+    without it the 2π-per-lap trend swamps the correlation). ``sigma`` is half a frame;
+    ``confidence`` the peak correlation.
     """
+    if track_heading not in ("paper", "smoothed"):
+        raise TimeSyncError(f"track_heading must be 'paper' or 'smoothed', got {track_heading!r}")
     lo, hi = _check_search(search)
     t_vo, yaw_vo = _as_series(t_vo, yaw_vo, "VO yaw")
     xy = np.asarray(xy_track, dtype=float)
     if xy.ndim != 2 or xy.shape[1] < 2:
         raise TimeSyncError(f"track positions: expected an (N, 2) or (N, 3) array, got shape {xy.shape}")
     t_tr, xy = _as_series(t_track, xy[:, :2], "track", ncols=2)
-    if len(t_vo) < 3 or len(t_tr) < 3:
+    if len(t_vo) < 3 or len(t_tr) < 5:
         raise TimeSyncError(f"too short: {len(t_vo)} VO samples and {len(t_tr)} prism fixes")
-    d = np.diff(xy, axis=0)
-    seg_dt = np.diff(t_tr)
-    seg_speed = np.hypot(d[:, 0], d[:, 1]) / np.where(seg_dt > 0, seg_dt, np.inf)
-    u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
-    mean_u = u[:-1] + u[1:]
-    heading = np.arctan2(mean_u[:, 1], mean_u[:, 0])  # at fixes 1 … M−2
-    moving = (seg_speed[:-1] >= min_speed) & (seg_speed[1:] >= min_speed)
+    if track_heading == "paper":
+        d = np.diff(xy, axis=0)
+        seg_dt = np.diff(t_tr)
+        seg_speed = np.hypot(d[:, 0], d[:, 1]) / np.where(seg_dt > 0, seg_dt, np.inf)
+        u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+        mean_u = u[:-1] + u[1:]
+        heading = np.arctan2(mean_u[:, 1], mean_u[:, 0])  # at fixes 1 … M−2
+        moving = (seg_speed[:-1] >= min_speed) & (seg_speed[1:] >= min_speed)
+        t_fix, top_speed = t_tr[1:-1], float(seg_speed.max(initial=0.0))
+    else:
+        h = heading_from_track(t_tr, xy, smooth=smooth, min_speed=min_speed)
+        heading, moving, t_fix, top_speed = h.heading, h.valid, t_tr, float(h.speed.max(initial=0.0))
     if not np.any(moving):
-        raise TimeSyncError(
-            f"the prism never moves (top speed {float(seg_speed.max(initial=0)):.3f} m/s): the track has no heading")
-    t_h = t_tr[1:-1][moving]
+        raise TimeSyncError(f"the prism never moves (top speed {top_speed:.3f} m/s): the track has no heading")
+    t_h = t_fix[moving]
     psi_track = np.unwrap(heading[moving])
     period = float(np.median(np.diff(t_vo)))
     if not period > 0:
@@ -572,9 +613,8 @@ def cross_correlation_offset(t_vo, yaw_vo, t_track, xy_track, search=(-1.0, 1.0)
         ok = (tq >= t_h[0]) & (tq <= t_h[-1])
         if np.sum(ok) < 10:
             continue
-        a = psi_vo[ok]
-        b = np.interp(tq[ok], t_h, psi_track)
-        a, b = a - a.mean(), b - b.mean()
+        a = _detrend(t_vo[ok], psi_vo[ok])
+        b = _detrend(t_vo[ok], np.interp(tq[ok], t_h, psi_track))
         den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
         corr[n] = float(np.sum(a * b) / den) if den > 0 else np.nan
     if not np.any(np.isfinite(corr)):
