@@ -220,3 +220,24 @@ def test_online_estimator_applies_only_confident_estimates_with_bounded_memory()
     assert online.correct_stamp(100.0) == pytest.approx(100.0 - online.applied)
     n_vo, n_track, _ = online.buffered
     assert n_vo <= 45.0 * FPS + 2 and n_track <= 45.0 * 19.0 * 1.3
+
+
+def test_braking_in_a_turn_does_not_bias_the_offset():
+    """Slowing down to a stop inside a curve makes the smoothed track heading lag asymmetrically
+    (a bias of σ²·v'ψ'/v); the estimator removes it. Noise-free, so only a bias could show."""
+    tau = 0.25
+    t_true = np.arange(0.0, 40.0, 1.0 / FPS)
+
+    def theta(t):  # ellipse parameter: cruise, then brake from 30 s to a stop at 36 s, near the tip
+        t = np.asarray(t, dtype=float)
+        brake = np.clip(t - 30.0, 0.0, 6.0)
+        return 0.2 * np.minimum(t, 30.0) + 0.2 * (brake - brake**2 / 12.0)
+
+    def pos(t):
+        th = theta(t)
+        return np.stack([A * np.cos(th), B * np.sin(th)], axis=-1)
+
+    yaw = np.arctan2(B * np.cos(theta(t_true)), -A * np.sin(theta(t_true))) + YAW_OFFSET
+    tp = np.arange(-1.0, 41.0, 1.0 / 19.0)
+    est = estimate_offset(t_true + tau, yaw, tp, pos(tp))
+    assert abs(est.offset - tau) < 0.001
