@@ -338,9 +338,11 @@ class _Coherence:
         total = np.zeros(len(taus))
         weight = np.zeros(len(taus))
         for ch in self.channels:
-            s, w = _channel_sums(ch, self.grid, taus, self.max_drift)[:2]
-            total += s
-            weight += w
+            chunk = max(1, 2_000_000 // max(1, len(ch.t)))  # bounded memory on long recordings
+            for k in range(0, len(taus), chunk):
+                s, w = _channel_sums(ch, self.grid, taus[k:k + chunk], self.max_drift)[:2]
+                total[k:k + chunk] += s
+                weight[k:k + chunk] += w
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(weight > 0, total / np.where(weight > 0, weight, 1.0), 0.0), weight
 
