@@ -22,7 +22,10 @@ care of by the modulus) and its own linear drift ``d_j`` (rad/s, fitted, bounded
 ``min_speed``), so standstill and crawling, where the track heading is noise, do not count. A
 coarse grid over the search interval finds the peak, a golden-section search refines it to well
 under a frame; the track heading is interpolated continuously on the unit circle (through the
-velocity vector), so the curve is smooth in τ.
+velocity vector), so the curve is smooth in τ. The smoothing's own heading bias
+σ²(v'ψ'/v + ψ''/2), which is not time-symmetric where the platform brakes or accelerates in a turn,
+is removed before the search. ``sigma`` comes from the linearised least-squares equivalent of the
+maximisation with a Newey-West sum over the track noise's correlation time.
 
 The paper's method (normalised cross-correlation of unwrapped headings at whole-frame lags) is
 ``cross_correlation_offset``, kept as the baseline. Numbers that cannot be estimated raise
@@ -166,7 +169,9 @@ def heading_from_track(t, xy, query_t=None, smooth: float = 0.5, min_speed: floa
     ``query_t`` the times to evaluate (default: ``t``). A Gaussian-weighted local quadratic fit
     (σ = ``smooth`` s) gives velocity and acceleration without lag, on irregular stamps and across
     short dropouts. ``valid`` is False where fixes are missing around the query or the speed is
-    below ``min_speed`` (m/s): there the heading is meaningless.
+    below ``min_speed`` (m/s): there the heading is meaningless. The result is the direction of the
+    Gaussian-smoothed velocity, biased by σ²(v'ψ'/v + ψ''/2) rad in turns (σ = ``smooth``);
+    ``estimate_offset`` removes that bias.
     """
     xy = np.asarray(xy, dtype=float)
     if xy.ndim != 2 or xy.shape[1] < 2:
