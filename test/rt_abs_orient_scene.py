@@ -7,6 +7,7 @@ Images come from the synthetic renderer (camera.py's equirect model), JPEG-encod
 """
 import os
 import threading
+import time
 
 import numpy as np
 import rospy
@@ -64,10 +65,12 @@ class Feed(threading.Thread):
         self.pub_image = rospy.Publisher("camera/image/compressed", CompressedImage, queue_size=2)
         self.stop = threading.Event()
         self.sent = 0
+        self.sent_wall = {}  # image stamp (ns) -> time.monotonic() at publication (the last 1000)
 
     def run(self):
         period = 1.0 / self.rate
         while not self.stop.is_set() and not rospy.is_shutdown():
+            tick = time.monotonic()
             now = rospy.Time.now()
             tr = matrix_to_transform_stamped(ODOM_T_BASE, now, "odom", "base_link")
             if self.nan_tf:
@@ -80,6 +83,9 @@ class Feed(threading.Thread):
                 self.pub_prism.publish(msg)
             img = CompressedImage(format="jpeg", data=self.frames[self.image])
             img.header.stamp, img.header.frame_id = now, "camera"
+            self.sent_wall[now.to_nsec()] = time.monotonic()
+            if len(self.sent_wall) > 1000:
+                self.sent_wall.pop(next(iter(self.sent_wall)))
             self.pub_image.publish(img)
             self.sent += 1
-            self.stop.wait(period)
+            self.stop.wait(max(0.0, period - (time.monotonic() - tick)))

@@ -212,6 +212,7 @@ class AbsOrientNode:
         self.counts: Dict[str, int] = collections.Counter()
         self.last_error = ""
         self.latencies_ms: Deque[float] = collections.deque(maxlen=600)
+        self.stage_ms: Dict[str, float] = {}  # ms per stage summed since the last diagnostics report
         self.last_image_stamp: Optional[float] = None     # s, camera clock
         self.last_prism_stamp: Optional[float] = None     # s, total-station clock
         self.last_image_wall = time.monotonic()
@@ -391,9 +392,11 @@ class AbsOrientNode:
         except cv.ConversionError as e:
             self._error("bad_images", str(e))
             return
+        tf_wait = time.monotonic()
         odom_T_base = self._odom_T_base(stamp)
         if odom_T_base is None:
             return
+        tf_wait_ms = 1e3 * (time.monotonic() - tf_wait)
         self._feed_prisms()  # what arrived while waiting for tf
         bad_before = self.pipeline.stats.get("bad_images", 0)
         result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
@@ -408,6 +411,9 @@ class AbsOrientNode:
             self.counts["unknown_ids"] += unknown
         self._publish(result, stamp, odom_T_base)
         self.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        for stage, ms in result.timings.items():
+            self.stage_ms[stage] = self.stage_ms.get(stage, 0.0) + ms
+        self.stage_ms["tf wait"] = self.stage_ms.get("tf wait", 0.0) + tf_wait_ms
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, result: FrameResult, stamp, odom_T_base: np.ndarray) -> None:
@@ -498,6 +504,9 @@ class AbsOrientNode:
         }
         if r is not None and r.map_T_odom is not None:
             values["map->odom yaw [deg]"] = math.degrees(float(yaw_of(r.map_T_odom[:3, :3])))
+        n = max(delta.get("processed", 0), 1)
+        for stage, ms in self.stage_ms.items():
+            values[f"stage {stage} [ms]"] = ms / n
         if self.pipeline is not None:
             for k, v in sorted(self.pipeline.stats.items()):
                 values["pipeline " + k] = v
@@ -531,6 +540,7 @@ class AbsOrientNode:
         self.pub_diagnostics.publish(self.cv.diagnostic_array(self.rospy.Time.now(), [status]))
         self._diag_prev = dict(self.counts)
         self._diag_wall = now_wall
+        self.stage_ms.clear()
 
 
 def reconfigurable_names() -> Tuple[str, ...]:
