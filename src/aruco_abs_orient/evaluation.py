@@ -16,17 +16,17 @@ Python 3.8 compatible; numpy only otherwise.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
 from .transforms import wrap_angle
-from .tum import atomic_write_text
+from .tum import atomic_write_bytes, atomic_write_text
 
 __all__ = [
     "EvaluationError",
@@ -312,16 +312,10 @@ def _figure(width_px: int, height_px: int, dpi: int = 100):
 
 
 def _save(fig, path: str) -> str:
-    """Write the figure as PNG through a temporary file and a rename (never a half-written plot)."""
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".png", dir=directory)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, format="png", dpi=fig.dpi)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    """Write the figure as PNG atomically (never a half-written plot)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=fig.dpi)
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 

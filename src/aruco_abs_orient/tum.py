@@ -15,7 +15,7 @@ import numpy as np
 
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
-__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "slerp"]
+__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp"]
 
 
 class TumError(ValueError):
@@ -93,12 +93,17 @@ def slerp(q0, q1, a) -> np.ndarray:
 
 
 def atomic_write_text(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same directory and a rename."""
+    """Write ``text`` (UTF-8) to ``path`` through a temporary file in the same directory and a rename."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_bytes(path: str, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same directory and a rename."""
     directory = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
