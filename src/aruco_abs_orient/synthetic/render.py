@@ -119,9 +119,9 @@ class RenderProfile:
 
 
 PROFILES: Dict[str, RenderProfile] = {
-    "clean": RenderProfile(supersample=4, blur_sigma_px=0.0, noise_sigma=0.0, jpeg_quality=None,
+    "clean": RenderProfile(supersample=8, blur_sigma_px=0.0, noise_sigma=0.0, jpeg_quality=None,
                            background="grey"),
-    "realistic": RenderProfile(supersample=4, blur_sigma_px=0.7, noise_sigma=2.0, jpeg_quality=85,
+    "realistic": RenderProfile(supersample=8, blur_sigma_px=0.7, noise_sigma=2.0, jpeg_quality=85,
                                background="textured"),
 }
 
