@@ -1,0 +1,201 @@
+"""Reading recorded ROS 1 bags without ROS (rosbags): images, odometry tf, lever arms, prism.
+
+A first pass collects everything but the images (small: tf, tf_static, prism) into a
+:class:`BagData`; images are then streamed one by one (:func:`iter_images`), so memory stays flat
+with the length of the recording. Bad samples (NaN/inf in tf or prism) are skipped and counted;
+a missing topic or frame is reported by name.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Iterator, List, Optional, Tuple
+
+import numpy as np
+
+from ..transforms import make_T, quat_to_matrix
+from ..tum import Trajectory
+
+__all__ = ["BagError", "BagTopics", "BagData", "read_bag_data", "iter_images", "open_reader"]
+
+
+class BagError(RuntimeError):
+    """A bag that cannot be used: names the file and the topic/frame."""
+
+
+@dataclass
+class BagTopics:
+    """Topic and frame names to read (DESIGN §3 defaults)."""
+
+    image: str = "/camera/image/compressed"
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+    prism: str = "/ms60/prism"
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    camera_frame: str = "camera"
+    prism_frame: str = "prism"
+
+
+@dataclass
+class BagData:
+    """Everything of a bag but its images. Stamps in seconds of the clock that stamped them."""
+
+    path: str
+    odom: Trajectory                       # odom_T_base_link over time (camera/VO clock)
+    base_T_camera: np.ndarray              # 4×4 static lever arm + mounting rotation
+    base_T_prism: np.ndarray               # 4×4 static lever arm
+    prism_stamps: np.ndarray               # (N,) s, total-station time
+    prism_positions: np.ndarray            # (N, 3) m in map
+    image_count: int
+    image_format: str                      # 'compressed' or 'raw'
+    start: float                           # s, first message of the bag
+    end: float                             # s, last message of the bag
+    skipped: Dict[str, int] = field(default_factory=dict)   # reason -> count
+    warnings: List[str] = field(default_factory=list)
+
+
+def open_reader(path):
+    """An opened rosbags AnyReader; a clear BagError for a missing, truncated or foreign file."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    p = Path(path)
+    if not p.is_file():
+        raise BagError(f"{path}: no such bag file")
+    reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS1_NOETIC))
+    try:
+        reader.open()
+    except Exception as e:  # rosbags raises its own classes for every kind of broken file
+        raise BagError(f"{path}: cannot read the bag ({e}); a truncated bag can be repaired with "
+                       "`rosbag reindex`") from None
+    return reader
+
+
+def _finite(*values) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _transform_of(msg) -> np.ndarray:
+    t, q = msg.transform.translation, msg.transform.rotation
+    if not _finite(t.x, t.y, t.z, q.x, q.y, q.z, q.w) or (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) < 1e-12:
+        raise ValueError("NaN/inf or zero quaternion")
+    return make_T(quat_to_matrix([q.x, q.y, q.z, q.w]), [t.x, t.y, t.z])
+
+
+def _stamp(header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def read_bag_data(path: str, topics: Optional[BagTopics] = None) -> BagData:
+    """First pass over a bag: odometry tf, static lever arms, prism positions, image count."""
+    topics = topics or BagTopics()
+    reader = open_reader(path)
+    try:
+        by_topic = {c.topic: c for c in reader.connections}
+        present = ", ".join(sorted(by_topic)) or "none"
+        image_conn = [c for c in reader.connections if c.topic == topics.image]
+        if not image_conn:
+            raise BagError(f"{path}: no image topic {topics.image} (topics in the bag: {present})")
+        msgtype = image_conn[0].msgtype
+        image_format = "compressed" if msgtype.endswith("CompressedImage") else "raw"
+        image_count = sum(c.msgcount for c in image_conn)
+        skipped: Dict[str, int] = {}
+        warnings: List[str] = []
+        odom_t, odom_T = [], []
+        statics: Dict[Tuple[str, str], np.ndarray] = {}
+        prism_t, prism_p = [], []
+        wanted = [c for c in reader.connections if c.topic in (topics.tf, topics.tf_static, topics.prism)]
+        for conn, _, raw in reader.messages(connections=wanted):
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception:
+                key = f"undecodable message on {conn.topic}"
+                skipped[key] = skipped.get(key, 0) + 1
+                continue
+            if conn.topic == topics.prism:
+                p = msg.point
+                if not _finite(p.x, p.y, p.z):
+                    skipped["NaN/inf prism position"] = skipped.get("NaN/inf prism position", 0) + 1
+                    continue
+                prism_t.append(_stamp(msg.header))
+                prism_p.append((p.x, p.y, p.z))
+                continue
+            for tr in msg.transforms:
+                parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
+                try:
+                    T = _transform_of(tr)
+                except ValueError:
+                    key = f"NaN/inf transform {parent}->{child}"
+                    skipped[key] = skipped.get(key, 0) + 1
+                    continue
+                if conn.topic == topics.tf_static:
+                    statics[(parent, child)] = T
+                elif (parent, child) == (topics.odom_frame, topics.base_frame):
+                    odom_t.append(_stamp(tr.header))
+                    odom_T.append(T)
+        start, end = reader.start_time * 1e-9, reader.end_time * 1e-9
+    finally:
+        reader.close()
+
+    def static(child: str) -> np.ndarray:
+        T = statics.get((topics.base_frame, child))
+        if T is None:
+            have = ", ".join(f"{a}->{b}" for a, b in sorted(statics)) or "none"
+            raise BagError(f"{path}: no static transform {topics.base_frame}->{child} on {topics.tf_static} "
+                           f"(static transforms in the bag: {have})")
+        return T
+
+    if not odom_t:
+        raise BagError(f"{path}: no {topics.odom_frame}->{topics.base_frame} transforms on {topics.tf}")
+    order = np.argsort(odom_t, kind="stable")
+    odom = Trajectory.from_transforms(np.asarray(odom_t)[order], np.asarray(odom_T)[order])
+    keep = np.concatenate([[True], np.diff(odom.stamps) > 0])  # duplicate stamps: keep the first
+    odom = Trajectory(odom.stamps[keep], odom.positions[keep], odom.quats[keep])
+    if not prism_t:
+        warnings.append(f"{path}: no prism positions on {topics.prism}: yaw from markers needs the prism")
+    p_order = np.argsort(prism_t, kind="stable")
+    return BagData(
+        path=str(path), odom=odom, base_T_camera=static(topics.camera_frame), base_T_prism=static(topics.prism_frame),
+        prism_stamps=np.asarray(prism_t, dtype=float)[p_order],
+        prism_positions=np.asarray(prism_p, dtype=float).reshape(-1, 3)[p_order],
+        image_count=image_count, image_format=image_format, start=start, end=end, skipped=skipped,
+        warnings=warnings)
+
+
+def iter_images(path: str, topics: Optional[BagTopics] = None) -> Iterator[Tuple[float, object]]:
+    """Stream ``(stamp s, payload)`` of the image topic in bag order.
+
+    The payload is JPEG/PNG ``bytes`` for CompressedImage and a uint8 array (H, W) or (H, W, 3)
+    for raw Image (mono8, bgr8, rgb8); a message that cannot be decoded yields ``None``.
+    """
+    topics = topics or BagTopics()
+    reader = open_reader(path)
+    try:
+        conns = [c for c in reader.connections if c.topic == topics.image]
+        for conn, _, raw in reader.messages(connections=conns):
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception:
+                yield float("nan"), None
+                continue
+            stamp = _stamp(msg.header)
+            if conn.msgtype.endswith("CompressedImage"):
+                yield stamp, bytes(msg.data)
+            else:
+                yield stamp, _raw_image(msg)
+    finally:
+        reader.close()
+
+
+def _raw_image(msg):
+    channels = {"mono8": 1, "8UC1": 1, "bgr8": 3, "rgb8": 3, "8UC3": 3}.get(msg.encoding)
+    if channels is None or msg.height * msg.step > len(msg.data):
+        return None
+    img = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(msg.height, msg.step)
+    img = img[:, : msg.width * channels].reshape(msg.height, msg.width, channels)
+    if msg.encoding == "rgb8":
+        img = img[..., ::-1]
+    return img[..., 0] if channels == 1 else np.ascontiguousarray(img)
