@@ -52,7 +52,8 @@ class RosProcesses:
             self.procs.append(subprocess.Popen(["rosrun", "tf2_ros", "static_transform_publisher"] + args,
                                                stdout=log, stderr=log))
         params = [f"_{k}:={v}" for k, v in node_params.items()]
-        self.node = subprocess.Popen(["rosrun", "aruco_abs_orient", "abs_orient"] + params, stdout=log,
+        script = os.path.join(HERE, "..", "scripts", "abs_orient")
+        self.node = subprocess.Popen([script] + params, stdout=log,
                                      stderr=subprocess.STDOUT)
         self.procs.append(self.node)
 

@@ -27,8 +27,12 @@ EXPECTED = {"missing.yaml": "cannot read", "syntax.yaml": "not valid YAML", "no_
             "bad_dictionary.yaml": "dictionary", "negative_size.yaml": "size"}
 
 
+SCRIPTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scripts")
+
+
 def run_node(executable, name, params, timeout=30):
-    args = ["rosrun", "aruco_abs_orient", executable, f"__name:={name}"] + [f"_{k}:={v}" for k, v in params.items()]
+    """Run scripts/<executable> (what rosrun runs) with private params; wait for it to exit."""
+    args = [os.path.join(SCRIPTS, executable), f"__name:={name}"] + [f"_{k}:={v}" for k, v in params.items()]
     return subprocess.run(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=timeout)
 
 
@@ -77,7 +81,7 @@ class Startup(unittest.TestCase):
     def test_calibration_is_published_on_tf_static(self):
         path = self._write("calib.yaml", "base_link_to_camera: {xyz: [0.1, -0.02, 0.45], rpy_deg: [0.5, -1.0, 2.0]}\n"
                                          "base_link_to_prism: {xyz: [-0.05, 0.0, 0.62]}\n")
-        args = ["rosrun", "aruco_abs_orient", "static_tfs", "__name:=lever_arms", f"_calibration:={path}"]
+        args = [os.path.join(SCRIPTS, "static_tfs"), "__name:=lever_arms", f"_calibration:={path}"]
         proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             buf = tf2_ros.Buffer(debug=False)
