@@ -1,0 +1,431 @@
+"""A deterministic synthetic scenario: the hidden truth every test and the demo check against.
+
+A platform (``base_link``) drives a smooth closed loop in ``map`` after standing still for a
+few seconds, mostly level (roll/pitch of a degree or two from the ground). Around the loop hang
+ArUco markers at surveyed positions, each facing the track. The platform carries a 360° camera
+(lever arm ``base_link → camera`` with a small boresight error that is rendered but not
+published) and a prism tracked by a total station (~19 Hz, mm noise, jittered stamps, dropouts).
+Visual odometry ``odom → base_link`` drifts: its yaw error grows linearly plus a random walk,
+its translation integrates the true motion through that yaw error with a scale error, plus
+jitter. The camera/VO clock runs ``camera_time_offset`` seconds ahead of true time.
+
+Everything follows from a :class:`ScenarioConfig` (its ``seed`` included), so a scenario is
+rebuilt exactly from the hidden-parameters YAML (:meth:`Scenario.from_hidden`).
+
+Units: metres, seconds (absolute ROS times, ``start_time`` + offset), radians inside the code;
+the config's angles are in degrees where the field name says ``_deg``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Dict, List, Tuple
+
+import numpy as np
+
+from ..markers import Marker, MarkerMap
+from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
+from .render import PlacedMarker
+
+__all__ = ["ScenarioError", "ScenarioConfig", "PRESETS", "Scenario", "PrismTrack"]
+
+_DT = 0.002  # s, integration grid of the motion and of the VO
+_TAIL = 5.0  # s of motion computed beyond the duration (late stamps, offsets)
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario parameter or hidden-parameters file (the message names the field)."""
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Every parameter of a scenario (hidden truth included). Angles in degrees where the
+    name ends in ``_deg``; metres, seconds, Hz otherwise."""
+
+    seed: int = 0
+    duration: float = 20.0  # s of images
+    fps: float = 15.0  # camera frame rate, Hz
+    width: int = 1920  # equirect image width, px (height = width / 2)
+    profile: str = "realistic"  # render profile (render.PROFILES)
+    dictionary: str = "DICT_4X4_50"
+    start_time: float = 1_700_000_000.0  # true time of the first image, s (ROS time)
+    standstill: float = 3.0  # s at rest before driving
+    speed: float = 0.8  # cruise speed, m/s
+    accel_time: float = 2.0  # s from rest to cruise speed
+    track_radii: Tuple[float, float] = (9.0, 6.0)  # loop semi-axes, m
+    track_center: Tuple[float, float] = (6.0, 3.0)  # loop centre in map, m
+    roll_pitch_deg: float = 1.5  # amplitude of ground-induced roll/pitch, deg
+    n_markers: int = 6
+    marker_size: float = 0.19  # black square side, m
+    marker_distance: Tuple[float, float] = (2.0, 12.0)  # marker centre to nearest track point, m
+    marker_height: Tuple[float, float] = (0.5, 2.5)  # marker centre above the map origin, m
+    camera_lever_arm: Tuple[float, float, float] = (0.10, 0.0, 0.80)  # base_link → camera, m
+    prism_lever_arm: Tuple[float, float, float] = (-0.25, 0.05, 1.10)  # base_link → prism, m
+    boresight_deg: float = 0.3  # angle of the unpublished camera rotation error, deg
+    camera_time_offset: float = 0.367  # camera/VO stamp − true time, s
+    vo_yaw_drift_deg_per_min: float = 4.0  # linear VO yaw drift, deg/min
+    vo_yaw_walk_deg_per_sqrt_s: float = 0.03  # VO yaw random walk, deg/√s
+    vo_scale_error: float = 0.005  # relative VO translation scale error
+    vo_translation_noise: float = 0.003  # VO position jitter σ, m
+    prism_rate: float = 19.0  # total-station rate, Hz
+    prism_jitter: float = 0.004  # stamp jitter (uniform ±), s
+    prism_noise: float = 0.002  # prism position σ per axis, m
+    prism_dropout: float = 0.02  # probability of losing one prism sample
+    prism_gaps: int = 2  # number of ~1 s tracking losses (while driving)
+
+    def validate(self) -> ScenarioConfig:
+        """Check ranges; raises ScenarioError naming the field. Returns self."""
+        def need(ok: bool, name: str, what: str):
+            if not ok:
+                raise ScenarioError(f"{name}: {what}, got {getattr(self, name)!r}")
+
+        need(isinstance(self.seed, int) and self.seed >= 0, "seed", "expected a non-negative integer")
+        need(self.duration > 0 and math.isfinite(self.duration), "duration", "expected seconds > 0")
+        need(0 < self.fps <= 120, "fps", "expected 0 < fps <= 120")
+        need(isinstance(self.width, int) and self.width >= 64 and self.width % 2 == 0, "width",
+             "expected an even number of pixels >= 64")
+        need(self.standstill >= 0, "standstill", "expected seconds >= 0")
+        need(self.speed >= 0 and self.accel_time > 0, "speed", "expected speed >= 0 and accel_time > 0")
+        need(min(self.track_radii) > 0.5, "track_radii", "expected semi-axes > 0.5 m")
+        need(self.n_markers >= 1, "n_markers", "expected at least one marker")
+        need(0 < self.marker_size < 5, "marker_size", "expected metres in (0, 5)")
+        need(0 < self.marker_distance[0] < self.marker_distance[1], "marker_distance", "expected 0 < min < max")
+        need(self.marker_height[0] <= self.marker_height[1], "marker_height", "expected min <= max")
+        need(0 <= self.boresight_deg < 10, "boresight_deg", "expected degrees in [0, 10)")
+        need(abs(self.camera_time_offset) < 10, "camera_time_offset", "expected |offset| < 10 s")
+        need(0 < self.prism_rate <= 100, "prism_rate", "expected Hz in (0, 100]")
+        need(0 <= self.prism_dropout < 1, "prism_dropout", "expected a probability in [0, 1)")
+        need(self.prism_jitter < 0.5 / self.prism_rate, "prism_jitter", "expected less than half a period")
+        for name in ("prism_noise", "vo_translation_noise", "vo_yaw_walk_deg_per_sqrt_s", "prism_gaps"):
+            need(getattr(self, name) >= 0, name, "expected >= 0")
+        return self
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "<memory>") -> ScenarioConfig:
+        """A config from a mapping (e.g. the ``config`` of a hidden YAML); unknown keys are errors."""
+        if not isinstance(data, dict):
+            raise ScenarioError(f"{source}: expected a mapping of scenario parameters")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for key, value in data.items():
+            if key not in fields:
+                raise ScenarioError(f"{source}: unknown scenario parameter {key!r}")
+            default = fields[key].default
+            if isinstance(default, tuple):
+                if not isinstance(value, (list, tuple)) or len(value) != len(default):
+                    raise ScenarioError(f"{source}: {key}: expected a list of {len(default)} numbers")
+                value = tuple(float(x) for x in value)
+            elif isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            elif type(value) is not type(default):
+                raise ScenarioError(f"{source}: {key}: expected {type(default).__name__}, got {value!r}")
+            kwargs[key] = value
+        try:
+            return cls(**kwargs).validate()
+        except ScenarioError as e:
+            raise ScenarioError(f"{source}: {e}") from None
+
+
+PRESETS: Dict[str, ScenarioConfig] = {
+    # plumbing tests: big markers so they are visible at 960 px
+    "tiny": ScenarioConfig(duration=8.0, fps=10.0, width=960, standstill=2.0, n_markers=5, marker_size=0.45,
+                           marker_distance=(2.0, 6.0), track_radii=(5.0, 3.5)),
+    "ci": ScenarioConfig(duration=20.0, fps=15.0, width=1920, n_markers=6, marker_size=0.30,
+                         marker_distance=(2.0, 10.0)),
+    # the paper's set-up: 19 cm DICT_4X4 markers at 2-12 m, Theta Z1 frames at 30 fps
+    "demo": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=8, marker_size=0.19,
+                           marker_distance=(2.0, 12.0)),
+    "bench": ScenarioConfig(duration=10.0, fps=30.0, width=3840, n_markers=8, marker_size=0.19,
+                            marker_distance=(2.0, 12.0)),
+}
+
+
+@dataclass(frozen=True)
+class PrismTrack:
+    """Total-station samples: ``stamps`` (N,) true times in s, ``positions`` (N, 3) prism in map, m."""
+
+    stamps: np.ndarray
+    positions: np.ndarray
+
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _upright_rotation(normal) -> np.ndarray:
+    """map_R_marker of a face with outward ``normal`` (its z) and y as close to map +z as possible."""
+    z = np.asarray(normal, dtype=float)
+    z = z / np.linalg.norm(z)
+    y = np.array([0.0, 0.0, 1.0]) - z[2] * z
+    y /= np.linalg.norm(y)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+class Scenario:
+    """The truth of one scenario. Times are absolute true times in seconds; all functions of
+    time are vectorised (scalar t → single pose (4, 4), array (N,) → (N, 4, 4))."""
+
+    def __init__(self, config: ScenarioConfig):
+        self.config = config.validate()
+        c = config
+        rng = np.random.default_rng([c.seed, 1])
+        # --- motion along the loop: θ(t) integrated so that |dP/dt| follows the speed profile
+        n = int(math.ceil((c.duration + _TAIL) / _DT)) + 1
+        self._tg = np.arange(n) * _DT
+        speed = (c.speed * _smoothstep((self._tg - c.standstill) / c.accel_time)).tolist()
+        self._theta0 = float(rng.uniform(-math.pi, math.pi))
+        self._rp_phase = rng.uniform(0.0, 2.0 * math.pi, 4)
+        a, b = c.track_radii
+        theta = [self._theta0]
+        th = self._theta0
+        for k in range(n - 1):  # midpoint rule; dθ/dt = v / |P'(θ)|
+            mid = th + 0.5 * _DT * speed[k] / math.hypot(a * math.sin(th), b * math.cos(th))
+            th += _DT * 0.5 * (speed[k] + speed[k + 1]) / math.hypot(a * math.sin(mid), b * math.cos(mid))
+            theta.append(th)
+        self._theta = np.array(theta)
+        # --- lever arms and the boresight error (a rotation of boresight_deg about a random axis)
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        self.boresight_axis = axis
+        self.base_T_camera_nominal = make_T(np.eye(3), c.camera_lever_arm)
+        self.base_T_camera_true = make_T(_axis_angle(axis, math.radians(c.boresight_deg)), c.camera_lever_arm)
+        self.base_T_prism = make_T(np.eye(3), c.prism_lever_arm)
+        # --- markers around the track, each facing its nearest track point (± a random yaw/tilt)
+        self.markers, self.marker_normals = self._place_markers(rng)
+        # --- visual odometry: yaw error = drift·t + random walk; position integrates the motion
+        walk_dt = 0.1
+        walk_n = int(math.ceil((c.duration + _TAIL) / walk_dt)) + 2
+        steps = rng.normal(0.0, math.radians(c.vo_yaw_walk_deg_per_sqrt_s) * math.sqrt(walk_dt), walk_n)
+        steps[0] = 0.0
+        self._walk_t = np.arange(walk_n) * walk_dt
+        self._walk = np.cumsum(steps)
+        jitter_dt = 0.02
+        jitter_n = int(math.ceil((c.duration + _TAIL) / jitter_dt)) + 2
+        self._jitter_t = np.arange(jitter_n) * jitter_dt
+        self._jitter = rng.normal(0.0, c.vo_translation_noise, (jitter_n, 3))
+        self._jitter -= self._jitter[0]
+        p = self._track_point(theta)
+        psi0 = float(self._yaw_on_track(theta[0]))
+        yaw_err = self.vo_yaw_error(self._tg + c.start_time)
+        mid_err = 0.5 * (yaw_err[1:] + yaw_err[:-1])
+        dp = np.diff(p, axis=0)
+        steps_o = (rot_z(mid_err - psi0) @ dp[:, :, None])[:, :, 0] * (1.0 + c.vo_scale_error)
+        self._vo_pos = np.concatenate([np.zeros((1, 3)), np.cumsum(steps_o, axis=0)])
+        self._psi0 = psi0
+        # --- total station samples (true time stamps), with jitter, dropouts and gaps
+        self.prism = self._prism_track(rng)
+
+    # ---- construction helpers --------------------------------------------------------------
+    def _track_point(self, theta) -> np.ndarray:
+        """Point(s) P(θ) (…, 3) of the loop in map, m (ground height undulates by ±2 cm)."""
+        a, b = self.config.track_radii
+        cx, cy = self.config.track_center
+        theta = np.asarray(theta, dtype=float)
+        return np.stack([cx + a * np.cos(theta), cy + b * np.sin(theta), 0.02 * np.sin(3.0 * theta)], axis=-1)
+
+    def _yaw_on_track(self, theta):
+        a, b = self.config.track_radii
+        return np.arctan2(b * np.cos(theta), -a * np.sin(theta))  # counter-clockwise travel
+
+    def _roll_pitch(self, theta):
+        amp = math.radians(self.config.roll_pitch_deg)
+        ph = self._rp_phase
+        roll = amp * (0.7 * np.sin(3.0 * theta + ph[0]) + 0.3 * np.sin(7.0 * theta + ph[1]))
+        pitch = amp * (0.7 * np.sin(2.0 * theta + ph[2]) + 0.3 * np.sin(5.0 * theta + ph[3]))
+        return roll, pitch
+
+    def _place_markers(self, rng) -> Tuple[MarkerMap, Dict[int, np.ndarray]]:
+        c = self.config
+        dmin, dmax = c.marker_distance
+        dense = self._track_point(np.linspace(-math.pi, math.pi, 720, endpoint=False))
+        lo = dense[:, :2].min(axis=0) - dmax
+        hi = dense[:, :2].max(axis=0) + dmax
+        ids = sorted(rng.choice(_dictionary_size(c.dictionary), size=c.n_markers, replace=False).tolist())
+        markers: List[Marker] = []
+        normals: Dict[int, np.ndarray] = {}
+        centres: List[np.ndarray] = []
+        start = self._track_point(self._theta0)[:2]
+        near_start = max(dmin + 1.0, 0.6 * dmax)
+        for i, marker_id in enumerate(rng.permutation(ids).tolist()):
+            for _ in range(10000):
+                xy = rng.uniform(lo, hi)
+                d = np.linalg.norm(dense[:, :2] - xy, axis=1)
+                k = int(np.argmin(d))
+                if not dmin <= d[k] <= dmax:
+                    continue
+                if i < 2 and np.linalg.norm(xy - start) > near_start:
+                    continue  # two markers in view at the start (standstill initialisation)
+                centre = np.array([xy[0], xy[1], rng.uniform(*c.marker_height)])
+                if any(np.linalg.norm(centre - o) < max(1.0, 5 * c.marker_size) for o in centres):
+                    continue
+                break
+            else:
+                raise ScenarioError(f"marker_distance: cannot place {c.n_markers} markers "
+                                    f"{dmin}-{dmax} m from the track")
+            towards = dense[k, :2] - xy
+            yaw = math.atan2(towards[1], towards[0]) + rng.uniform(-0.35, 0.35)
+            tilt = rng.uniform(-0.15, 0.15)
+            normal = np.array([math.cos(yaw) * math.cos(tilt), math.sin(yaw) * math.cos(tilt), math.sin(tilt)])
+            centres.append(centre)
+            normals[marker_id] = normal
+            markers.append(Marker(marker_id, centre, c.marker_size, 0.002))
+        markers.sort(key=lambda m: m.id)
+        return MarkerMap(markers, c.dictionary, "map", source="synthetic scenario"), normals
+
+    def _prism_track(self, rng) -> PrismTrack:
+        c = self.config
+        period = 1.0 / c.prism_rate
+        span = c.duration + abs(c.camera_time_offset) + 1.0
+        n = int(span * c.prism_rate)
+        t = c.start_time - 0.5 + np.arange(n) * period + rng.uniform(-c.prism_jitter, c.prism_jitter, n)
+        keep = rng.random(n) >= c.prism_dropout
+        t_moving = c.start_time + c.standstill + c.accel_time
+        for _ in range(c.prism_gaps):
+            if c.start_time + c.duration - t_moving > 2.0:
+                g0 = rng.uniform(t_moving, c.start_time + c.duration - 1.5)
+                keep &= ~((t >= g0) & (t < g0 + rng.uniform(0.6, 1.4)))
+        t = t[keep]
+        pos = self.prism_position(t) + rng.normal(0.0, c.prism_noise, (t.size, 3))
+        return PrismTrack(t, pos)
+
+    # ---- truth -----------------------------------------------------------------------------
+    @property
+    def frame_times(self) -> np.ndarray:
+        """True capture times (N,) of the camera frames, s."""
+        c = self.config
+        return c.start_time + np.arange(int(round(c.duration * c.fps))) / c.fps
+
+    @property
+    def camera_stamps(self) -> np.ndarray:
+        """Camera/VO clock stamps (N,) of the frames: true time + camera_time_offset, s."""
+        return self.frame_times + self.config.camera_time_offset
+
+    def _theta_at(self, t):
+        return np.interp(np.asarray(t, dtype=float) - self.config.start_time, self._tg, self._theta)
+
+    def map_T_base(self, t) -> np.ndarray:
+        """True pose(s) of base_link in map at true time(s) t."""
+        theta = self._theta_at(t)
+        roll, pitch = self._roll_pitch(theta)
+        return make_T(rpy_to_matrix(roll, pitch, self._yaw_on_track(theta)), self._track_point(theta))
+
+    def vo_yaw_error(self, t):
+        """VO yaw error (radians) at true time(s) t: linear drift + random walk, 0 at start_time."""
+        tr = np.asarray(t, dtype=float) - self.config.start_time
+        rate = math.radians(self.config.vo_yaw_drift_deg_per_min) / 60.0
+        return rate * tr + np.interp(tr, self._walk_t, self._walk)
+
+    def odom_T_base(self, t) -> np.ndarray:
+        """The VO's pose(s) of base_link in odom at true time(s) t (what /tf carries, stamped
+        t + camera_time_offset). odom is the base_link pose at start_time, levelled."""
+        tr = np.asarray(t, dtype=float) - self.config.start_time
+        R = rot_z(self.vo_yaw_error(t) - self._psi0) @ self.map_T_base(t)[..., :3, :3]
+        pos = np.stack([np.interp(tr, self._tg, self._vo_pos[:, k]) for k in range(3)], axis=-1)
+        pos = pos + np.stack([np.interp(tr, self._jitter_t, self._jitter[:, k]) for k in range(3)], axis=-1)
+        return make_T(R, pos)
+
+    def map_T_odom(self, t) -> np.ndarray:
+        """The correct map → odom at true time(s) t (what the package should estimate)."""
+        return self.map_T_base(t) @ invert_T(self.odom_T_base(t))
+
+    def map_T_camera(self, t) -> np.ndarray:
+        """True camera pose(s) in map (boresight error included)."""
+        return self.map_T_base(t) @ self.base_T_camera_true
+
+    def prism_position(self, t) -> np.ndarray:
+        """Noise-free prism position(s) (…, 3) in map at true time(s) t, m."""
+        T = self.map_T_base(t)
+        return T[..., :3, :3] @ np.asarray(self.config.prism_lever_arm) + T[..., :3, 3]
+
+    def map_R_marker(self, marker_id: int) -> np.ndarray:
+        """Orientation of a marker's face in map (z = the hidden normal, y up the face)."""
+        return _upright_rotation(self.marker_normals[marker_id])
+
+    def placed_markers(self, t: float) -> List[PlacedMarker]:
+        """The markers in the true camera frame at true time t, for the renderer."""
+        camera_T_map = invert_T(self.map_T_camera(float(t)))
+        out = []
+        for m in self.markers:
+            centre = transform_points(camera_T_map, m.position)
+            R = camera_T_map[:3, :3] @ self.map_R_marker(m.id)
+            out.append(PlacedMarker(m.id, m.size, centre, R))
+        return out
+
+    def camera_yaw(self, t):
+        """Yaw (radians) of the true camera in map at true time(s) t (rolls the background)."""
+        return matrix_to_rpy(self.map_T_camera(t)[..., :3, :3])[2]
+
+    # ---- hidden parameters -----------------------------------------------------------------
+    def hidden(self) -> dict:
+        """Everything needed to rebuild the scenario (``config``) plus derived truth for readers."""
+        c = self.config
+        return {
+            "format": "aruco_abs_orient synthetic scenario 1",
+            "config": c.to_dict(),
+            "camera_time_offset": c.camera_time_offset,
+            "boresight": {"angle_deg": c.boresight_deg, "axis": [round(float(x), 9) for x in self.boresight_axis],
+                          "rpy_deg": [round(math.degrees(float(a)), 9)
+                                      for a in matrix_to_rpy(self.base_T_camera_true[:3, :3])]},
+            "base_T_camera_true": _rows(self.base_T_camera_true),
+            "base_T_camera_nominal": _rows(self.base_T_camera_nominal),
+            "base_T_prism": _rows(self.base_T_prism),
+            "vo_drift": {"yaw_drift_deg_per_min": c.vo_yaw_drift_deg_per_min,
+                         "yaw_walk_deg_per_sqrt_s": c.vo_yaw_walk_deg_per_sqrt_s,
+                         "scale_error": c.vo_scale_error, "translation_noise_m": c.vo_translation_noise,
+                         "yaw_error_at_end_deg": round(math.degrees(float(
+                             self.vo_yaw_error(c.start_time + c.duration))), 6)},
+            "map_T_odom_at_start": _rows(self.map_T_odom(c.start_time)),
+            "marker_normals": {int(k): [round(float(x), 9) for x in v] for k, v in self.marker_normals.items()},
+            "prism_samples": int(self.prism.stamps.size),
+        }
+
+    @classmethod
+    def from_hidden(cls, path: str) -> Scenario:
+        """Rebuild the scenario from a hidden-parameters YAML written by the generator."""
+        import yaml
+
+        try:
+            with open(path) as f:
+                data = yaml.safe_load(f)
+        except OSError as e:
+            raise ScenarioError(f"{path}: cannot read: {e.strerror}") from None
+        except yaml.YAMLError as e:
+            raise ScenarioError(f"{path}: not valid YAML: {e}") from None
+        if not isinstance(data, dict) or "config" not in data:
+            raise ScenarioError(f"{path}: no 'config' mapping: not a hidden-parameters file")
+        scenario = cls(ScenarioConfig.from_dict(data["config"], source=f"{path}: config"))
+        normals = data.get("marker_normals", {})
+        for k, v in normals.items():
+            if int(k) not in scenario.marker_normals or not np.allclose(v, scenario.marker_normals[int(k)],
+                                                                         atol=1e-6):
+                raise ScenarioError(f"{path}: marker_normals[{k}] does not match the rebuilt scenario "
+                                    "(written by another version of the generator?)")
+        return scenario
+
+
+def _axis_angle(axis, angle: float) -> np.ndarray:
+    """Rotation matrix of ``angle`` radians about unit ``axis`` (Rodrigues)."""
+    k = np.asarray(axis, dtype=float)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def _rows(T) -> list:
+    return [[round(float(x), 12) for x in row] for row in np.asarray(T)]
+
+
+def _dictionary_size(dictionary: str) -> int:
+    import cv2
+
+    from ..markers import ARUCO_DICTIONARIES
+
+    if dictionary not in ARUCO_DICTIONARIES:
+        raise ScenarioError(f"dictionary: unknown ArUco dictionary {dictionary!r}")
+    return int(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)).bytesList.shape[0])
+
