@@ -46,7 +46,12 @@ __all__ = [
     "marker_angular_size",
     "refine_corners",
     "decode_marker",
+    "refine_quad",
+    "refine_quads",
+    "decode_quad",
     "dedupe_observations",
+    "image_sampler",
+    "RESCUE_SHRINK",
 ]
 
 METHODS = ("full", "seam", "gnomonic", "tracked")
@@ -98,6 +103,8 @@ class DetectorParams:
     - ``edge_refine``: refine every marker's corners by fitting lines to its edges in a
       gnomonic view (:func:`refine_corners`); OpenCV's subpixel corners are off by
       0.2–0.6 px on blurred small markers.
+    - ``view_refine_iterations``: edge-fit iterations for markers OpenCV found in a rendered
+      gnomonic view (tracking ROIs), whose corners are good to start with (elsewhere 2).
     - ``verify_decode``: re-read every OpenCV-decoded marker (:func:`decode_marker`) and drop
       it unless the cells give the same id (OpenCV misreads small markers on texture).
     - ``rescue_max_side_px``: quads OpenCV rejected with sides up to this (pixels of the
@@ -126,6 +133,7 @@ class DetectorParams:
     - ``sweep_tile_deg``: width (degrees of azimuth) of the vertical strip searched each
       frame while tracking, so markers the prediction misses are found.
     - ``sweep_period_frames``: frames for the sweeping tile to go once around 360°.
+    - ``sweep_max_el_deg``: the tile spans elevations within this (degrees) of the horizon.
     - ``max_full_interval``: frames between forced full-frame searches while tracking
       (0 = only at start-up and after a loss).
     - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
@@ -158,8 +166,9 @@ class DetectorParams:
     max_view_px: int = 1024
 
     edge_refine: bool = True
+    view_refine_iterations: int = 1
     verify_decode: bool = True
-    rescue_max_side_px: float = 20.0
+    rescue_max_side_px: float = 30.0
     decode_min_contrast: float = 40.0
     decode_min_correlation: float = 0.75
     decode_min_lead: float = 0.15
@@ -176,6 +185,7 @@ class DetectorParams:
     min_predicted_side_px: float = 6.0
     sweep_tile_deg: float = 10.0
     sweep_period_frames: int = 72
+    sweep_max_el_deg: float = 60.0
     max_full_interval: int = 0
     lost_after_frames: int = 3
 
@@ -321,79 +331,128 @@ def _sample(grey: np.ndarray, equirect: Equirect, view: GnomonicView, pts: np.nd
     return out.astype(float).reshape(shape)
 
 
-def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6, iterations: int = 3,
-                   min_contrast: float = 12.0, min_half_px: float = 1.5, half_bits: float = 0.45,
-                   samples: int = 16) -> Optional[np.ndarray]:
+def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6, iterations: int = 2,
+                   ) -> Optional[np.ndarray]:
     """Refined corner bearings (4, 3) of a marker from approximate ones (4, 3), or None.
 
     The four outer edges of the black square are straight lines in a gnomonic view centred
-    on the marker (not in the equirect, where they are curved). Along each edge of that
-    virtual view the intensity profile across the edge is sampled straight from the
-    equirect ``grey`` image (one bilinear interpolation, through camera.py's mappings), the
-    edge is located at the centroid of the black→white gradient within ±max(``half_bits``
-    bit, ``min_half_px`` pixels) of the current line (``samples`` steps), a line is fitted to
-    each edge and adjacent lines are intersected. Iterated ``iterations`` times, re-centring
-    the profiles on the new lines.
-
+    on the marker (not in the equirect, where they are curved): :func:`refine_quad` runs in
+    such a virtual view, its profiles sampled straight from the equirect ``grey`` image
+    (one bilinear interpolation, through camera.py's mappings).
     ``bits``: cells across the marker including its black border (6 for 4×4 dictionaries).
-    ``min_contrast``: grey levels a profile must rise by to count.
     """
     view, q = _marker_view(equirect, corners)
     if q is None:
         return None
+    q = refine_quad(lambda pts: _sample(grey, equirect, view, pts), q, bits, iterations)
+    return None if q is None else view.pixel_to_bearing(q[:, 0], q[:, 1])
+
+
+def refine_quad(sample, q: np.ndarray, bits: int = 6, iterations: int = 2, **kw) -> Optional[np.ndarray]:
+    """Refined corners (4, 2) of one marker quad, or None: :func:`refine_quads` for one."""
+    r = refine_quads(sample, np.asarray(q, dtype=float)[None], bits, iterations, **kw)[0]
+    return None if np.isnan(r).any() else r
+
+
+def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, min_contrast: float = 12.0,
+                 min_half_px: float = 1.5, half_bits: float = 0.45, samples: int = 16,
+                 along: int = 20) -> np.ndarray:
+    """Refined corners (M, 4, 2) of markers' black squares in a perspective image; NaN rows
+    for the quads that fail (too small, too little contrast, diverging).
+
+    ``sample(pts)``: grey levels at image points (..., 2) (pixels); ``quads`` (M, 4, 2):
+    approximate corners. Along each edge (``along`` profiles) the intensity profile across
+    it is sampled, the edge is located at the centroid of the black→white gradient within
+    ±max(``half_bits`` bit, ``min_half_px`` pixels) of the current line (``samples`` steps),
+    a line is fitted to each edge (robust total least squares) and adjacent lines are
+    intersected; iterated ``iterations`` times, re-centring the profiles on the new lines.
+    ``min_contrast``: grey levels a profile must rise by to count. All markers at once.
+    """
+    q = np.array(quads, dtype=float).reshape(-1, 4, 2)
+    alive = np.ones(len(q), dtype=bool)
+    s = np.linspace(0.15, 0.85, along)
+    unit_offs = np.linspace(-1.0, 1.0, samples + 1)
     for _ in range(max(1, iterations)):
-        d = np.roll(q, -1, axis=0) - q
-        length = np.linalg.norm(d, axis=1)
-        if np.any(length < 2.0):
-            return None
-        t = d / length[:, None]
-        n = np.stack([t[:, 1], -t[:, 0]], axis=1)
-        mid = q + 0.5 * d
-        n *= np.sign(np.sum(n * (mid - q.mean(axis=0)), axis=1))[:, None]  # outward normals
-        half = max(half_bits * float(np.mean(length)) / bits, min_half_px)
-        offs = np.arange(-half, half + 1e-9, max(0.1, 2.0 * half / samples))
-        k = int(np.clip(np.mean(length), 8, 48))
-        s = np.linspace(0.15, 0.85, k)
-        base = q[:, None, :] + s[None, :, None] * d[:, None, :]  # (4, k, 2)
-        prof = _sample(grey, equirect, view, base[:, :, None, :] + offs[None, None, :, None] * n[:, None, None, :])
-        grad = np.clip(np.diff(prof, axis=2), 0.0, None)
-        total = grad.sum(axis=2)
-        edge = (grad * (0.5 * (offs[1:] + offs[:-1]))).sum(axis=2) / np.maximum(total, 1e-9)
-        ok = total >= min_contrast
-        if np.any(np.count_nonzero(ok, axis=1) < 3):
-            return None
-        normal, offset = _fit_lines(base + edge[..., None] * n[:, None, :], ok)
-        a = np.stack([np.roll(normal, 1, axis=0), normal], axis=1)  # corner i: sides i−1 and i
-        if np.any(np.abs(np.linalg.det(a)) < 1e-6):
-            return None
-        newq = np.linalg.solve(a, np.stack([np.roll(offset, 1), offset], axis=1)[..., None])[..., 0]
-        if np.max(np.linalg.norm(newq - q, axis=1)) > 0.5 * float(np.mean(length)):
-            return None
-        q = newq
-    return view.pixel_to_bearing(q[:, 0], q[:, 1])
+        d = np.roll(q, -1, axis=1) - q  # (M, 4, 2) sides
+        length = np.linalg.norm(d, axis=2)
+        alive &= np.all(length >= 2.0, axis=1)
+        t = d / np.maximum(length, 1e-9)[..., None]
+        n = np.stack([t[..., 1], -t[..., 0]], axis=2)
+        out = np.sum(n * (q + 0.5 * d - q.mean(axis=1, keepdims=True)), axis=2)
+        n *= np.where(out < 0, -1.0, 1.0)[..., None]  # outward normals
+        half = np.maximum(half_bits * length.mean(axis=1) / bits, min_half_px)  # (M,)
+        offs = half[:, None] * unit_offs[None, :]  # (M, m)
+        base = q[:, :, None, :] + s[None, None, :, None] * d[:, :, None, :]  # (M, 4, k, 2)
+        pts = base[:, :, :, None, :] + offs[:, None, None, :, None] * n[:, :, None, None, :]
+        prof = sample(pts)  # (M, 4, k, m)
+        grad = np.clip(np.diff(prof, axis=3), 0.0, None)
+        total = grad.sum(axis=3)
+        mids = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (M, m-1)
+        edge = (grad * mids[:, None, None, :]).sum(axis=3) / np.maximum(total, 1e-9)
+        ok = (total >= min_contrast) & alive[:, None, None]
+        alive &= np.all(np.count_nonzero(ok, axis=2) >= 3, axis=1)
+        ok &= alive[:, None, None]
+        ok[~alive] = True  # dead quads: fit anything, discarded below
+        normal, offset = _fit_lines((base + edge[..., None] * n[:, :, None, :]).reshape(-1, along, 2),
+                                    ok.reshape(-1, along))
+        normal = normal.reshape(-1, 4, 2)
+        offset = offset.reshape(-1, 4)
+        a = np.stack([np.roll(normal, 1, axis=1), normal], axis=2)  # corner i: sides i−1 and i
+        det = np.linalg.det(a)
+        alive &= np.all(np.abs(det) >= 1e-6, axis=1)
+        a[~alive] = np.eye(2)
+        rhs = np.stack([np.roll(offset, 1, axis=1), offset], axis=2)[..., None]
+        newq = np.linalg.solve(a, rhs)[..., 0]
+        alive &= np.all(np.isfinite(newq), axis=(1, 2))
+        alive &= np.max(np.linalg.norm(newq - q, axis=2), axis=1) <= 0.5 * length.mean(axis=1)
+        q = np.where(alive[:, None, None], newq, q)
+    q[~alive] = np.nan
+    return q
+
+
+def image_sampler(img: np.ndarray):
+    """``sample(pts)`` of :func:`refine_quad` for a grey image: bilinear, border replicated."""
+    def sample(pts: np.ndarray) -> np.ndarray:
+        flat = pts.reshape(1, -1, 2).astype(np.float32)
+        out = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return out.astype(float).reshape(pts.shape[:-1])
+    return sample
 
 
 def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
                   min_contrast: float = 40.0, min_correlation: float = 0.75,
                   min_lead: float = 0.15, min_pattern_correlation: float = 0.9) -> Optional[Tuple[int, np.ndarray]]:
     """Read a candidate quad (corner bearings (4, 3)) straight from the equirect:
-    ``(id, corner bearings in ArUco order)`` or None.
-
-    For small markers whose bits OpenCV cannot threshold (1–2 px cells, blurred). The
-    centres of the marker's cells and of the one-cell white quiet zone around it are mapped
-    by the quad's homography in a gnomonic view centred on it (exact for a planar marker),
-    3×3 sub-samples per cell. Accepted when every quiet-zone cell is brighter than every
-    border cell by ≥ ``min_contrast`` grey levels, and the Pearson correlation of the inner
-    cells' grey levels with one code's bits, in one of the four corner orders, is
-    ≥ ``min_correlation`` and leads every other code/order by ≥ ``min_lead`` (a soft
-    decision: blur lowers isolated white bits below any fixed threshold, not their rank),
-    and the whole 8×8 pattern (quiet zone, border, bits) correlates ≥ ``min_pattern_correlation``
-    with the grey levels.
-    ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
+    ``(id, corner bearings in ArUco order)`` or None. :func:`decode_quad` in a virtual
+    gnomonic view centred on the quad (exact homography for a planar marker), sampling the
+    equirect through camera.py's mappings.
     """
     view, q = _marker_view(equirect, corners)
     if q is None:
         return None
+    hit = decode_quad(lambda pts: _sample(grey, equirect, view, pts), q, codes, min_contrast, min_correlation,
+                      min_lead, min_pattern_correlation)
+    return None if hit is None else (hit[0], view.pixel_to_bearing(hit[1][:, 0], hit[1][:, 1]))
+
+
+def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
+                min_correlation: float = 0.75, min_lead: float = 0.15,
+                min_pattern_correlation: float = 0.9) -> Optional[Tuple[int, np.ndarray]]:
+    """Read a marker quad (4, 2) of a perspective image: ``(id, corners (4, 2) in ArUco
+    order)`` or None. ``sample(pts)``: grey levels at image points (..., 2).
+
+    For small markers whose bits OpenCV cannot threshold (1–2 px cells, blurred). The
+    centres of the marker's cells and of the one-cell white quiet zone around it are mapped
+    by the quad's homography, 3×3 sub-samples per cell. Accepted when every quiet-zone cell
+    is brighter than every border cell by ≥ ``min_contrast`` grey levels, and the Pearson
+    correlation of the inner cells' grey levels with one code's bits, in one of the four
+    corner orders, is ≥ ``min_correlation`` and leads every other code/order by
+    ≥ ``min_lead`` (a soft decision: blur lowers isolated white bits below any fixed
+    threshold, not their rank), and the whole 8×8 pattern (quiet zone, border, bits)
+    correlates ≥ ``min_pattern_correlation`` with the grey levels.
+    ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
+    """
+    q = np.asarray(q, dtype=float)
     if _signed_area(q) < 0:
         q = q[::-1]
     n = codes.shape[1]
@@ -407,7 +466,7 @@ def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarr
     templates /= np.maximum(np.linalg.norm(templates, axis=(1, 2), keepdims=True), 1e-12)
     h = cv2.getPerspectiveTransform(square, q.astype(np.float32))
     pts = cv2.perspectiveTransform(grid, h).reshape(len(gx), len(gx), 2)
-    m = _sample(grey, equirect, view, pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
+    m = sample(pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
     ring = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])  # quiet zone
     border = np.concatenate([m[1, 1:-1], m[-2, 1:-1], m[2:-2, 1], m[2:-2, -2]])
     if float(np.min(ring)) - float(np.max(border)) < min_contrast:
@@ -428,8 +487,7 @@ def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarr
     whole[2:-2, 2:-2] = codes[best[1]]
     if np.corrcoef(np.rot90(m, int(best[0])).reshape(-1), whole.reshape(-1))[0, 1] < min_pattern_correlation:
         return None
-    quad = np.roll(q, -int(best[0]), axis=0)
-    return int(best[1]), view.pixel_to_bearing(quad[:, 0], quad[:, 1])
+    return int(best[1]), np.roll(q, -int(best[0]), axis=0)
 
 
 def _signed_area(q: np.ndarray) -> float:
@@ -641,13 +699,16 @@ class MarkerDetector:
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
                 List[np.ndarray]], to_bearing, scale: float, method: str,
-                expect_id: Optional[int] = None) -> List[MarkerObservation]:
+                expect_id: Optional[int] = None, rescue: bool = True,
+                view_image: Optional[np.ndarray] = None) -> List[MarkerObservation]:
         """Observations from a backend result in some image: edge-refined corners of the
         decoded markers, plus small rejected quads decoded here (``rescue_max_side_px``).
 
         ``to_bearing(x, y)``: that image's pixels to bearings; ``scale``: its pixels per
         equirect pixel; ``expect_id``: keep only this id (tracking: OpenCV's reading of the
-        predicted id at the predicted place is not re-verified).
+        predicted id at the predicted place is not re-verified); ``rescue``: decode the
+        quads OpenCV rejected; ``view_image``: the searched image when it is a gnomonic view
+        with exact maps, for refining OpenCV's corners in it directly (cheaper).
         """
         q = self.params
         ids, corners, rejected = found
@@ -656,13 +717,17 @@ class MarkerDetector:
             if expect_id is not None and i != expect_id:
                 continue
             b = to_bearing(c[:, 0], c[:, 1])
-            r = refine_corners(grey, equirect, b, self.backend.bits) if q.edge_refine else None
+            if q.edge_refine and view_image is not None:  # a gnomonic image: refine right there
+                rq = refine_quad(image_sampler(view_image), c, self.backend.bits, q.view_refine_iterations)
+                r = None if rq is None else to_bearing(rq[:, 0], rq[:, 1])
+            else:
+                r = refine_corners(grey, equirect, b, self.backend.bits) if q.edge_refine else None
             if q.verify_decode and expect_id is None:
                 hit = self._decode(grey, equirect, b if r is None else r)
                 if hit is None or hit[0] != i:
                     continue  # OpenCV's id is not what the cells say: a misread or a texture
             out.append(self.observation(equirect, i, b if r is None else r, method))
-        if expect_id is not None and out:
+        if not rescue or (expect_id is not None and out):
             return out
         small = q.rescue_max_side_px * 4.0 * scale
         large = math.radians(q.close_range_size_deg) / equirect.rad_per_px * 4.0 * scale
@@ -673,10 +738,17 @@ class MarkerDetector:
             # the quad is the black square, the outline of its white quiet zone (6/8 of the
             # 4×4 case), or a looser outline around it; a large one is a close marker whose
             # curved equirect image OpenCV could not decode
-            for shrink in _RESCUE_SHRINK:
+            for shrink in RESCUE_SHRINK:
                 quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
-                r = refine_corners(grey, equirect, to_bearing(quad[:, 0], quad[:, 1]), self.backend.bits)
-                hit = self._decode(grey, equirect, r) if r is not None else None
+                if view_image is not None:  # a gnomonic image: refine and read right there
+                    sample = image_sampler(view_image)
+                    r = refine_quad(sample, quad, self.backend.bits)
+                    hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds()) \
+                        if r is not None else None
+                    hit = None if hit is None else (hit[0], to_bearing(hit[1][:, 0], hit[1][:, 1]))
+                else:
+                    r = refine_corners(grey, equirect, to_bearing(quad[:, 0], quad[:, 1]), self.backend.bits)
+                    hit = self._decode(grey, equirect, r) if r is not None else None
                 if hit is not None and (expect_id is None or hit[0] == expect_id):
                     out.append(self.observation(equirect, hit[0], hit[1], method))
                     break
@@ -687,8 +759,9 @@ class MarkerDetector:
                        expect_id: Optional[int] = None) -> List[MarkerObservation]:
         """Markers in a gnomonic view of the equirect frame (corners refined in a view).
 
-        ``maps``: precomputed clipped remap maps, for fixed views; else computed exactly
-        (``map_step`` 1) or interpolated between every ``map_step`` view pixels.
+        ``maps``: precomputed :meth:`view_maps`, for reused views; else computed exactly
+        (``map_step`` 1) or interpolated between every ``map_step`` view pixels (≤ 4: exact
+        enough to refine corners in the view image itself).
         ``expect_id``: only this id is wanted (see :meth:`_finish`).
         """
         if maps is None:
@@ -696,25 +769,100 @@ class MarkerDetector:
         img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
         found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
-        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, expect_id)
+        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, expect_id,
+                            view_image=img if map_step <= 4 else None)
+
+    def _decode_thresholds(self) -> Tuple[float, float, float, float]:
+        q = self.params
+        return (q.decode_min_contrast, q.decode_min_correlation, q.decode_min_lead, q.decode_min_pattern_correlation)
 
     def _decode(self, grey: np.ndarray, equirect: Equirect, corners: np.ndarray):
-        q = self.params
-        return decode_marker(grey, equirect, corners, self.backend.codes, q.decode_min_contrast,
-                             q.decode_min_correlation, q.decode_min_lead, q.decode_min_pattern_correlation)
+        return decode_marker(grey, equirect, corners, self.backend.codes, *self._decode_thresholds())
+
+    def detect_in_views(self, grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView],
+                        maps: Sequence[Tuple[np.ndarray, np.ndarray]], expect_ids: Sequence[int],
+                        method: str = "tracked") -> List[MarkerObservation]:
+        """The expected marker in each of several small gnomonic views, in one OpenCV call.
+
+        The views (with their :meth:`view_maps`, step ≤ 4) are rendered into one mosaic
+        (stacked, separated by flat grey rows), OpenCV searches it once, every find is
+        assigned to its view and kept only if it is that view's ``expect_ids`` entry; its
+        corners are edge-refined in the view image. Views whose marker OpenCV did not read
+        get their rejected quads decoded (:func:`decode_quad`), as in :meth:`detect`.
+        """
+        if not views:
+            return []
+        gap = 8
+        imgs = [cv2.remap(grey, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP) for mx, my in maps]
+        tops = np.cumsum([0] + [im.shape[0] + gap for im in imgs])
+        mosaic = np.full((int(tops[-1]) - gap, max(im.shape[1] for im in imgs)), 128, np.uint8)
+        for im, y0 in zip(imgs, tops):
+            mosaic[y0:y0 + im.shape[0], :im.shape[1]] = im
+        scale = min(v.focal for v in views) * equirect.rad_per_px
+        ids, corners, rejected = self.backend.detect(mosaic, self.params.min_marker_perimeter_px * scale)
+        sample = image_sampler(mosaic)
+        bits, q = self.backend.bits, self.params
+        out: List[MarkerObservation] = []
+        found = set()
+
+        def tile_of(c):
+            k = int(np.searchsorted(tops, float(c[:, 1].mean()), side="right")) - 1
+            inside = 0 <= k < len(views) and c[:, 1].max() < tops[k] + imgs[k].shape[0]
+            return k if inside and c[:, 0].max() < imgs[k].shape[1] else -1
+
+        def add(k, marker_id, quad):
+            view, y0 = views[k], float(tops[k])
+            b = view.pixel_to_bearing(quad[:, 0], quad[:, 1] - y0)
+            out.append(self.observation(equirect, marker_id, b, method))
+            found.add(k)
+
+        keep = {}
+        for i, c in zip(ids, corners):
+            k = tile_of(c)
+            if k >= 0 and i == expect_ids[k] and k not in keep:
+                keep[k] = c
+        if keep:
+            tiles = list(keep)
+            quads = np.array([keep[k] for k in tiles])
+            refined = refine_quads(sample, quads, bits, q.view_refine_iterations) if q.edge_refine else quads
+            for k, c, r in zip(tiles, quads, refined):
+                add(k, expect_ids[k], c if np.isnan(r).any() else r)
+        tries = [(k, c.mean(axis=0) + shrink * (c - c.mean(axis=0)))
+                 for c, k in ((c, tile_of(c)) for c in rejected) if k >= 0 and k not in found
+                 for shrink in RESCUE_SHRINK]
+        if tries:
+            refined = refine_quads(sample, np.array([t[1] for t in tries]), bits)
+            for (k, _), r in zip(tries, refined):
+                if k in found or np.isnan(r).any():
+                    continue
+                hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
+                if hit is not None and hit[0] == expect_ids[k]:
+                    add(k, hit[0], hit[1])
+        return out
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
-                       method: str = "full") -> List[MarkerObservation]:
-        """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam)."""
+                       method: str = "full", rescue: bool = True, max_el: float = math.pi / 2
+                       ) -> List[MarkerObservation]:
+        """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam),
+        rows within ``max_el`` (radians) of the horizon; ``rescue``: also decode the quads
+        OpenCV rejected (small, close markers)."""
         w = equirect.width
         u0 = int(u0) % w
         width = int(min(width, w))
+        v0 = int(max(0, math.floor(equirect.azel_to_pixel(0.0, max_el)[1])))
+        v1 = int(min(equirect.height, math.ceil(equirect.azel_to_pixel(0.0, -max_el)[1]) + 1))
         if u0 + width <= w:
-            strip = grey[:, u0:u0 + width]
+            strip = grey[v0:v1, u0:u0 + width]
         else:
-            strip = np.hstack([grey[:, u0:], grey[:, :u0 + width - w]])
+            strip = np.hstack([grey[v0:v1, u0:], grey[v0:v1, :u0 + width - w]])
         found = self.backend.detect(strip, self.params.min_marker_perimeter_px)
-        return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y), 1.0, method)
+        return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0,
+                            method, rescue=rescue)
+
+    @staticmethod
+    def view_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:
+        """Remap maps equirect → ``view`` for :meth:`detect_in_view` (see ``_clipped_maps``)."""
+        return _clipped_maps(view, equirect, step)
 
     def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0) -> GnomonicView:
         """A square gnomonic view of full field of view ``fov`` (radians) around a bearing, at
@@ -791,7 +939,9 @@ def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
     return bool(u.min() < -0.5 < u.max() or u.min() < equirect.width - 0.5 < u.max())
 
 
-_RESCUE_SHRINK = (1.0, 0.75, 0.55)
+#: scales tried on a rejected quad: the black square itself, the outline of its white quiet
+#: zone (6/8 for 4×4 codes), a looser outline (OpenCV's candidate merging keeps either)
+RESCUE_SHRINK = (1.0, 0.75, 0.55)
 _METHOD_RANK = {"gnomonic": 0, "tracked": 0, "full": 1, "seam": 1}
 
 

@@ -88,6 +88,23 @@ class MarkerTracker:
         self.frame = 0
         self._since_full: Optional[int] = None
         self._misses = 0
+        self._views = {}
+
+    def _roi(self, equirect: Equirect, m: MarkerPrediction, fov: float, upsample: float):
+        """The ROI view of marker ``m`` and its remap maps; last frame's are reused while the
+        prediction stays within a tenth of the view's field of view of its centre and the
+        wanted field of view within 10 % (the camera moves little between frames)."""
+        key = (m.id, equirect.width)
+        cached = self._views.get(key)
+        if cached is not None:
+            view, maps, cfov = cached
+            if (float(angle_between(view.center_bearing, m.bearing)) < 0.1 * cfov
+                    and abs(fov - cfov) < 0.1 * cfov):
+                return view, maps
+        view = self.detector.view_around(equirect, m.bearing, fov, upsample)
+        maps = self.detector.view_maps(view, equirect, step=4)
+        self._views[key] = (view, maps, fov)
+        return view, maps
 
     def predict(self, map_T_camera, equirect: Equirect) -> List[MarkerPrediction]:
         """Predicted bearings of all the map's markers, nearest first.
@@ -128,21 +145,26 @@ class MarkerTracker:
             candidates = self.detector.detect(grey, what)
             self._since_full = 0
         else:
-            candidates = []
             gate = math.radians(q.gate_deg)
+            views, maps, expect = [], [], []
             for m in preds:
                 side = m.angular_size / eq.rad_per_px
                 if side < q.min_predicted_side_px:
                     continue
-                stats.predicted += 1
                 up = min(max(q.roi_target_side_px / side, 1.0), q.roi_max_upsample)
                 fov = m.angular_size * (1.0 + 2.0 * q.roi_margin) + 2.0 * gate
-                view = self.detector.view_around(eq, m.bearing, fov, up)
-                candidates += self.detector.detect_in_view(grey, eq, view, "tracked", map_step=8, expect_id=m.id)
+                view, view_maps = self._roi(eq, m, fov, up)
+                views.append(view)
+                maps.append(view_maps)
+                expect.append(m.id)
+            stats.predicted = len(views)
+            candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked")
             step = eq.width / q.sweep_period_frames
             width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
             stats.sweep_u0 = int(self.frame * step) % eq.width
-            candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full")
+            # the sweep looks for what the prediction misses: OpenCV's own finds suffice
+            candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full", rescue=False,
+                                                       max_el=math.radians(q.sweep_max_el_deg))
             self._since_full += 1
         accepted = []
         for o in candidates:
