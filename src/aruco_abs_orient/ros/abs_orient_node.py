@@ -45,6 +45,7 @@ import math
 import sys
 import threading
 import time
+import traceback
 from dataclasses import dataclass, fields
 from typing import Deque, Dict, Optional, Tuple
 
@@ -399,7 +400,13 @@ class AbsOrientNode:
         tf_wait_ms = 1e3 * (time.monotonic() - tf_wait)
         self._feed_prisms()  # what arrived while waiting for tf
         bad_before = self.pipeline.stats.get("bad_images", 0)
-        result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
+        try:
+            result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
+        except Exception as e:  # the pipeline promises not to raise; a live robot must not stop if it does
+            self._error("pipeline_exceptions", f"pipeline failed on the image at {s:.3f} s: {type(e).__name__}: {e}")
+            if self.counts["pipeline_exceptions"] == 1:
+                self.rospy.logerr("abs_orient: first pipeline failure, with traceback:\n" + traceback.format_exc())
+            return
         self.counts["processed"] += 1
         if result.error:
             corrupt = self.pipeline.stats.get("bad_images", 0) > bad_before
@@ -497,6 +504,7 @@ class AbsOrientNode:
             "tf NaN": self.counts["tf_nan"],
             "bad images": self.counts["bad_images"],
             "frame errors": self.counts["frame_errors"],
+            "pipeline failures": self.counts["pipeline_exceptions"],
             "resets": self.counts["resets"],
             "publish_tf": c.publish_tf,
             "map->odom sent": self.counts["tf_published"],
@@ -521,7 +529,8 @@ class AbsOrientNode:
             problems.append("no prism yet" if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
         for key, text in (("bad_images", "corrupt images"), ("tf_failures", "tf lookups failed"),
                           ("tf_nan", "NaN in tf"), ("frame_errors", "frame errors"), ("unknown_ids", "unknown ids"),
-                          ("bad_prism", "bad prism messages"), ("resets", "time jumped back: reset")):
+                          ("bad_prism", "bad prism messages"), ("pipeline_exceptions", "pipeline failures"),
+                          ("resets", "time jumped back: reset")):
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
         if problems and level == "ok":
