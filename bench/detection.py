@@ -276,7 +276,7 @@ def main(argv=None):
     unknown = [s for s in wanted if s not in SECTIONS]
     if unknown:
         ap.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
-    det = MarkerDetector("DICT_4X4_50", DetectorParams(**dict(roi_target_side_px=16, roi_min_px=32, gate_deg=1.0, sweep_tile_deg=6.0)))
+    det = MarkerDetector("DICT_4X4_50", DetectorParams())
     print(f"# bench/detection.py: {args.width}x{args.width // 2}, OpenCV ArUco API {det.backend.api}, "
           f"{os.cpu_count()} CPUs")
     for name in wanted:

@@ -166,7 +166,7 @@ class DetectorParams:
     max_view_px: int = 1024
 
     edge_refine: bool = True
-    view_refine_iterations: int = 1
+    view_refine_iterations: int = 2
     verify_decode: bool = True
     rescue_max_side_px: float = 30.0
     decode_min_contrast: float = 40.0
@@ -178,12 +178,12 @@ class DetectorParams:
     small_marker_side_px: float = 16.0
 
     roi_margin: float = 0.5
-    roi_min_px: int = 48
-    roi_target_side_px: float = 24.0
+    roi_min_px: int = 32
+    roi_target_side_px: float = 16.0
     roi_max_upsample: float = 3.0
-    gate_deg: float = 1.5
+    gate_deg: float = 1.0
     min_predicted_side_px: float = 6.0
-    sweep_tile_deg: float = 10.0
+    sweep_tile_deg: float = 8.0
     sweep_period_frames: int = 72
     sweep_max_el_deg: float = 60.0
     max_full_interval: int = 0
