@@ -31,7 +31,7 @@ from typing import Iterator, List, NamedTuple, Optional, Tuple
 import numpy as np
 
 from ..transforms import matrix_to_quat
-from ..tum import Trajectory, atomic_write_text, write_tum
+from ..tum import Trajectory, write_tum
 from .render import PROFILES, encode_jpeg, render_equirect
 from .scenario import Scenario, ScenarioConfig
 
@@ -227,21 +227,13 @@ def generate(config: ScenarioConfig, out_dir: str, progress: bool = True, force:
         markers_path = os.path.join(out_dir, "markers.yaml")
         scenario.markers.save(markers_path)
         hidden_path = os.path.join(out_dir, "hidden.yaml")
-        _write_hidden(hidden_path, scenario)
+        scenario.save_hidden(hidden_path)
         os.replace(tmp_bag, bag_path)
     finally:
         if os.path.exists(tmp_bag):
             os.unlink(tmp_bag)
     return GeneratedScenario(out_dir, bag_path, truth_path, markers_path, hidden_path, n,
                              int(scenario.prism.stamps.size), time.monotonic() - t_start)
-
-
-def _write_hidden(path: str, scenario: Scenario) -> None:
-    import yaml
-
-    text = ("# Hidden truth of a synthetic scenario (aruco_abs_orient.synthetic). Scenario.from_hidden()\n"
-            "# rebuilds it from 'config'; the rest is derived, for readers. Angles in degrees where named.\n")
-    atomic_write_text(path, text + yaml.safe_dump(scenario.hidden(), sort_keys=False, default_flow_style=None))
 
 
 def describe(result: GeneratedScenario, config: Optional[ScenarioConfig] = None) -> str:

@@ -25,9 +25,10 @@ from typing import Dict, List, Tuple
 
 import numpy as np
 
-from ..markers import Marker, MarkerMap
+from ..markers import ARUCO_DICTIONARIES, Marker, MarkerMap
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
-from .render import PlacedMarker
+from ..tum import atomic_write_text
+from .render import PROFILES, PlacedMarker
 
 __all__ = ["ScenarioError", "ScenarioConfig", "PRESETS", "Scenario", "PrismTrack"]
 
@@ -86,6 +87,8 @@ class ScenarioConfig:
         need(0 < self.fps <= 120, "fps", "expected 0 < fps <= 120")
         need(isinstance(self.width, int) and self.width >= 64 and self.width % 2 == 0, "width",
              "expected an even number of pixels >= 64")
+        need(self.profile in PROFILES, "profile", f"expected one of {', '.join(PROFILES)}")
+        need(self.dictionary in ARUCO_DICTIONARIES, "dictionary", "expected a cv2.aruco dictionary name")
         need(self.standstill >= 0, "standstill", "expected seconds >= 0")
         need(self.speed >= 0 and self.accel_time > 0, "speed", "expected speed >= 0 and accel_time > 0")
         need(min(self.track_radii) > 0.5, "track_radii", "expected semi-axes > 0.5 m")
@@ -135,12 +138,12 @@ PRESETS: Dict[str, ScenarioConfig] = {
     # plumbing tests: big markers so they are visible at 960 px
     "tiny": ScenarioConfig(duration=8.0, fps=10.0, width=960, standstill=2.0, n_markers=5, marker_size=0.45,
                            marker_distance=(2.0, 6.0), track_radii=(5.0, 3.5)),
-    "ci": ScenarioConfig(duration=20.0, fps=15.0, width=1920, n_markers=6, marker_size=0.30,
-                         marker_distance=(2.0, 10.0)),
+    "ci": ScenarioConfig(duration=20.0, fps=15.0, width=1920, n_markers=8, marker_size=0.30,
+                         marker_distance=(2.0, 8.0)),
     # the paper's set-up: 19 cm DICT_4X4 markers at 2-12 m, Theta Z1 frames at 30 fps
-    "demo": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=8, marker_size=0.19,
+    "demo": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                            marker_distance=(2.0, 12.0)),
-    "bench": ScenarioConfig(duration=10.0, fps=30.0, width=3840, n_markers=8, marker_size=0.19,
+    "bench": ScenarioConfig(duration=10.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                             marker_distance=(2.0, 12.0)),
 }
 
@@ -196,7 +199,7 @@ class Scenario:
         self.base_T_camera_nominal = make_T(np.eye(3), c.camera_lever_arm)
         self.base_T_camera_true = make_T(_axis_angle(axis, math.radians(c.boresight_deg)), c.camera_lever_arm)
         self.base_T_prism = make_T(np.eye(3), c.prism_lever_arm)
-        # --- markers around the track, each facing its nearest track point (± a random yaw/tilt)
+        # --- markers around the track, facing it (± a random yaw/tilt)
         self.markers, self.marker_normals = self._place_markers(rng)
         # --- visual odometry: yaw error = drift·t + random walk; position integrates the motion
         walk_dt = 0.1
@@ -268,7 +271,10 @@ class Scenario:
             else:
                 raise ScenarioError(f"marker_distance: cannot place {c.n_markers} markers "
                                     f"{dmin}-{dmax} m from the track")
-            towards = dense[k, :2] - xy
+            # outside the loop face its centre (seen from most of the loop), inside the nearest track point
+            (cx, cy), (ra, rb) = c.track_center, c.track_radii
+            outside = ((xy[0] - cx) / ra) ** 2 + ((xy[1] - cy) / rb) ** 2 > 1.0
+            towards = (np.array([cx, cy]) if outside else dense[k, :2]) - xy
             yaw = math.atan2(towards[1], towards[0]) + rng.uniform(-0.35, 0.35)
             tilt = rng.uniform(-0.15, 0.15)
             normal = np.array([math.cos(yaw) * math.cos(tilt), math.sin(yaw) * math.cos(tilt), math.sin(tilt)])
@@ -385,6 +391,14 @@ class Scenario:
             "prism_samples": int(self.prism.stamps.size),
         }
 
+    def save_hidden(self, path: str) -> None:
+        """Write :meth:`hidden` as YAML, atomically."""
+        import yaml
+
+        text = ("# Hidden truth of a synthetic scenario (aruco_abs_orient.synthetic). Scenario.from_hidden()\n"
+                "# rebuilds it from 'config'; the rest is derived, for readers. Angles in degrees where named.\n")
+        atomic_write_text(path, text + yaml.safe_dump(self.hidden(), sort_keys=False, default_flow_style=None))
+
     @classmethod
     def from_hidden(cls, path: str) -> Scenario:
         """Rebuild the scenario from a hidden-parameters YAML written by the generator."""
@@ -423,9 +437,5 @@ def _rows(T) -> list:
 def _dictionary_size(dictionary: str) -> int:
     import cv2
 
-    from ..markers import ARUCO_DICTIONARIES
-
-    if dictionary not in ARUCO_DICTIONARIES:
-        raise ScenarioError(f"dictionary: unknown ArUco dictionary {dictionary!r}")
     return int(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)).bytesList.shape[0])
 
