@@ -183,19 +183,6 @@ def test_orientation_takes_tilt_from_odometry_and_yaw_from_markers(roll, pitch, 
     assert msg.header.frame_id == "map" and msg.header.stamp == rospy.Time(5)
 
 
-def test_marker_yaw_weights_accepted_markers_across_the_wrap():
-    a = math.radians(179.0)
-    obs = [_observation(1, 0.1, 0.0, yaw=a, yaw_sigma=0.01, accepted=True),
-           _observation(2, 1.0, 0.1, yaw=-a, yaw_sigma=0.02, accepted=True),   # 2° away, across ±180°
-           _observation(3, 2.0, 0.0, yaw=0.3, yaw_sigma=0.001, accepted=False),  # rejected: ignored
-           _observation(4, 2.5, 0.0)]                                           # no yaw: ignored
-    yaw, sigma = cv.marker_yaw(obs)
-    # hand-checked: weights 1e4 and 2.5e3 → 179° + 2° · 0.2 = 179.4°
-    assert abs(math.degrees(yaw) - 179.4) < 1e-9
-    assert math.isclose(sigma, (1e4 + 2.5e3) ** -0.5)
-    assert cv.marker_yaw(obs[2:]) is None and cv.marker_yaw([]) is None
-
-
 def test_prism_and_pose_messages_follow_the_result():
     T = make_T(rpy_to_matrix(0.01, -0.02, 1.2), [3.0, -4.0, 0.3])
     P = np.diag([2.5e-5, 2.5e-5, 4e-5])

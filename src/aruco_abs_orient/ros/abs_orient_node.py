@@ -9,9 +9,10 @@ Inputs: ``camera/image/compressed`` (``sensor_msgs/CompressedImage``) or, with `
 Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry they go with):
 - tf ``map → odom`` (``~publish_tf``, default true; false when a robot_localization EKF in map mode owns
   it — never two owners);
-- ``abs_orient/orientation`` (``PoseWithCovarianceStamped``): the frame's yaw from its accepted markers
-  alone (a measurement, independent of the odometry's yaw), roll/pitch from odometry, unobserved parts
-  at variance 1e6; only when a marker was accepted;
+- ``abs_orient/orientation`` (``PoseWithCovarianceStamped``): the frame's yaw fused from its markers
+  alone (``FrameResult.fused_yaw``: a measurement, independent of the odometry's yaw, unlike the filtered
+  ``yaw``), roll/pitch from odometry, unobserved parts at variance 1e6; only when the node's filter
+  accepted it (its gate drops false ids);
 - ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
   arm removed; ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
   ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``/diagnostics``.
@@ -429,9 +430,10 @@ class AbsOrientNode:
         self.pub_detections.publish(cv.observations_msg(result.observations, stamp, c.camera_frame))
         if result.map_T_odom is not None:
             self._send_map_odom(cv.stamp_to_sec(stamp), result.map_T_odom)
-        measured = cv.marker_yaw(result.observations)
-        if measured is not None:
-            self.pub_orientation.publish(cv.orientation_msg(measured[0], measured[1], odom_T_base, stamp, c.map_frame))
+        if result.fused_yaw is not None and any(r.accepted for r in result.observations):
+            # the frame's own marker yaw (not the filtered one, which already used the odometry)
+            self.pub_orientation.publish(cv.orientation_msg(result.fused_yaw, result.fused_yaw_sigma, odom_T_base,
+                                                            stamp, c.map_frame))
             self.counts["frames_with_yaw"] += 1
         prism_pose = cv.prism_pose_msg(result, stamp, c.map_frame)
         if prism_pose is not None:

@@ -35,7 +35,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..markers import MarkerMap
 from ..msg import MarkerObservation, MarkerObservations
-from ..transforms import make_T, matrix_to_quat, matrix_to_rpy, quat_to_matrix, rpy_to_matrix, wrap_angle
+from ..transforms import make_T, matrix_to_quat, matrix_to_rpy, quat_to_matrix, rpy_to_matrix
 
 __all__ = [
     "ConversionError",
@@ -49,7 +49,6 @@ __all__ = [
     "image_from_compressed",
     "image_from_raw",
     "pose_covariance",
-    "marker_yaw",
     "orientation_msg",
     "prism_pose_msg",
     "pose_msg",
@@ -186,25 +185,6 @@ def pose_covariance(position_cov: Optional[np.ndarray] = None,
 
 def _header(stamp: rospy.Time, frame_id: str) -> Header:
     return Header(stamp=stamp, frame_id=frame_id)
-
-
-def marker_yaw(observations) -> Optional[Tuple[float, float]]:
-    """The frame's absolute yaw of base_link from its accepted markers alone: (yaw, σ) in rad, or None.
-
-    Inverse-variance weighted mean of the accepted per-marker yaws (``ObservationResult.yaw``/
-    ``.yaw_sigma``), taken on the circle around the most certain one; σ = (Σ σᵢ⁻²)^(-1/2). This is a
-    measurement for robot_localization: unlike ``FrameResult.yaw`` (the node's filtered yaw, which has
-    already used the odometry), it is independent of the odometry's yaw and may be fused with it.
-    """
-    used = [(float(o.yaw), float(o.yaw_sigma)) for o in observations
-            if o.accepted and math.isfinite(o.yaw) and math.isfinite(o.yaw_sigma) and o.yaw_sigma > 0]
-    if not used:
-        return None
-    yaws, sigmas = np.array(used).T
-    w = sigmas ** -2.0
-    ref = yaws[np.argmax(w)]
-    yaw = ref + float(np.sum(w * wrap_angle(yaws - ref)) / np.sum(w))
-    return float(wrap_angle(yaw)), float(np.sum(w) ** -0.5)
 
 
 def orientation_msg(yaw: float, yaw_sigma: float, odom_T_base: np.ndarray, stamp: rospy.Time,
