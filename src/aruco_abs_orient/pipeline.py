@@ -356,4 +356,4 @@ class AbsOrientPipeline:
             if used:
                 r.accepted = bool(update.accepted)
                 r.reason = "" if r.accepted else f"filter: {update.status}"
-        self._count("accepted" if update.accepted else "rejected_filter", int(np.sum(fused.used)))
+        self._count("filter_" + update.status)
