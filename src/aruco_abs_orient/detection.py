@@ -324,11 +324,20 @@ def _sample(grey: np.ndarray, equirect: Equirect, view: GnomonicView, pts: np.nd
     """Bilinear grey levels of the equirect at view pixels ``pts`` (..., 2)."""
     u, v = equirect.bearing_to_pixel(view.pixel_to_bearing(pts[..., 0], pts[..., 1]))
     np.clip(v, 0.0, equirect.height - 1.0, out=v)
-    shape = pts.shape[:-1]
-    u = u.reshape(1, -1).astype(np.float32)
-    v = v.reshape(1, -1).astype(np.float32)
-    out = cv2.remap(grey, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-    return out.astype(float).reshape(shape)
+    return _remap_points(grey, u, v, cv2.BORDER_WRAP)
+
+
+def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
+    """Bilinear grey levels (float, shape of ``x``) of ``img`` at points (x, y) (pixels)."""
+    n = x.size
+    cols = 1024  # cv2.remap wants maps narrower than 32767
+    rows = -(-n // cols)
+    mx = np.zeros(rows * cols, np.float32)
+    my = np.zeros(rows * cols, np.float32)
+    mx[:n] = x.reshape(-1)
+    my[:n] = y.reshape(-1)
+    out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border)
+    return out.reshape(-1)[:n].astype(float).reshape(x.shape)
 
 
 def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6, iterations: int = 2,
@@ -413,9 +422,7 @@ def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, 
 def image_sampler(img: np.ndarray):
     """``sample(pts)`` of :func:`refine_quad` for a grey image: bilinear, border replicated."""
     def sample(pts: np.ndarray) -> np.ndarray:
-        flat = pts.reshape(1, -1, 2).astype(np.float32)
-        out = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return out.astype(float).reshape(pts.shape[:-1])
+        return _remap_points(img, pts[..., 0], pts[..., 1], cv2.BORDER_REPLICATE)
     return sample
 
 
@@ -698,30 +705,34 @@ class MarkerDetector:
             sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px), method=method, side_px=side_px)
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
-                List[np.ndarray]], to_bearing, scale: float, method: str,
-                expect_id: Optional[int] = None, rescue: bool = True,
-                view_image: Optional[np.ndarray] = None) -> List[MarkerObservation]:
-        """Observations from a backend result in some image: edge-refined corners of the
-        decoded markers, plus small rejected quads decoded here (``rescue_max_side_px``).
+                List[np.ndarray]], to_bearing, scale: float, method: str, image: np.ndarray,
+                perspective: bool, expect_id: Optional[int] = None, rescue: bool = True) -> List[MarkerObservation]:
+        """Observations from a backend result in ``image``: edge-refined corners of the
+        decoded markers, plus rejected quads decoded here (small ones up to
+        ``rescue_max_side_px``, large ones from ``close_range_size_deg``).
 
-        ``to_bearing(x, y)``: that image's pixels to bearings; ``scale``: its pixels per
-        equirect pixel; ``expect_id``: keep only this id (tracking: OpenCV's reading of the
-        predicted id at the predicted place is not re-verified); ``rescue``: decode the
-        quads OpenCV rejected; ``view_image``: the searched image when it is a gnomonic view
-        with exact maps, for refining OpenCV's corners in it directly (cheaper).
+        ``to_bearing(x, y)``: the image's pixels to bearings; ``scale``: its pixels per
+        equirect pixel; ``perspective``: the image is a gnomonic view with exact enough maps
+        (corners are refined and read in it directly), else an equirect strip (refined on
+        the sphere, :func:`refine_corners`); ``expect_id``: keep only this id (tracking:
+        OpenCV's reading of the predicted id at the predicted place is not re-verified);
+        ``rescue``: decode the quads OpenCV rejected.
         """
         q = self.params
+        bits = self.backend.bits
         ids, corners, rejected = found
+        sample = image_sampler(image)
         out = []
         for i, c in zip(ids, corners):
             if expect_id is not None and i != expect_id:
                 continue
             b = to_bearing(c[:, 0], c[:, 1])
-            if q.edge_refine and view_image is not None:  # a gnomonic image: refine right there
-                rq = refine_quad(image_sampler(view_image), c, self.backend.bits, q.view_refine_iterations)
+            r = None
+            if q.edge_refine and perspective:
+                rq = refine_quad(sample, c, bits, q.view_refine_iterations)
                 r = None if rq is None else to_bearing(rq[:, 0], rq[:, 1])
-            else:
-                r = refine_corners(grey, equirect, b, self.backend.bits) if q.edge_refine else None
+            elif q.edge_refine:
+                r = refine_corners(grey, equirect, b, bits)
             if q.verify_decode and expect_id is None:
                 hit = self._decode(grey, equirect, b if r is None else r)
                 if hit is None or hit[0] != i:
@@ -731,27 +742,38 @@ class MarkerDetector:
             return out
         small = q.rescue_max_side_px * 4.0 * scale
         large = math.radians(q.close_range_size_deg) / equirect.rad_per_px * 4.0 * scale
-        for c in rejected:
-            perimeter = np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1))
-            if small < perimeter < large:
+        # a small quad is the black square, the outline of its white quiet zone or a looser one
+        # (RESCUE_SHRINK): all refined and read at once in the image, then (equirect) again on
+        # the sphere; a large one may be a close marker whose curved equirect image OpenCV
+        # could not read: in a view read at once, in the equirect on the sphere only.
+        perimeters = [np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) for c in rejected]
+        tries = [c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for c, p in zip(rejected, perimeters)
+                 if p <= small or (perspective and p >= large) for shrink in RESCUE_SHRINK]
+        for r in refine_quads(sample, np.array(tries), bits) if tries else []:
+            if np.isnan(r).any():
                 continue
-            # the quad is the black square, the outline of its white quiet zone (6/8 of the
-            # 4×4 case), or a looser outline around it; a large one is a close marker whose
-            # curved equirect image OpenCV could not decode
-            for shrink in RESCUE_SHRINK:
-                quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
-                if view_image is not None:  # a gnomonic image: refine and read right there
-                    sample = image_sampler(view_image)
-                    r = refine_quad(sample, quad, self.backend.bits)
-                    hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds()) \
-                        if r is not None else None
-                    hit = None if hit is None else (hit[0], to_bearing(hit[1][:, 0], hit[1][:, 1]))
-                else:
-                    r = refine_corners(grey, equirect, to_bearing(quad[:, 0], quad[:, 1]), self.backend.bits)
-                    hit = self._decode(grey, equirect, r) if r is not None else None
-                if hit is not None and (expect_id is None or hit[0] == expect_id):
-                    out.append(self.observation(equirect, hit[0], hit[1], method))
-                    break
+            hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
+            if hit is None or (expect_id is not None and hit[0] != expect_id):
+                continue
+            b = to_bearing(hit[1][:, 0], hit[1][:, 1])
+            if not perspective:  # read in the equirect: straighten on the sphere, read again
+                rb = refine_corners(grey, equirect, b, bits)
+                again = self._decode(grey, equirect, rb) if rb is not None else None
+                if again is None or again[0] != hit[0]:
+                    continue
+                b = again[1]
+            out.append(self.observation(equirect, hit[0], b, method))
+        if not perspective:  # large quads in the equirect: curved edges, refined on the sphere only
+            for c, p in zip(rejected, perimeters):
+                if p < large:
+                    continue
+                for shrink in RESCUE_SHRINK:
+                    quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
+                    rb = refine_corners(grey, equirect, to_bearing(quad[:, 0], quad[:, 1]), bits)
+                    hit = self._decode(grey, equirect, rb) if rb is not None else None
+                    if hit is not None and (expect_id is None or hit[0] == expect_id):
+                        out.append(self.observation(equirect, hit[0], hit[1], method))
+                        break
         return dedupe_observations(out)
 
     def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
@@ -769,8 +791,8 @@ class MarkerDetector:
         img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
         found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
-        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, expect_id,
-                            view_image=img if map_step <= 4 else None)
+        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, img, map_step <= 4,
+                            expect_id)
 
     def _decode_thresholds(self) -> Tuple[float, float, float, float]:
         q = self.params
@@ -857,7 +879,7 @@ class MarkerDetector:
             strip = np.hstack([grey[v0:v1, u0:], grey[v0:v1, :u0 + width - w]])
         found = self.backend.detect(strip, self.params.min_marker_perimeter_px)
         return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0,
-                            method, rescue=rescue)
+                            method, strip, False, rescue=rescue)
 
     @staticmethod
     def view_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:
