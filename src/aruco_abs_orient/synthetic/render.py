@@ -107,9 +107,9 @@ def facing_marker(id: int, size: float, center, roll: float = 0.0, tilt: float =
 @dataclass(frozen=True)
 class RenderProfile:
     """How a frame is degraded: ``supersample`` sub-samples per pixel side (≥ 1),
-    ``blur_sigma_px`` Gaussian blur σ in pixels (0 = none), ``noise_sigma`` Gaussian noise σ in
-    grey levels (0 = none), ``jpeg_quality`` 1–100 or None (no JPEG round trip), ``background``
-    'textured' or 'grey'."""
+    ``blur_sigma_px`` Gaussian blur σ in pixels (0 = none; optics and the camera's processing),
+    ``noise_sigma`` Gaussian sensor noise σ in grey levels added before the blur (0 = none),
+    ``jpeg_quality`` 1–100 or None (no JPEG round trip), ``background`` 'textured' or 'grey'."""
 
     supersample: int
     blur_sigma_px: float
@@ -212,6 +212,14 @@ def _background(width: int, seed: int) -> np.ndarray:
     out = np.clip(np.rint(canvas), 0, 255).astype(np.uint8)
     out.flags.writeable = False
     return out
+
+
+@functools.lru_cache(maxsize=4)
+def _noise_field(height: int, width: int, seed: int) -> np.ndarray:
+    """Standard normal float32 field a little larger than (height, width); read-only, cached."""
+    field = np.random.default_rng([seed, 0xA015E]).standard_normal((height + 61, width + 67), dtype=np.float32)
+    field.flags.writeable = False
+    return field
 
 
 def _bounding_box(equirect: Equirect, marker: PlacedMarker, half: float
@@ -391,10 +399,13 @@ def render_equirect(width: int, markers: Sequence[PlacedMarker], dictionary: str
     for m in markers:
         _splat_marker(canvas, equirect, m, _marker_bits(dictionary, int(m.id)), n_black, p.supersample)
     if p.noise_sigma > 0:
-        noise = np.empty_like(canvas)
-        cv2.setRNGSeed(int(seed if noise_seed is None else noise_seed) & 0x7FFFFFFF)
-        cv2.randn(noise, 0.0, float(p.noise_sigma))
-        canvas += noise
+        # a window of a cached i.i.d. N(0, 1) field at an offset drawn from the noise seed (cheap;
+        # every pixel of a frame independent, successive frames shifted copies of one field)
+        field = _noise_field(equirect.height, width, int(seed))
+        dy, dx = np.random.default_rng([int(seed if noise_seed is None else noise_seed), 0x5EED]).integers(
+            0, [field.shape[0] - equirect.height + 1, field.shape[1] - width + 1])
+        window = field[dy:dy + equirect.height, dx:dx + width]
+        cv2.scaleAdd(window, float(p.noise_sigma), canvas, dst=canvas)
     if p.blur_sigma_px > 0:
         cv2.GaussianBlur(canvas, (0, 0), p.blur_sigma_px, dst=canvas, borderType=cv2.BORDER_REPLICATE)
     np.add(canvas, 0.5, out=canvas)
