@@ -516,23 +516,25 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     keep &= o_ok
     idx = np.flatnonzero(keep)
     used_ids = {int(i) for i in ids[idx]}
-    if len(idx) < params.min_observations or len(used_ids) < params.min_markers:
-        raise CalibrationError(
-            f"only {len(idx)} usable marker observations of {len(used_ids)} distinct markers (need ≥ "
-            f"{params.min_observations} of ≥ {params.min_markers}; {n} given, skipped: "
-            f"{skipped or 'none'}): record with more markers in view")
-
-    M = np.array([marker_map[int(i)].position for i in ids[idx]])
-    sM = np.array([marker_map[int(i)].sigma for i in ids[idx]])
     t_cam, t_prism = Tc[:3, 3].copy(), Tp[:3, 3].copy()
     th, yh, sh = _heading_constraints(odom, tp, pp, t_prism, params)
     moving = len(th) * params.heading_step
+    problems = []
+    if len(idx) < params.min_observations or len(used_ids) < params.min_markers:
+        problems.append(
+            f"only {len(idx)} usable marker observations of {len(used_ids)} distinct markers (need ≥ "
+            f"{params.min_observations} of ≥ {params.min_markers}; {n} given, skipped: {skipped or 'none'}): "
+            "record with more markers in view")
     if moving < params.min_moving_time:
-        raise CalibrationError(
+        problems.append(
             f"the platform drives (≥ {params.min_speed} m/s, no turn in place) for only {moving:.1f} s of the "
             f"recording (need ≥ {params.min_moving_time} s): without the track heading the boresight yaw "
             "cannot be told apart from the map→odom yaw; record the platform driving with markers in view")
+    if problems:
+        raise CalibrationError("; ".join(problems))
 
+    M = np.array([marker_map[int(i)].position for i in ids[idx]])
+    sM = np.array([marker_map[int(i)].sigma for i in ids[idx]])
     t_all = np.concatenate([t[idx], th])
     k0, k1 = float(t_all.min()), float(t_all.max())
     K = max(2, int(math.ceil((k1 - k0) / params.knot_spacing)) + 1)

@@ -1,0 +1,191 @@
+"""``aruco-abs-orient calibrate BAG``: boresight (and lever arm) of the camera from a recording.
+
+Reads the bag without ROS (``bagio``): odometry, lever arms and prism in a first pass, then the
+images streamed one by one, each searched whole for the map's markers (``tracking.MarkerTracker``
+without a prediction, so the nominal calibration cannot bias what is found). Every observation
+(time, id, camera-frame bearing, σ) goes to :func:`aruco_abs_orient.calibration.calibrate` with the
+odometry trajectory and the prism track moved onto the camera clock (prism stamp + ``time_offset``).
+Writes the static-tf YAML read by ``live.launch``/``postprocess.launch`` and a launch snippet beside
+it (``<out>.launch.xml``).
+
+Units: seconds, metres, radians inside; degrees and millimetres in what is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from typing import List, Optional
+
+import numpy as np
+
+from ..calibration import (
+    Calibration,
+    CalibrationError,
+    CalibrationParams,
+    calibrate,
+    launch_snippet,
+    static_tf_yaml,
+)
+from ..detection import DetectionError, DetectorParams, decode_jpeg
+from ..markers import MarkerMap, MarkerMapError
+from ..tracking import MarkerTracker
+from ..tum import atomic_write_text
+from .bagio import BagData, BagError, BagTopics, iter_images, read_bag_data
+
+__all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
+
+EXAMPLES = """examples:
+  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
+  aruco-abs-orient calibrate run.bag --markers markers.yaml --lever-arm --out calibration.yaml
+  roslaunch aruco_abs_orient live.launch markers:=markers.yaml calibration:=calibration.yaml
+
+The recording must show markers while the platform DRIVES (straight stretches and gentle curves):
+the boresight yaw is separated from the map->odom yaw by the prism track's direction of travel.
+"""
+
+
+class CalibrateResult:
+    """Observations of a bag as arrays (see :func:`collect_observations`)."""
+
+    def __init__(self, data: BagData, times, ids, bearings, sigmas, frames: int, skipped: dict):
+        self.data = data
+        self.times = np.asarray(times, dtype=float).reshape(-1)          # s, camera clock
+        self.ids = np.asarray(ids, dtype=int).reshape(-1)
+        self.bearings = np.asarray(bearings, dtype=float).reshape(-1, 3)  # unit, camera frame
+        self.sigmas = np.asarray(sigmas, dtype=float).reshape(-1)        # rad
+        self.frames = frames
+        self.skipped = skipped
+
+
+def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTopics] = None,
+                         progress: bool = True, detector_params: Optional[DetectorParams] = None,
+                         data: Optional[BagData] = None) -> CalibrateResult:
+    """Every marker observation of ``bag``: whole-frame detection of the map's markers in each image."""
+    topics = topics or BagTopics()
+    data = data or read_bag_data(bag, topics)
+    tracker = MarkerTracker(marker_map, detector_params)
+    times: List[float] = []
+    ids: List[int] = []
+    bearings: List[np.ndarray] = []
+    sigmas: List[float] = []
+    skipped: dict = {}
+    frames = 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=data.image_count, unit="frame", desc="calibrate: detect", dynamic_ncols=True)
+    try:
+        for stamp, payload in iter_images(bag, topics):
+            frames += 1
+            if bar is not None:
+                bar.update(1)
+            try:
+                if payload is None or not math.isfinite(stamp):
+                    raise DetectionError("undecodable image message")
+                grey = decode_jpeg(payload) if isinstance(payload, bytes) else payload
+                found = tracker.process(grey, None).observations
+            except DetectionError as e:
+                key = f"bad image: {str(e).split(':')[0]}"
+                skipped[key] = skipped.get(key, 0) + 1
+                continue
+            for o in found:
+                times.append(stamp)
+                ids.append(o.id)
+                bearings.append(o.centre)
+                sigmas.append(o.sigma)
+    finally:
+        if bar is not None:
+            bar.close()
+    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped)
+
+
+def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
+                  progress: bool = True, estimate_lever_arm: bool = False,
+                  params: Optional[CalibrationParams] = None, observations: Optional[CalibrateResult] = None
+                  ) -> Calibration:
+    """Calibrate the camera of ``bag`` against ``marker_map``.
+
+    ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign).
+    ``observations``: a :func:`collect_observations` result to reuse (detection is the slow part).
+    Raises BagError (unusable bag) or CalibrationError (the recording cannot determine it: why).
+    """
+    obs = observations or collect_observations(bag, marker_map, topics, progress)
+    d = obs.data
+    if len(d.prism_stamps) < 2:
+        raise CalibrationError(f"{bag}: no prism track: the calibration needs the total station's prism positions")
+    cal = calibrate(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
+                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism,
+                    estimate_lever_arm=estimate_lever_arm, params=params)
+    for k, v in obs.skipped.items():
+        cal.skipped[k] = cal.skipped.get(k, 0) + v
+    return cal
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register the ``calibrate`` sub-command on an ``argparse`` sub-parsers object."""
+    p = subparsers.add_parser(
+        "calibrate", help="boresight (and lever arm) of the camera from a recording → static-tf YAML",
+        description="Estimate the camera's boresight rotation in base_link (and optionally its lever arm) "
+                    "by least squares over all marker observations of a recording; write the static-tf "
+                    "YAML that live.launch/postprocess.launch read, and a launch snippet beside it.",
+        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("bag", help="ROS 1 bag with the images, /tf, /tf_static and the prism")
+    p.add_argument("--markers", required=True, help="marker map YAML (DESIGN §3)")
+    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
+                   help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
+    p.add_argument("--out", required=True, metavar="YAML",
+                   help="calibration YAML to write (atomically); the launch snippet goes to YAML.launch.xml")
+    p.add_argument("--lever-arm", action="store_true", help="also estimate the camera lever arm (3 more unknowns)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    d = BagTopics()
+    g = p.add_argument_group("topics and frames")
+    for name in ("image", "tf", "tf_static", "prism"):
+        g.add_argument(f"--{name.replace('_', '-')}-topic", default=getattr(d, name),
+                       help=f"(default {getattr(d, name)})")
+    for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
+        g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
+    p.set_defaults(func=run)
+    return p
+
+
+def _fail(msg: str, code: int = 2) -> int:
+    print(f"aruco-abs-orient calibrate: error: {msg}", file=sys.stderr)
+    return code
+
+
+def run(args: argparse.Namespace) -> int:
+    """The ``calibrate`` sub-command: 0 written, 1 the recording cannot determine it, 2 bad input."""
+    topics = BagTopics(args.image_topic, args.tf_topic, args.tf_static_topic, args.prism_topic, args.odom_frame,
+                       args.base_frame, args.camera_frame, args.prism_frame)
+    if not math.isfinite(args.time_offset):
+        return _fail(f"--time-offset: expected a finite number of seconds, got {args.time_offset}")
+    out_dir = os.path.dirname(os.path.abspath(args.out))
+    if not os.path.isdir(out_dir) or not os.access(out_dir, os.W_OK):
+        return _fail(f"{args.out}: the directory {out_dir} does not exist or is not writable")
+    try:
+        marker_map = MarkerMap.load(args.markers)
+        data = read_bag_data(args.bag, topics)
+        obs = collect_observations(args.bag, marker_map, topics, progress=not args.quiet, data=data)
+    except (MarkerMapError, BagError) as e:
+        return _fail(str(e))
+    try:
+        cal = calibrate_bag(args.bag, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
+                            observations=obs)
+    except CalibrationError as e:
+        return _fail(f"{args.bag}: cannot calibrate: {e}", 1)
+    text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
+    snippet = launch_snippet(cal, data.base_T_camera, data.base_T_prism, topics.base_frame, topics.camera_frame,
+                             topics.prism_frame)
+    atomic_write_text(args.out, text)
+    atomic_write_text(args.out + ".launch.xml", snippet)
+    print(json.dumps(cal.report_dict(), default=float))
+    print(f"wrote {args.out}\n      {args.out}.launch.xml")
+    return 0
