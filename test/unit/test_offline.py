@@ -1,0 +1,202 @@
+"""The offline pipeline on generated bags (issue 5): accuracy against the synthetic truth, bad input.
+
+The scenario (bag, truth.tum, markers.yaml, hidden.yaml) is rendered by the synthetic generator,
+an independent source of truth; the bag is read back with rosbags like a user's recording.
+"""
+import json
+import math
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from aruco_abs_orient.evaluation import error_stats, interp_yaw, yaw_ape
+from aruco_abs_orient.markers import MarkerMap
+from aruco_abs_orient.offline.bagio import BagError, BagTopics, read_bag_data
+from aruco_abs_orient.offline.cli import main as cli_main
+from aruco_abs_orient.offline.evaluate import read_observations
+from aruco_abs_orient.offline.process import process_bag
+from aruco_abs_orient.transforms import wrap_angle, yaw_of
+from aruco_abs_orient.tum import read_tum
+
+
+def _hidden(scen):
+    with open(scen.hidden) as f:
+        return yaml.safe_load(f)
+
+
+@pytest.fixture(scope="module")
+def ci_run(scenario_factory, tmp_path_factory):
+    scen = scenario_factory("ci")
+    out = tmp_path_factory.mktemp("ci_run")
+    res = process_bag(scen.bag, MarkerMap.load(scen.markers), str(out),
+                      time_offset=_hidden(scen)["camera_time_offset"], progress=False)
+    return scen, res
+
+
+def _heading_errors(run_dir, truth_path):
+    est, ref = read_tum(os.path.join(run_dir, "trajectory.tum")), read_tum(truth_path)
+    return est, ref, yaw_ape(est.stamps, yaw_of(est.rotations), ref.stamps, yaw_of(ref.rotations))
+
+
+def test_heading_and_position_against_truth(ci_run):
+    scen, res = ci_run
+    out = os.path.dirname(res.trajectory_path)
+    est, ref, ape = _heading_errors(out, scen.truth)
+    # coverage after initialisation: every image from the first pose on has a pose
+    frames_after_init = int(np.sum(ref.stamps >= est.stamps[0] - 1e-6))
+    assert len(est.stamps) >= 0.95 * frames_after_init
+    assert math.degrees(ape.stats.rmse) <= 0.15, ape.stats
+    assert math.degrees(ape.stats.p95) <= 0.3, ape.stats
+    p_ref, _, ok = ref.interpolate(est.stamps)
+    assert ok.all()
+    d = np.linalg.norm(est.positions - p_ref, axis=1)
+    assert float(np.sqrt(np.mean(d * d))) <= 0.01
+    # the filter initialised during the standstill, not later
+    standstill_end = ref.stamps[0] + _hidden(scen)["config"]["standstill"]
+    assert est.stamps[0] <= standstill_end
+
+
+def test_each_marker_alone_gives_the_yaw(ci_run):
+    scen, res = ci_run
+    obs = read_observations(res.observations_path)
+    ref = read_tum(scen.truth)
+    truth, ok = interp_yaw(obs["time"], ref.stamps, yaw_of(ref.rotations), 0.2)
+    assert ok.all()
+    err = wrap_angle(obs["yaw"] - truth)
+    ids = np.unique(obs["id"])
+    assert len(ids) >= 3
+    for mid in ids:
+        sel = obs["id"] == mid
+        assert math.degrees(float(np.median(np.abs(err[sel])))) <= 0.2, (mid, error_stats(err[sel]))
+
+
+def test_outputs_are_complete_and_described(ci_run):
+    scen, res = ci_run
+    summary = json.loads(Path(res.summary_path).read_text())
+    assert summary["frames"] == 300 and summary["frames_with_pose"] > 0
+    assert summary["skipped"] == {}
+    header = Path(res.observations_path).read_text().splitlines()[0].split(",")
+    assert header[:3] == ["time", "id", "method"]
+    out = os.path.dirname(res.trajectory_path)
+    assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
+
+
+def test_wrong_time_offset_is_worse(ci_run, scenario_factory, tmp_path):
+    """The time offset matters: ignoring the camera's 0.367 s lag costs accuracy while turning."""
+    scen, res = ci_run
+    bad = process_bag(scen.bag, MarkerMap.load(scen.markers), str(tmp_path), time_offset=0.0, progress=False)
+    _, _, ape_good = _heading_errors(os.path.dirname(res.trajectory_path), scen.truth)
+    # the pose stamps are wrong by the offset too: compare at the right (true) times
+    est = read_tum(bad.trajectory_path)
+    ref = read_tum(scen.truth)
+    ape_bad = yaw_ape(est.stamps - _hidden(scen)["camera_time_offset"], yaw_of(est.rotations), ref.stamps,
+                      yaw_of(ref.rotations))
+    assert ape_bad.stats.rmse > 2 * ape_good.stats.rmse
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def _rewrite_bag(src, dst, edit):
+    """Copy a bag with rosbags, passing each (topic, msg) through ``edit`` (None drops it)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag1 import Writer
+
+    from aruco_abs_orient.synthetic.bag import make_typestore
+
+    store = make_typestore()
+    with AnyReader([Path(src)], default_typestore=store) as reader, Writer(dst) as writer:
+        conns = {}
+        for c in reader.connections:
+            conns[c.id] = writer.add_connection(c.topic, c.msgtype, typestore=store,
+                                                latching=1 if c.topic == "/tf_static" else None)
+        for c, stamp, raw in reader.messages():
+            msg = edit(c.topic, reader.deserialize(raw, c.msgtype))
+            if msg is not None:
+                writer.write(conns[c.id], stamp, store.serialize_ros1(msg, c.msgtype))
+
+
+@pytest.fixture(scope="module")
+def tiny(scenario_factory):
+    return scenario_factory("tiny")
+
+
+def test_missing_prism_topic_is_named(tiny, tmp_path):
+    dst = str(tmp_path / "noprism.bag")
+    _rewrite_bag(tiny.bag, dst, lambda topic, msg: None if topic == "/ms60/prism" else msg)
+    data = read_bag_data(dst)
+    assert any("/ms60/prism" in w for w in data.warnings)
+    rc = cli_main(["process", dst, "--markers", tiny.markers, "--out", str(tmp_path / "o"), "--quiet"])
+    assert rc == 1  # nothing useful: no absolute yaw without the prism
+
+
+def test_missing_image_topic_and_static_tf_are_named(tiny, tmp_path, capsys):
+    with pytest.raises(BagError, match="no image topic /nope"):
+        read_bag_data(tiny.bag, BagTopics(image="/nope"))
+    with pytest.raises(BagError, match="no static transform base_link->cam2"):
+        read_bag_data(tiny.bag, BagTopics(camera_frame="cam2"))
+    rc = cli_main(["process", tiny.bag, "--markers", tiny.markers, "--out", str(tmp_path), "--quiet",
+                   "--image-topic", "/nope"])
+    assert rc == 2
+    assert "no image topic /nope" in capsys.readouterr().err
+
+
+def test_corrupt_images_and_nan_tf_are_counted_and_skipped(tiny, tmp_path):
+    counter = {"img": 0, "tf": 0}
+
+    def edit(topic, msg):
+        if topic == "/camera/image/compressed":
+            counter["img"] += 1
+            if counter["img"] % 10 == 5:
+                msg.data = np.frombuffer(b"\xff\xd8garbage" * 10, dtype=np.uint8)
+        elif topic == "/tf":
+            counter["tf"] += 1
+            if counter["tf"] % 10 == 7:
+                msg.transforms[0].transform.translation.x = float("nan")
+        return msg
+
+    dst = str(tmp_path / "bad.bag")
+    _rewrite_bag(tiny.bag, dst, edit)
+    hidden = _hidden(tiny)
+    res = process_bag(dst, MarkerMap.load(tiny.markers), str(tmp_path / "out"),
+                      time_offset=hidden["camera_time_offset"], progress=False)
+    skipped = res.summary["skipped"]
+    assert skipped.get("corrupt image") == (counter["img"] + 5) // 10
+    assert skipped.get("NaN/inf transform odom->base_link") == (counter["tf"] + 3) // 10
+    assert res.summary["frames_with_pose"] > 0
+
+
+def test_truncated_bag_is_a_clear_error(tiny, tmp_path, capsys):
+    data = Path(tiny.bag).read_bytes()
+    dst = tmp_path / "trunc.bag"
+    dst.write_bytes(data[: len(data) // 2])
+    rc = cli_main(["process", str(dst), "--markers", tiny.markers, "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "trunc.bag" in err and "rosbag reindex" in err
+    assert not (tmp_path / "o" / "trajectory.tum").exists()
+
+
+@pytest.mark.parametrize("text,field", [("markers: [1, 2", "not valid YAML"),
+                                        ("dictionary: DICT_4X4_50\nsize: 0.2\nmarkers:\n  - {id: 1}\n",
+                                         "markers\\[0\\].position")])
+def test_bad_marker_map_is_named(tiny, tmp_path, capsys, text, field):
+    bad = tmp_path / "m.yaml"
+    bad.write_text(text)
+    rc = cli_main(["process", tiny.bag, "--markers", str(bad), "--out", str(tmp_path / "o"), "--quiet"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "m.yaml" in err
+    assert re.search(field, err)
+
+
+def test_cli_help_shows_examples(capsys):
+    for cmd in (["--help"], ["process", "--help"], ["timesync", "--help"], ["evaluate", "--help"]):
+        with pytest.raises(SystemExit) as e:
+            cli_main(cmd)
+        assert e.value.code == 0
+        assert "example" in capsys.readouterr().out
