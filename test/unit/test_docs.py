@@ -467,17 +467,40 @@ def test_documented_make_targets_exist():
 
 
 # ---------------------------------------------------------------------------------------------- links
-def test_relative_links_point_at_existing_files():
+def anchors(path: Path) -> set:
+    """GitHub's heading anchors of a Markdown file: lower case, punctuation dropped, spaces → '-',
+    repeats numbered -1, -2, ..."""
+    seen, out = {}, set()
+    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
+    for heading in re.findall(r"^#+\s+(.*?)\s*$", text, re.M):
+        slug = re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def test_relative_links_point_at_existing_files_and_headings():
     broken = []
     for path in documents():
         text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
         for target in re.findall(r"\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)", text):
-            if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
+            if re.match(r"^[a-z][a-z0-9+.-]*:", target):
                 continue
-            resolved = (LINK_BASE.get(path, path.parent) / target.split("#")[0]).resolve()
-            if not resolved.exists() and resolved not in GENERATED_BY_DEMO:
-                broken.append(f"{path.relative_to(ROOT)}: {target}")
+            file_part, _, fragment = target.partition("#")
+            resolved = (LINK_BASE.get(path, path.parent) / file_part).resolve() if file_part else path
+            if not resolved.exists():
+                if resolved not in GENERATED_BY_DEMO:
+                    broken.append(f"{path.relative_to(ROOT)}: {target}")
+            elif fragment and resolved.suffix == ".md" and fragment not in anchors(resolved):
+                broken.append(f"{path.relative_to(ROOT)}: {target} (no such heading)")
     assert not broken, "broken relative links:\n" + "\n".join(broken)
+
+
+def test_anchor_slugs_follow_github():
+    doc = DOC / "robot_localization.md"
+    assert {"a-no-ekf-the-node-owns-map--odom", "b-one-ekf-in-map-mode-launchekflaunch", "time"} <= anchors(doc)
+    assert {"node-abs_orient", "diagnostics", "diagnostics-1", "dynamic_reconfigure"} <= anchors(ROS_API)
 
 
 # ---------------------------------------------------------------------------------------------- messages
