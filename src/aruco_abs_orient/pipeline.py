@@ -50,6 +50,8 @@ class PipelineParams:
       tilt by more than this many σ is rejected before the filter (a wrong id, a moved marker).
     - ``fusion_gate``: a marker whose yaw disagrees with the frame's other markers by more than
       this many σ is left out of the frame's fused yaw (σ).
+    - ``init_search_interval``: before the filter is initialised (no prediction: every search
+      is a full-frame one, 40–90 ms at 3840×1920), search only every n-th image (frames).
     - ``jpeg_reduce``: decode JPEGs at 1/1, 1/2, 1/4 or 1/8 resolution (1 = full; accuracy
       falls with resolution, see bench/detection.py).
     """
@@ -62,6 +64,7 @@ class PipelineParams:
     min_range: float = 0.5
     elevation_gate: float = 5.0
     fusion_gate: float = 4.0
+    init_search_interval: int = 3
     jpeg_reduce: int = 1
 
     def validate(self) -> None:
@@ -69,6 +72,8 @@ class PipelineParams:
             v = getattr(self, f.name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise PipelineError(f"PipelineParams.{f.name}: expected a finite non-negative number, got {v!r}")
+        if self.init_search_interval < 1:
+            raise PipelineError(f"PipelineParams.init_search_interval: expected ≥ 1, got {self.init_search_interval!r}")
         if self.jpeg_reduce not in (1, 2, 4, 8):
             raise PipelineError(f"PipelineParams.jpeg_reduce: expected 1, 2, 4 or 8, got {self.jpeg_reduce!r}")
 
@@ -196,6 +201,7 @@ class AbsOrientPipeline:
         self.tracker = MarkerTracker(self.marker_map, self.detector_params)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
         self.last_stamp: Optional[float] = None
+        self._uninitialised_frames = 0
 
     def _count(self, key: str, n: int = 1) -> None:
         self.stats[key] = self.stats.get(key, 0) + n
@@ -248,6 +254,11 @@ class AbsOrientPipeline:
         """
         res = FrameResult(stamp=float(t))
         self._count("frames")
+        if not self.filter.initialised:
+            self._uninitialised_frames += 1
+            if (self._uninitialised_frames - 1) % int(self.params.init_search_interval):
+                self._count("skipped_before_init")
+                return res
         clock = time.perf_counter()
         odom_T_base = np.asarray(odom_T_base, dtype=float)
         if odom_T_base.shape != (4, 4) or not np.all(np.isfinite(odom_T_base)):

@@ -112,6 +112,8 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
     errors: Dict[str, int] = {}
     frames = with_pose = 0
     odom_missing = 0
+    timing_sum: Dict[str, float] = {}
+    modes: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)
     stop = threading.Event()
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
@@ -142,6 +144,10 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
                     odom_missing += 1
                     continue
                 res = pipe.process_image(stamp - time_offset, image, T_odom)
+                for k, v in res.timings.items():
+                    timing_sum[k] = timing_sum.get(k, 0.0) + v
+                if res.tracking is not None:
+                    modes[res.tracking.mode] = modes.get(res.tracking.mode, 0) + 1
                 if res.error:
                     key = res.error.split(":")[0]
                     errors[key] = errors.get(key, 0) + 1
@@ -177,6 +183,8 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
         "skipped": {**data.skipped, **errors},
         "warnings": data.warnings,
         "pipeline_stats": dict(pipe.stats),
+        "search_modes": modes,
+        "mean_ms_per_frame": {k: v / max(frames, 1) for k, v in timing_sum.items()},
         "params": asdict(params),
         "bag_duration_s": duration,
         "wall_time_s": wall,
