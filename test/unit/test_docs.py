@@ -326,6 +326,17 @@ def test_every_launch_argument_is_documented_with_its_default(api):
     assert not problems, "doc/ros_api.md is out of date:\n" + "\n".join(problems)
 
 
+def test_every_message_field_is_documented(api):
+    fields = set()
+    for line in (ROOT / "msg" / "MarkerObservation.msg").read_text().splitlines():
+        words = line.split("#")[0].split()
+        if len(words) == 2:
+            fields.add(words[1])
+    assert {"id", "azimuth", "yaw_sigma", "method"} <= fields
+    documented = set(table_rows(section(api, 2, "Messages")))
+    assert not fields - documented, f"doc/ros_api.md: MarkerObservation fields missing: {sorted(fields - documented)}"
+
+
 def test_a_missing_parameter_is_caught():
     """The check fails on a document that lacks one parameter or states a wrong default."""
     body = "| name | default |\n|---|---|\n| `~tf_rate` | 20.0 Hz |\n| `~publish_tf` | `true` |\n"
