@@ -1,7 +1,8 @@
 """``aruco-abs-orient``: the offline tools, on recorded bags, without a ROS master.
 
 Sub-commands: ``process`` (bag → trajectory, observations, summary), ``timesync`` (camera ↔
-total-station time offset), ``evaluate`` (a processed run vs a reference: report and plots).
+total-station time offset), ``evaluate`` (a processed run vs a reference: report and plots),
+``calibrate`` (boresight and lever arm of the camera → static-tf YAML).
 Bad input gives one line naming the file/topic/field and exit code 2; exit 1 when nothing useful
 could be produced.
 """
@@ -23,6 +24,7 @@ EXAMPLES = """examples:
   aruco-abs-orient timesync run.bag
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367
   aruco-abs-orient evaluate results/ --reference truth.tum
+  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --image-topic /theta/image/compressed
 """
 
@@ -78,6 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="output directory of `process` (trajectory.tum, observations.csv)")
     p.add_argument("--reference", required=True, help="TUM file of base_link in map (e.g. the truth)")
     p.add_argument("--out", help="report directory (default: the run directory)")
+
+    from .calibrate import add_parser as add_calibrate
+
+    add_calibrate(sub)
     return parser
 
 
@@ -150,6 +156,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
+        if a.command == "calibrate":
+            return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate}[a.command](a)
     except (MarkerMapError, BagError, PipelineError, EvaluateError) as e:
         return _fail(str(e))
