@@ -1,16 +1,21 @@
 """ArUco markers in 360° equirectangular frames (DESIGN §4 steps 1–2).
 
-Full-frame detection with cv2.aruco and subpixel corners, tuned for small far markers;
-markers straddling the ±180° seam (a strip rolled by W/2 around the seam); markers near
-the poles or very close re-detected in gnomonic (perspective) views, where their edges
-are straight and the corners are refined without the equirect distortion.
+Full-frame detection (:meth:`MarkerDetector.detect`): cv2.aruco tuned for small far
+markers on the whole frame; a strip around the ±180° seam searched again with its halves
+swapped (the image rolled by W/2 there), for markers straddling the seam; two gnomonic
+(perspective) views of the polar bands, where equirect shapes are too distorted for
+OpenCV. Then this module's own steps: every marker's corners are refined by fitting
+straight lines to its four edges in a gnomonic view (never in the equirect, where they
+are curved), every id OpenCV read is checked by reading the cells again, and the quads
+OpenCV rejected — small far markers whose 1–2 px cells it cannot threshold, close
+markers too curved for it — are refined and read here (:func:`decode_quad`).
 
 Each marker becomes a :class:`MarkerObservation` whose centre is the intersection of the
 diagonals **on the sphere** (great circles through opposite corners), not in pixel space:
 the pixel-space intersection of an equirect image is biased toward the horizon by about
-δ²·tan(el)/4 (δ the marker's angular size, el its elevation), 0.5–0.7° at 1 m and
-45–60° elevation. :func:`pixel_centre_bearing` computes that biased centre, for the
-benchmark and tests only.
+δ²·tan(el)/4 (δ the marker's angular size, el its elevation) for a marker standing on a
+corner and up to 1.5× that for an upright one: 0.5–1.3° at 1 m and 45–60° elevation.
+:func:`pixel_centre_bearing` computes that biased centre, for the benchmark and tests only.
 
 Map-guided tracking (DESIGN §4 step 3) lives in :mod:`aruco_abs_orient.tracking`.
 
@@ -54,9 +59,6 @@ __all__ = [
     "RESCUE_SHRINK",
 ]
 
-METHODS = ("full", "seam", "gnomonic", "tracked")
-
-
 class DetectionError(ValueError):
     """An image, JPEG or dictionary the detector cannot use; the caller counts and skips."""
 
@@ -93,7 +95,7 @@ class DetectorParams:
     360° handling:
 
     - ``seam_strip_deg``: half width (degrees of azimuth) of the strip re-searched around
-      the ±180° seam; markers wider than this on the seam need the gnomonic path.
+      the ±180° seam (a marker on the seam must fit in it: 0.19 m at ≥ 0.45 m).
     - ``pole_views``: search two gnomonic views (zenith, nadir) for markers in the polar
       bands ``|el| > pole_band_deg`` (degrees), where equirect shapes are too distorted.
     - ``max_view_px``: cap on a view's side (pixels); larger views lower their resolution.
@@ -104,12 +106,12 @@ class DetectorParams:
       gnomonic view (:func:`refine_corners`); OpenCV's subpixel corners are off by
       0.2–0.6 px on blurred small markers.
     - ``view_refine_iterations``: edge-fit iterations for markers OpenCV found in a rendered
-      gnomonic view (tracking ROIs), whose corners are good to start with (elsewhere 2).
+      gnomonic view (tracking ROIs, polar views), refined in that image.
     - ``verify_decode``: re-read every OpenCV-decoded marker (:func:`decode_marker`) and drop
       it unless the cells give the same id (OpenCV misreads small markers on texture).
-    - ``rescue_max_side_px``: quads OpenCV rejected with sides up to this (pixels of the
-      searched image per equirect pixel) are refined and decoded by :func:`decode_marker`;
-      this is what reaches 12 m (9–10 px markers at 3840 px).
+    - ``rescue_max_side_px``: quads OpenCV rejected with sides up to this (equirect pixels)
+      are refined and read by :func:`decode_quad` (as they are, and shrunk by
+      ``RESCUE_SHRINK``); this is what reaches 12 m (9–10 px markers at 3840 px).
     - ``close_range_size_deg``: so are rejected quads with sides above this (degrees): close
       markers whose equirect image is too curved for OpenCV to read.
     - ``decode_min_contrast`` (grey levels), ``decode_min_correlation``, ``decode_min_lead``,
@@ -810,7 +812,8 @@ class MarkerDetector:
         (stacked, separated by flat grey rows), OpenCV searches it once, every find is
         assigned to its view and kept only if it is that view's ``expect_ids`` entry; its
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
-        get their rejected quads decoded (:func:`decode_quad`), as in :meth:`detect`.
+        get their rejected quads within ``gate_deg`` of the view centre decoded
+        (:func:`decode_quad`), as in :meth:`detect`.
         """
         if not views:
             return []
@@ -849,8 +852,12 @@ class MarkerDetector:
             refined = refine_quads(sample, quads, bits, q.view_refine_iterations) if q.edge_refine else quads
             for k, c, r in zip(tiles, quads, refined):
                 add(k, expect_ids[k], c if np.isnan(r).any() else r)
+        def near_centre(c, k):  # the expected marker's centre is within the gate of the view's
+            dx = c.mean(axis=0) - (views[k].cx, views[k].cy + tops[k])
+            return float(np.hypot(*dx)) <= math.tan(math.radians(q.gate_deg)) * views[k].focal + 2.0
+
         tries = [(k, c.mean(axis=0) + shrink * (c - c.mean(axis=0)))
-                 for c, k in ((c, tile_of(c)) for c in rejected) if k >= 0 and k not in found
+                 for c, k in ((c, tile_of(c)) for c in rejected) if k >= 0 and k not in found and near_centre(c, k)
                  for shrink in RESCUE_SHRINK]
         if tries:
             refined = refine_quads(sample, np.array([t[1] for t in tries]), bits)

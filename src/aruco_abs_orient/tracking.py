@@ -23,10 +23,10 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .camera import Equirect, angle_between
+from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
 from .detection import DetectionError, DetectorParams, MarkerDetector, MarkerObservation, dedupe_observations, to_grey
 from .markers import MarkerMap
-from .transforms import invert_T, transform_points
+from .transforms import invert_T, rot_z, transform_points, wrap_angle
 
 __all__ = ["TrackingError", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
 
@@ -91,19 +91,22 @@ class MarkerTracker:
         self._views = {}
 
     def _roi(self, equirect: Equirect, m: MarkerPrediction, fov: float, upsample: float):
-        """The ROI view of marker ``m`` and its remap maps; last frame's are reused while the
-        prediction stays within a tenth of the view's field of view of its centre and the
-        wanted field of view within 10 % (the camera moves little between frames)."""
+        """The ROI view of marker ``m`` and its remap maps. Last frame's are reused, turned
+        about the vertical, while the prediction's elevation stays within a tenth of the
+        view's field of view of its centre and the wanted field of view within 10 %: turning
+        a view about the camera's z axis only shifts its equirect columns (exactly)."""
         key = (m.id, equirect.width)
+        az, el = (float(a) for a in bearing_to_azel(m.bearing))
         cached = self._views.get(key)
         if cached is not None:
-            view, maps, cfov = cached
-            if (float(angle_between(view.center_bearing, m.bearing)) < 0.1 * cfov
-                    and abs(fov - cfov) < 0.1 * cfov):
-                return view, maps
+            view, maps, cfov, caz, cel = cached
+            if abs(el - cel) < 0.1 * cfov and abs(fov - cfov) < 0.1 * cfov:
+                turn = float(wrap_angle(az - caz))
+                turned = GnomonicView(rot_z(turn) @ view.center_bearing, (view.width, view.height), view.focal)
+                return turned, (maps[0] - np.float32(turn / equirect.rad_per_px), maps[1])
         view = self.detector.view_around(equirect, m.bearing, fov, upsample)
         maps = self.detector.view_maps(view, equirect, step=4)
-        self._views[key] = (view, maps, fov)
+        self._views[key] = (view, maps, fov, az, el)
         return view, maps
 
     def predict(self, map_T_camera, equirect: Equirect) -> List[MarkerPrediction]:
