@@ -534,17 +534,28 @@ def quoted_messages(path: Path) -> list:
     return [line.strip()[2:].strip() for line in path.read_text().splitlines() if line.strip().startswith("> ")]
 
 
-def message_is_printed(message: str, templates: list) -> bool:
-    """Some template contains the message's fixed parts in order, a variable part where it has one."""
+def _in_one_template(message: str, templates: list) -> bool:
     parts = [re.escape(p) for p in re.split(r"<[^<>]*>", message)]
     pattern = re.compile("[^\n]*?".join(parts))
     return any(pattern.search(t) for t in templates)
 
 
-def test_troubleshooting_quotes_messages_the_code_prints():
+def message_is_printed(message: str, templates: list) -> bool:
+    """Some template holds the message's fixed parts in order (a variable part where it has ``<...>``), or
+    the message is a prefix ending in ': ' plus an exception's text, each from one template."""
+    if _in_one_template(message, templates):
+        return True
+    splits = [m.end() for m in re.finditer(": ", message)]
+    return any(_in_one_template(message[:i] + "<text>", templates) and _in_one_template(message[i:], templates)
+               for i in splits)
+
+
+def test_quoted_messages_are_printed_by_the_code():
     templates = message_templates()
-    messages = quoted_messages(DOC / "troubleshooting.md")
+    messages = [(p.name, m) for p in documents() for m in quoted_messages(p)]
     assert len(messages) >= 15
-    missing = [m for m in messages if not message_is_printed(m, templates)]
-    assert not missing, "doc/troubleshooting.md quotes messages the code does not print:\n" + "\n".join(missing)
+    missing = [f"{doc}: {m}" for doc, m in messages if not message_is_printed(m, templates)]
+    assert not missing, "the documents quote messages the code does not print:\n" + "\n".join(missing)
     assert not message_is_printed("no prism at all", templates)  # the check can fail
+    assert not message_is_printed("no prism <x> at all", templates)
+    assert not message_is_printed("aruco-abs-orient calibrate: error: <bag>: cannot frobnicate", templates)
