@@ -771,7 +771,10 @@ class MarkerDetector:
                     continue
                 for shrink in RESCUE_SHRINK:
                     quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
-                    rb = refine_corners(grey, equirect, to_bearing(quad[:, 0], quad[:, 1]), bits)
+                    b = to_bearing(quad[:, 0], quad[:, 1])
+                    if decode_marker(grey, equirect, b, self.backend.codes, *_LOOSE_DECODE) is None:
+                        continue  # a quick loose reading first: most large quads are texture
+                    rb = refine_corners(grey, equirect, b, bits)
                     hit = self._decode(grey, equirect, rb) if rb is not None else None
                     if hit is not None and (expect_id is None or hit[0] == expect_id):
                         out.append(self.observation(equirect, hit[0], hit[1], method))
@@ -968,6 +971,8 @@ def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
     return bool(u.min() < -0.5 < u.max() or u.min() < equirect.width - 0.5 < u.max())
 
 
+#: decode thresholds of a quick first reading of a large rejected quad from OpenCV's corners
+_LOOSE_DECODE = (20.0, 0.5, 0.05, 0.6)
 #: scales tried on a rejected quad: the black square itself, the outline of its white quiet
 #: zone (6/8 for 4×4 codes), a looser outline (OpenCV's candidate merging keeps either)
 RESCUE_SHRINK = (1.0, 0.75, 0.55)
