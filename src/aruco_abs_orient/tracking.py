@@ -4,8 +4,9 @@ With a predicted camera pose ``map_T_camera`` and the marker map, each marker's 
 angular size are predicted and the marker is looked for only in a small gnomonic view
 around the prediction (upsampled for small far markers; all views of a frame stacked into
 one mosaic searched by one OpenCV call; a view is reused while the camera turns about its
-vertical axis), instead of in the whole equirect frame. The whole frame is searched (:meth:`MarkerDetector.detect`) at start-up,
-when no pose is given, after a loss and every ``max_full_interval`` frames if set; while
+vertical axis), instead of in the whole equirect frame. The whole frame is searched
+(:meth:`MarkerDetector.detect`) at start-up, when no pose is given, after a loss and every
+``max_full_interval`` frames if set; while
 tracking, a vertical strip of the equirect sweeps around the panorama (one
 ``sweep_tile_deg`` tile per frame, once around in ``sweep_period_frames`` frames) so
 markers the prediction misses are still found. Ids not in the map are rejected, and so is
