@@ -392,6 +392,16 @@ def test_cli_help_runs_and_shows_an_example(command):
         assert "example" in sub.format_help().lower(), f"{command} {name} --help shows no example"
 
 
+def test_every_command_is_in_the_tools_table(api):
+    rows = table_rows(section(api, 2, "Command-line tools"))
+    expected = set()
+    for command, module in console_scripts().items():
+        subs = sub_parsers(cli_parser(module))
+        expected |= {f"{command} {name}" for name in subs} if subs else {command}
+    assert "aruco-abs-orient process" in expected
+    assert not expected - set(rows), f"doc/ros_api.md: commands missing: {sorted(expected - set(rows))}"
+
+
 # ---------------------------------------------------------------------------------------------- doc examples
 def documents() -> list:
     return sorted(DOC.glob("*.md")) + [ROOT / "README.md"]
