@@ -72,6 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search", type=float, nargs=2, default=(-1.0, 1.0), metavar=("MIN", "MAX"),
                    help="offsets searched, seconds (default -1 1)")
     p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
+    p.add_argument("--min-confidence", type=float, default=0.5, metavar="C",
+                   help="refuse an estimate whose confidence (0-1) is below C (default 0.5)")
     _add_topics(p)
 
     p = sub.add_parser("evaluate", help="a processed run vs a reference TUM: report, plots (paper figs. 11-13)",
@@ -130,6 +132,9 @@ def cmd_timesync(a: argparse.Namespace) -> int:
         print(f"paper's cross-correlation baseline: {base['not_available']}")
     if "plot" in out:
         print(f"wrote {out['plot']}")
+    if est.confidence < a.min_confidence:
+        return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
+                     "weak: record longer, with more turns of varying rate)", 1)
     print(f"use: aruco-abs-orient process {a.bag} --time-offset {est.offset:.4f} ...")
     return 0
 

@@ -28,7 +28,7 @@ import numpy as np
 from ..markers import ARUCO_DICTIONARIES, Marker, MarkerMap
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
 from ..tum import atomic_write_text
-from .render import PROFILES, PlacedMarker
+from .render import PROFILES, PlacedMarker, facing_marker
 
 __all__ = ["ScenarioError", "ScenarioConfig", "PRESETS", "Scenario", "PrismTrack"]
 
@@ -75,6 +75,8 @@ class ScenarioConfig:
     prism_noise: float = 0.002  # prism position σ per axis, m
     prism_dropout: float = 0.02  # probability of losing one prism sample
     prism_gaps: int = 2  # number of ~1 s tracking losses (while driving)
+    impostor_rate: float = 0.0  # fraction of frames showing a false id: a second marker with the
+    # id of the map's first marker, 4 m ahead-left of the camera (not where the map has it)
 
     def validate(self) -> ScenarioConfig:
         """Check ranges; raises ScenarioError naming the field. Returns self."""
@@ -100,6 +102,7 @@ class ScenarioConfig:
         need(abs(self.camera_time_offset) < 10, "camera_time_offset", "expected |offset| < 10 s")
         need(0 < self.prism_rate <= 100, "prism_rate", "expected Hz in (0, 100]")
         need(0 <= self.prism_dropout < 1, "prism_dropout", "expected a probability in [0, 1)")
+        need(0 <= self.impostor_rate <= 1, "impostor_rate", "expected a fraction in [0, 1]")
         need(self.prism_jitter < 0.5 / self.prism_rate, "prism_jitter", "expected less than half a period")
         for name in ("prism_noise", "vo_translation_noise", "vo_yaw_walk_deg_per_sqrt_s", "prism_gaps"):
             need(getattr(self, name) >= 0, name, "expected >= 0")
@@ -354,14 +357,25 @@ class Scenario:
         return _upright_rotation(self.marker_normals[marker_id])
 
     def placed_markers(self, t: float) -> List[PlacedMarker]:
-        """The markers in the true camera frame at true time t, for the renderer."""
+        """The markers in the true camera frame at true time t, for the renderer (with the
+        impostor in the frames :meth:`has_impostor` picks)."""
         camera_T_map = invert_T(self.map_T_camera(float(t)))
         out = []
         for m in self.markers:
             centre = transform_points(camera_T_map, m.position)
             R = camera_T_map[:3, :3] @ self.map_R_marker(m.id)
             out.append(PlacedMarker(m.id, m.size, centre, R))
+        if self.has_impostor(t):
+            first = self.markers.ids[0]
+            out.append(facing_marker(first, self.markers[first].size, np.array([2.8, 2.8, 0.3])))
         return out
+
+    def has_impostor(self, t: float) -> bool:
+        """Whether the frame at true time t shows the false-id impostor (seeded, per frame)."""
+        rate = self.config.impostor_rate
+        if rate <= 0.0:
+            return False
+        return bool(np.random.default_rng([self.config.seed, 7919, int(round(float(t) * 1e3))]).random() < rate)
 
     def camera_yaw(self, t):
         """Yaw (radians) of the true camera in map at true time(s) t (rolls the background)."""
