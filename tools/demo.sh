@@ -32,7 +32,7 @@ step "3/4 process the bag with the estimated offset"
 aruco-abs-orient process "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --out "$RUN" --time-offset "$OFFSET"
 
 step "4/4 evaluate against the truth"
-aruco-abs-orient evaluate "$RUN" --reference "$SCEN/truth.tum"
+aruco-abs-orient evaluate "$RUN" --reference "$SCEN/truth.tum" --overview "$SCEN/scenario.bag" "$SCEN/markers.yaml"
 
 printf '\n\033[1mdemo outputs\033[0m in %s:\n' "$RUN"
 (cd "$RUN" && ls -1 trajectory.tum observations.csv summary.json report.md report.json ./*.png)

@@ -30,6 +30,7 @@ from .tum import atomic_write_bytes, atomic_write_text
 
 __all__ = [
     "EvaluationError",
+    "save_figure",
     "ErrorStats",
     "YawErrors",
     "PairwiseDifferences",
@@ -311,7 +312,7 @@ def _figure(width_px: int, height_px: int, dpi: int = 100):
     return fig
 
 
-def _save(fig, path: str) -> str:
+def save_figure(fig, path: str) -> str:
     """Write the figure as PNG atomically (never a half-written plot)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=fig.dpi)
@@ -334,7 +335,7 @@ def plot_yaw_errors(path: str, errors: Mapping[str, YawErrors], title: str = "He
     if errors:
         ax.legend(loc="upper right", fontsize="small", markerscale=4)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_marker_yaws(path: str, series: Mapping[int, Tuple[np.ndarray, np.ndarray]],
@@ -364,7 +365,7 @@ def plot_marker_yaws(path: str, series: Mapping[int, Tuple[np.ndarray, np.ndarra
     ax2.set_ylabel("difference [deg]")
     ax2.grid(True, alpha=0.3)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_frame_position(path: str, bias: FramePositionBias, size: Tuple[int, int] = (1200, 600)) -> str:
@@ -383,7 +384,7 @@ def plot_frame_position(path: str, bias: FramePositionBias, size: Tuple[int, int
     ax.set_title(f"Yaw error by position in the frame (max |bias| {math.degrees(bias.max_abs_bias):.3f}°)")
     ax.invert_xaxis()  # as in the image: azimuth grows to the left
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_coherence(path: str, estimate, baseline=None, size: Tuple[int, int] = (1000, 500)) -> str:
@@ -410,7 +411,7 @@ def plot_coherence(path: str, estimate, baseline=None, size: Tuple[int, int] = (
     ax.legend(handles, labels, loc="lower center", fontsize="small")
     ax.set_title("Camera ↔ total-station time offset")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------- report

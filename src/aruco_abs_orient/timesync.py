@@ -208,7 +208,7 @@ class _HeadingGrid:
     """The track's velocity on a regular grid, interpolated linearly (the unit circle, not the
     angle, is interpolated), with a per-time weight speed² (0 where the heading is invalid)."""
 
-    def __init__(self, t, xy, smooth: float, min_speed: float, step: float = 0.005):
+    def __init__(self, t, xy, smooth: float, min_speed: float, step: float = 0.005, prism_in_base=None):
         xy = np.asarray(xy, dtype=float)
         if xy.ndim != 2 or xy.shape[1] < 2:
             raise TimeSyncError(f"track positions: expected an (N, 2) or (N, 3) array, got shape {xy.shape}")
@@ -233,6 +233,14 @@ class _HeadingGrid:
         with np.errstate(invalid="ignore", divide="ignore"):
             bias = smooth**2 * (np.gradient(speed, step) * rate / speed + 0.5 * np.gradient(rate, step))
         heading = np.where(h.valid & np.isfinite(bias), h.heading - bias, h.heading)
+        if prism_in_base is not None:
+            # The prism is not base_link: on a platform that drives along its x axis, a prism at
+            # (r_x, r_y) moves with body velocity (v − ω r_y, ω r_x), i.e. along base_link's
+            # heading turned by β = asin(ω r_x / s) (s its speed). Uncorrected, β ∝ ω mimics a
+            # time offset of −r_x / v (−0.3 s for a prism 25 cm behind the axle at 0.8 m/s).
+            with np.errstate(invalid="ignore", divide="ignore"):
+                beta = np.arcsin(np.clip(rate * float(prism_in_base[0]) / speed, -1.0, 1.0))
+            heading = np.where(h.valid & np.isfinite(beta), heading - beta, heading)
         self.ux = np.where(h.valid, np.cos(heading), 0.0)
         self.uy = np.where(h.valid, np.sin(heading), 0.0)
         self.weight = np.where(h.valid, h.speed**2, 0.0)
@@ -498,7 +506,7 @@ def estimate_offset(t_vo, yaw_vo, t_track, xy_track, weights=None, search=(-1.0,
                     smooth: float = 0.5, min_speed: float = 0.05, window: Optional[float] = 60.0,
                     max_drift: float = math.radians(20.0) / 60.0, step: float = 0.02,
                     min_duration: float = 10.0, min_turn_rate: float = math.radians(2.0),
-                    sigma_ref: float = 0.01) -> OffsetEstimate:
+                    sigma_ref: float = 0.01, prism_in_base=None) -> OffsetEstimate:
     """Time offset τ (s) with camera/VO stamp = total-station time + τ, by phase coherence.
 
     ``t_vo`` (N,) s and ``yaw_vo`` (N,) rad: VO yaw of base_link on the camera clock (any constant
@@ -511,10 +519,13 @@ def estimate_offset(t_vo, yaw_vo, t_track, xy_track, weights=None, search=(-1.0,
     ``min_duration`` s of moving overlap, a platform that never moves, a heading whose turn rate
     varies by less than ``min_turn_rate`` rad/s RMS, or a peak at the search edge.
 
+    ``prism_in_base`` (x, y[, z]) m: the prism's lever arm in base_link; the track heading is turned
+    from the prism's direction of travel to base_link's (a platform driving along its x axis).
+
     ``confidence`` = peak coherence × uniqueness (1 when every rival peak is ≥ 10 % lower)
     × 1/(1 + (σ/``sigma_ref``)²).
     """
-    grid = _HeadingGrid(t_track, xy_track, smooth, min_speed)
+    grid = _HeadingGrid(t_track, xy_track, smooth, min_speed, prism_in_base=prism_in_base)
     ch = _make_channel(t_vo, yaw_vo, weights, "VO yaw", window, drift=True)
     if len(ch.t) < 3:
         raise TimeSyncError(f"too short: only {len(ch.t)} VO samples")
@@ -526,7 +537,7 @@ def estimate_offset_from_marker_yaws(t_marker, yaw_marker, t_track, xy_track, ma
                                      min_speed: float = 0.05, window: Optional[float] = 60.0,
                                      max_drift: float = math.radians(20.0) / 60.0, step: float = 0.02,
                                      min_duration: float = 10.0, min_turn_rate: float = math.radians(2.0),
-                                     sigma_ref: float = 0.01) -> OffsetEstimate:
+                                     sigma_ref: float = 0.01, prism_in_base=None) -> OffsetEstimate:
     """Time offset τ (s, camera stamp = total-station time + τ) from absolute marker yaws.
 
     ``t_marker`` (K,) s on the camera clock and ``yaw_marker`` (K,) rad: per-frame absolute yaws of
@@ -535,7 +546,7 @@ def estimate_offset_from_marker_yaws(t_marker, yaw_marker, t_track, xy_track, ma
     (``t_vo``, ``yaw_vo``) as a second channel with its own offset and drift. The other parameters
     and the errors are those of ``estimate_offset``.
     """
-    grid = _HeadingGrid(t_track, xy_track, smooth, min_speed)
+    grid = _HeadingGrid(t_track, xy_track, smooth, min_speed, prism_in_base=prism_in_base)
     t_m, yaw_m = np.asarray(t_marker, dtype=float).ravel(), np.asarray(yaw_marker, dtype=float).ravel()
     if len(t_m) != len(yaw_m):
         raise TimeSyncError(f"marker yaws: {len(t_m)} stamps but {len(yaw_m)} yaws")

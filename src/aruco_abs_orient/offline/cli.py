@@ -72,8 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search", type=float, nargs=2, default=(-1.0, 1.0), metavar=("MIN", "MAX"),
                    help="offsets searched, seconds (default -1 1)")
     p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
-    p.add_argument("--min-confidence", type=float, default=0.5, metavar="C",
-                   help="refuse an estimate whose confidence (0-1) is below C (default 0.5)")
+    p.add_argument("--min-confidence", type=float, default=0.3, metavar="C",
+                   help="refuse an estimate whose confidence (0-1) is below C (default 0.3)")
     _add_topics(p)
 
     p = sub.add_parser("evaluate", help="a processed run vs a reference TUM: report, plots (paper figs. 11-13)",
@@ -82,6 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="output directory of `process` (trajectory.tum, observations.csv)")
     p.add_argument("--reference", required=True, help="TUM file of base_link in map (e.g. the truth)")
     p.add_argument("--out", help="report directory (default: the run directory)")
+    p.add_argument("--overview", nargs=2, metavar=("BAG", "MARKERS"),
+                   help="also draw overview.png: a frame of BAG with its markers above the trajectory")
 
     from .calibrate import add_parser as add_calibrate
 
@@ -143,6 +145,12 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     from .evaluate import evaluate_run
 
     res = evaluate_run(a.run, a.reference, a.out)
+    if a.overview:
+        from .evaluate import overview_figure
+
+        png = overview_figure(os.path.join(a.out or a.run, "overview.png"), a.overview[0], a.run, a.reference,
+                              MarkerMap.load(a.overview[1]))
+        print(f"wrote {png}")
     ape = res["heading_ape"].stats
     print(f"heading vs reference: RMSE {math.degrees(ape.rmse):.3f}°, p95 {math.degrees(ape.p95):.3f}°, "
           f"coverage {100 * ape.coverage:.1f} %")

@@ -113,3 +113,58 @@ def evaluate_run(run_dir: str, reference: str, out_dir: Optional[str] = None,
     md, js = ev.write_report(out_dir, results, title=f"aruco_abs_orient evaluation of {os.path.abspath(run_dir)}")
     results["report_md"], results["report_json"] = md, js
     return results
+
+
+def overview_figure(path: str, bag: str, run_dir: str, reference: str, marker_map, topics=None) -> str:
+    """One picture of a run (the README's): the 360° frame from the middle of the bag with the
+    markers found in it outlined and labelled, above the corrected trajectory of base_link vs the
+    reference, with its absolute heading and the markers. Returns ``path`` (PNG)."""
+    from matplotlib.figure import Figure
+
+    from ..detection import decode_jpeg
+    from ..tracking import MarkerTracker
+    from .bagio import BagTopics, iter_images, open_reader
+
+    topics = topics or BagTopics()
+    reader = open_reader(bag)
+    middle = sum(c.msgcount for c in reader.connections if c.topic == topics.image) // 2
+    reader.close()
+    frames = iter_images(bag, topics)
+    grey = None
+    for i, (_, payload) in enumerate(frames):
+        if i >= middle and isinstance(payload, bytes):
+            grey = decode_jpeg(payload)
+            break
+    frames.close()
+    if grey is None:
+        raise EvaluateError(f"{bag}: no decodable image from the middle of the bag on")
+    obs = MarkerTracker(marker_map).process(grey).observations
+    est, ref = read_tum(os.path.join(run_dir, "trajectory.tum")), read_tum(reference)
+
+    fig = Figure(figsize=(12, 10), dpi=100)
+    ax = fig.add_axes([0.03, 0.52, 0.94, 0.45])
+    ax.imshow(grey, cmap="gray", vmin=0, vmax=255)
+    for o in obs:
+        u, v = o.corners_px[:, 0], o.corners_px[:, 1]
+        ax.plot(np.append(u, u[0]), np.append(v, v[0]), "-", color="lime", lw=1.5)
+        ax.text(o.pixel[0], o.pixel[1] - 0.02 * grey.shape[0], f"id {o.id}", color="yellow", fontsize=9,
+                ha="center", bbox={"facecolor": "black", "alpha": 0.5, "pad": 1, "lw": 0})
+    ax.set_title(f"360° frame: {len(obs)} markers found (outlined, with ids)")
+    ax.set_axis_off()
+    ax2 = fig.add_axes([0.08, 0.05, 0.88, 0.42])
+    ax2.plot(ref.positions[:, 0], ref.positions[:, 1], "-", color="0.6", lw=3, label="truth")
+    ax2.plot(est.positions[:, 0], est.positions[:, 1], "-", color="C0", lw=1, label="corrected base_link")
+    step = max(len(est.stamps) // 25, 1)
+    yaw = yaw_of(est.rotations[::step])
+    ax2.quiver(est.positions[::step, 0], est.positions[::step, 1], np.cos(yaw), np.sin(yaw), color="C0",
+               scale=30, width=0.003, label="absolute heading")
+    pos = marker_map.positions()
+    ax2.plot(pos[:, 0], pos[:, 1], "s", color="k", ms=6, label="markers")
+    for m in marker_map:
+        ax2.annotate(str(m.id), m.position[:2], xytext=(4, 4), textcoords="offset points", fontsize=8)
+    ax2.set_aspect("equal")
+    ax2.set_xlabel("map x [m]")
+    ax2.set_ylabel("map y [m]")
+    ax2.legend(loc="best", fontsize=8)
+    ax2.grid(True, alpha=0.3)
+    return ev.save_figure(fig, path)

@@ -29,7 +29,7 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tu
         raise timesync.TimeSyncError(f"{bag}: no prism track: the time offset needs the total station's positions")
     t_vo, yaw_vo = data.odom.stamps, yaw_of(data.odom.rotations)
     t_tr, xy = data.prism_stamps, data.prism_positions[:, :2]
-    est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search)
+    est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, prism_in_base=data.base_T_prism[:3, 3])
     out: Dict[str, object] = {"timesync": est}
     try:
         out["timesync_baseline"] = timesync.cross_correlation_offset(t_vo, yaw_vo, t_tr, xy, search=search,
