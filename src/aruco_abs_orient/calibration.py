@@ -402,9 +402,9 @@ def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, para
     """Times (s), δ-measurements (rad: heading of travel − odometry yaw) and σ (rad) while driving."""
     t0 = max(float(t_prism[0]), float(odom.stamps[0])) + params.heading_smooth
     t1 = min(float(t_prism[-1]), float(odom.stamps[-1])) - params.heading_smooth
-    if t1 <= t0:
-        return np.zeros(0), np.zeros(0), np.zeros(0)
     tq = np.arange(t0, t1, params.heading_step)
+    if len(tq) == 0:
+        return tq, tq.copy(), tq.copy()
     dt = 0.2
     try:
         trk = heading_from_track(t_prism, p_prism, query_t=np.concatenate([tq - dt, tq, tq + dt]),

@@ -308,6 +308,8 @@ def test_cli_bad_input_is_one_line(rendered, tmp_path, capsys):
         ([out / "scenario.bag", "--markers", tmp_path / "none.yaml", "--out", tmp_path / "c.yaml"], "cannot read"),
         ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "no" / "c.yaml"],
          "not writable"),
+        ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "c.yaml", "--every", "0"],
+         "--every"),
     ]
     for argv, words in cases:
         code = _cli(argv + ["--quiet"])
