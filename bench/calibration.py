@@ -115,7 +115,8 @@ def main(argv=None) -> int:
     print(f"\nboresight calibration: preset {a.preset}, {cfg.duration:g} s at {cfg.fps:g} fps, "
           f"{cfg.width}x{cfg.width // 2}, seed {a.seed}, calibrated on every {a.every}. image")
     print(f"  observations {cal.n_used}/{cal.n_observations} of {cal.n_markers} markers from {obs.frames} images; "
-          f"driving {cal.moving_time:.0f} s ({cal.n_heading} track headings, RMS {math.degrees(cal.heading_rms):.3f}°); "
+          f"driving {cal.moving_time:.0f} s ({cal.n_heading} track headings, "
+          f"RMS {math.degrees(cal.heading_rms):.3f}°); "
           f"{t_cal:.0f} s (detection + estimate)")
     print(f"  truth rpy (deg)     {truth_rpy[0]:+.4f} {truth_rpy[1]:+.4f} {truth_rpy[2]:+.4f}")
     print(f"  estimate rpy (deg)  {est_rpy[0]:+.4f} {est_rpy[1]:+.4f} {est_rpy[2]:+.4f}   "
