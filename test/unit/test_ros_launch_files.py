@@ -1,0 +1,95 @@
+"""The launch files as roslaunch itself loads them (its XML loader, args, includes, $(find), $(eval)):
+exactly one owner of map->odom in every mode, the right nodes and parameters. Needs tools/env.sh."""
+import os
+from pathlib import Path
+
+import pytest
+import roslaunch.config
+import roslaunch.core
+import roslaunch.xmlloader
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def load(name, **args):
+    config = roslaunch.config.ROSLaunchConfig()
+    loader = roslaunch.xmlloader.XmlLoader()
+    loader.ignore_unset_args = False  # as roslaunch's own command line does
+    loader.load(str(ROOT / "launch" / name), config, verbose=False,
+                                         argv=["roslaunch"] + [f"{k}:={v}" for k, v in args.items()])
+    return config
+
+
+def nodes(config):
+    return {(n.package, n.type): n for n in config.nodes}
+
+
+def map_odom_owners(config):
+    """Nodes configured to broadcast map->odom: abs_orient with publish_tf true, the EKF with publish_tf true."""
+    owners = []
+    for n in config.nodes:
+        ns = "/" + n.name
+        if (n.package, n.type) == ("aruco_abs_orient", "abs_orient") and config.params[ns + "/publish_tf"].value:
+            owners.append(n.name)
+        if ((n.package, n.type) == ("robot_localization", "ekf_localization_node")
+                and config.params[ns + "/publish_tf"].value and config.params[ns + "/world_frame"].value == "map"):
+            owners.append(n.name)
+    return owners
+
+
+@pytest.mark.parametrize("use_ekf", ["true", "false"])
+def test_live_launch_has_one_map_odom_owner(use_ekf):
+    c = load("live.launch", markers="/m.yaml", calibration="/c.yaml", use_ekf=use_ekf, port="socket://localhost:1")
+    assert map_odom_owners(c) == (["ekf_map"] if use_ekf == "true" else ["abs_orient"])
+    n = nodes(c)
+    assert ("aruco_abs_orient", "static_tfs") in n and c.params["/lever_arms/calibration"].value == "/c.yaml"
+    assert ("aruco_abs_orient", "ms60_driver") in n
+    assert (("aruco_abs_orient", "tf_to_odometry") in n) == (use_ekf == "true")
+    assert c.params["/abs_orient/markers"].value == "/m.yaml"
+
+
+def test_live_launch_without_calibration_or_ms60():
+    c = load("live.launch", markers="/m.yaml", use_ms60="false")
+    n = nodes(c)
+    assert ("aruco_abs_orient", "static_tfs") not in n and ("aruco_abs_orient", "ms60_driver") not in n
+    assert map_odom_owners(c) == ["abs_orient"]
+
+
+@pytest.mark.parametrize("use_ekf", ["true", "false"])
+def test_postprocess_launch(use_ekf, tmp_path):
+    c = load("postprocess.launch", bag="/data/run.bag", markers="/m.yaml", use_ekf=use_ekf, time_offset="0.367",
+             record=str(tmp_path / "out.bag"), rate="2.0")
+    assert map_odom_owners(c) == (["ekf_map"] if use_ekf == "true" else ["abs_orient"])
+    assert c.params["/use_sim_time"].value is True
+    n = nodes(c)
+    play = n[("rosbag", "play")]
+    assert play.required and "--clock" in play.args and "--rate=2.0" in play.args
+    assert play.args.endswith("/data/run.bag")
+    assert "--loop" not in play.args
+    rec = n[("rosbag", "record")]
+    assert f"--output-name={tmp_path / 'out.bag'}" in rec.args and "/odometry/filtered" in rec.args
+    assert c.params["/abs_orient/time_offset"].value == 0.367
+
+
+def test_postprocess_launch_loop_and_no_record():
+    c = load("postprocess.launch", bag="/b.bag", markers="/m.yaml", loop="true")
+    n = nodes(c)
+    assert "--loop" in n[("rosbag", "play")].args and ("rosbag", "record") not in n
+
+
+def test_ekf_launch_loads_the_package_config():
+    c = load("ekf.launch")
+    ekf = "/ekf_map/"
+    assert c.params[ekf + "world_frame"].value == "map" and c.params[ekf + "odom0"].value == "odometry/vo"
+    assert c.params[ekf + "odom0_differential"].value is True
+    # masks: orientation message -> yaw only; prism pose -> x, y, z only
+    assert c.params[ekf + "pose0_config"].value[:6] == [False] * 5 + [True]
+    assert c.params[ekf + "pose1_config"].value[:6] == [True] * 3 + [False] * 3
+    assert len(c.params[ekf + "process_noise_covariance"].value) == 225
+    assert len(c.params[ekf + "initial_estimate_covariance"].value) == 225
+    assert os.path.basename(c.params[ekf + "pose0"].value) == "orientation"
+
+
+def test_abs_orient_launch_requires_markers():
+    with pytest.raises(roslaunch.core.RLException, match="markers"):
+        load("abs_orient.launch")
