@@ -34,6 +34,8 @@ from .bagio import BagData, BagTopics, iter_images, read_bag_data
 
 __all__ = ["ProcessResult", "process_bag", "OBSERVATION_COLUMNS"]
 
+PRISM_LOOKAHEAD = 2.0  # s of prism samples ahead of the image handed to the pipeline (interpolation)
+
 OBSERVATION_COLUMNS = [
     "time", "id", "method", "azimuth_deg", "elevation_deg", "pixel_u", "pixel_v", "angular_size_deg",
     "bearing_sigma_deg", "range_m", "yaw_deg", "yaw_sigma_deg", "residual_deg", "accepted", "reason",
@@ -103,8 +105,7 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
     data = data or read_bag_data(bag, topics)
     os.makedirs(out_dir, exist_ok=True)
     pipe = AbsOrientPipeline(marker_map, data.base_T_camera, data.base_T_prism, params, **pipeline_kwargs)
-    for t, p in zip(data.prism_stamps, data.prism_positions):
-        pipe.add_prism(float(t), p)
+    next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
 
     fd, obs_tmp = tempfile.mkstemp(prefix=".observations.csv.", suffix=".tmp", dir=out_dir)
     stamps: List[float] = []
@@ -143,7 +144,11 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
                 if not bool(valid):
                     odom_missing += 1
                     continue
-                res = pipe.process_image(stamp - time_offset, image, T_odom)
+                t = stamp - time_offset
+                while next_prism < len(data.prism_stamps) and data.prism_stamps[next_prism] <= t + PRISM_LOOKAHEAD:
+                    pipe.add_prism(float(data.prism_stamps[next_prism]), data.prism_positions[next_prism])
+                    next_prism += 1
+                res = pipe.process_image(t, image, T_odom)
                 for k, v in res.timings.items():
                     timing_sum[k] = timing_sum.get(k, 0.0) + v
                 if res.tracking is not None:
