@@ -63,6 +63,11 @@ class BadInputs(unittest.TestCase):
         dyaw = math.degrees(abs(float(wrap_angle(yaw_of(T[:3, :3]) - yaw_of(scene.MAP_T_ODOM[:3, :3])))))
         return dyaw, float(((T[:3, 3] - scene.MAP_T_ODOM[:3, 3]) ** 2).sum() ** 0.5)
 
+    def map_odom_age(self):
+        """s (wall clock = ROS time here) since the stamp of the newest map->odom."""
+        latest = self.tf.get_latest_common_time("map", "odom")
+        return (rospy.Time.now() - latest).to_sec()
+
     def assert_map_odom_right(self):
         dyaw, dpos = self.map_odom_error()
         self.assertLess(dyaw, 0.3, "map->odom yaw error (deg)")
@@ -76,6 +81,8 @@ class BadInputs(unittest.TestCase):
         s = self.wait_status(lambda s: s.level == DiagnosticStatus.WARN and needle in s.message, seconds + 3,
                              f"diagnostics warn '{needle}'")
         time.sleep(max(0.0, start + seconds - time.monotonic()))
+        if not inputs.get("nan_tf"):  # odometry still flows: map->odom keeps coming at its newest stamp
+            self.assertLess(self.map_odom_age(), 0.5, f"map->odom not re-published during '{needle}'")
         self.feed.image, self.feed.nan_tf, self.feed.prism = "good", False, True
         self.wait_status(lambda s: s.level == DiagnosticStatus.OK, 10, f"recovery after '{needle}'")
         self.assert_map_odom_right()
