@@ -106,6 +106,15 @@ class BadInputs(unittest.TestCase):
         s = self.bad_phase(3.0, "no prism for", prism=False)
         self.assertGreater(float(self.values(s)["prism age [s]"]), 1.0)
 
+        # dynamic_reconfigure: a node parameter and a pipeline parameter, applied while running
+        from dynamic_reconfigure.client import Client
+
+        client = Client("abs_orient", timeout=10)
+        applied = client.update_configuration({"time_offset": 0.05, "fusion_gate": 6.0})
+        self.assertEqual((applied["time_offset"], applied["fusion_gate"]), (0.05, 6.0))
+        self.wait_status(lambda s: self.values(s)["time offset [s]"] == "0.05" and s.level == DiagnosticStatus.OK, 5,
+                         "time offset from reconfigure, fusion_gate accepted by the pipeline")
+
         # still alive and reporting
         n = self.status_count
         time.sleep(2.5)

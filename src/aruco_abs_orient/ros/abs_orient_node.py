@@ -532,6 +532,7 @@ class AbsOrientNode:
         for key, text in (("bad_images", "corrupt images"), ("tf_failures", "tf lookups failed"),
                           ("tf_nan", "NaN in tf"), ("frame_errors", "frame errors"), ("unknown_ids", "unknown ids"),
                           ("bad_prism", "bad prism messages"), ("pipeline_exceptions", "pipeline failures"),
+                          ("bad_params", "reconfigured parameters refused"),
                           ("resets", "time jumped back: reset")):
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
