@@ -507,6 +507,7 @@ class AbsOrientNode:
             "bad images": self.counts["bad_images"],
             "frame errors": self.counts["frame_errors"],
             "pipeline failures": self.counts["pipeline_exceptions"],
+            "parameters refused": self.counts["bad_params"],
             "resets": self.counts["resets"],
             "publish_tf": c.publish_tf,
             "map->odom sent": self.counts["tf_published"],
