@@ -76,7 +76,7 @@ class CalibrationParams:
     - ``knot_spacing``: spacing (s) of the knots of the piecewise-linear map→odom yaw δ(t).
     - ``drift_sigma_deg``: 1-σ (degrees) of the change of δ between adjacent knots (weak prior).
     - ``heading_smooth``: σ (s) of the local quadratic fit of the prism track (``heading_from_track``).
-    - ``heading_step``: spacing (s) of the heading constraints (≥ 2·smooth keeps them nearly independent).
+    - ``heading_step``: spacing (s) of the heading constraints.
     - ``min_speed``: slowest speed (m/s) whose track heading is used.
     - ``max_turn_rate_deg``: fastest yaw rate (degrees/s) whose track heading is used.
     - ``velocity_sigma``: a-priori velocity noise (m/s) of the track; heading σ = it / speed (rad),
@@ -95,7 +95,7 @@ class CalibrationParams:
     knot_spacing: float = 5.0
     drift_sigma_deg: float = 1.0
     heading_smooth: float = 0.25
-    heading_step: float = 0.5
+    heading_step: float = 0.25
     min_speed: float = 0.2
     max_turn_rate_deg: float = 30.0
     velocity_sigma: float = 0.01
@@ -208,10 +208,18 @@ class _Problem:
         self.R_bc, self.t_cam, self.t_prism = R_bc, t_cam, t_prism
         self.knots = knots
         self.i_obs, self.a_obs = _knot_weights(knots, t_obs)
-        self.i_head, self.a_head = _knot_weights(knots, t_head)
+        self.set_heading(t_head, yaw_head, sigma_head)
+        self.drift_sigma = drift_sigma      # rad per knot interval
+
+    def set_heading(self, t_head, yaw_head, sigma_head) -> None:
+        self.i_head, self.a_head = _knot_weights(self.knots, t_head)
         self.yaw_head = yaw_head            # heading of travel − yaw(odom_R_base): measures δ (rad)
         self.sigma_head = sigma_head        # rad
-        self.drift_sigma = drift_sigma      # rad per knot interval
+
+    def delta_rate(self, d: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """dδ/dt (rad/s) of the piecewise-linear δ with knot values ``d`` at times ``t``."""
+        i, _ = _knot_weights(self.knots, t)
+        return (d[i + 1] - d[i]) / (self.knots[i + 1] - self.knots[i])
 
     def delta_at(self, d: np.ndarray, i: np.ndarray, a: np.ndarray) -> np.ndarray:
         return (1.0 - a) * d[i] + a * d[i + 1]
@@ -398,8 +406,13 @@ def _interp_prism(t_prism: np.ndarray, p_prism: np.ndarray, t: np.ndarray, max_g
     return P, valid
 
 
-def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, params: CalibrationParams):
-    """Times (s), δ-measurements (rad: heading of travel − odometry yaw) and σ (rad) while driving."""
+def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, params: CalibrationParams,
+                         delta_rate=None):
+    """Times (s), δ-measurements (rad: heading of travel − odometry yaw) and σ (rad) while driving.
+
+    ``delta_rate``: None or a function of time (s) → dδ/dt (rad/s), the map→odom yaw drift rate of a
+    previous fit: the platform's true yaw rate is the VO's plus it (a 4°/min VO drift turns a 0.25 m
+    horizontal prism lever arm's velocity by 0.02° of heading at 0.8 m/s)."""
     t0 = max(float(t_prism[0]), float(odom.stamps[0])) + params.heading_smooth
     t1 = min(float(t_prism[-1]), float(odom.stamps[-1])) - params.heading_smooth
     tq = np.arange(t0, t1, params.heading_step)
@@ -419,7 +432,8 @@ def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, para
     _, qc, vc = odom.interpolate(tq)
     R0, R1 = quat_to_matrix(q0), quat_to_matrix(q1)
     y0, yc, y1 = yaw_of(R0), yaw_of(quat_to_matrix(qc)), yaw_of(R1)
-    yaw_rate = wrap_angle(y1 - y0) / (2 * dt)
+    drift = np.zeros(len(tq)) if delta_rate is None else delta_rate(tq)
+    yaw_rate = wrap_angle(y1 - y0) / (2 * dt) + drift
     yaw_accel = (wrap_angle(y1 - yc) - wrap_angle(yc - y0)) / dt ** 2
     yaw_odom = yc
     # the Gaussian-smoothed velocity's direction is ψ + s²(v'ψ'/v + ψ''/2) (timesync.heading_from_track):
@@ -432,6 +446,9 @@ def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, para
     # swings with yaw rate AND with roll/pitch rates (a 0.6 m high prism on a rocking platform).
     # Its rate in odom comes from the VO; it is turned into map by δ ≈ travel heading − VO yaw.
     lever_rate = (R1 @ t_prism_lever - R0 @ t_prism_lever) / (2 * dt)             # (n, 3), odom
+    lever = quat_to_matrix(qc) @ t_prism_lever                                     # (n, 3), odom
+    lever_rate[:, 0] -= drift * lever[:, 1]                                        # + δ' ẑ × lever
+    lever_rate[:, 1] += drift * lever[:, 0]
     v = speed[:, None] * np.stack([np.cos(track_heading), np.sin(track_heading)], axis=1)
     heading = track_heading
     vb = v
@@ -551,6 +568,10 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     start = _Solution(np.zeros(3), np.zeros(3), np.full(K, d0))
     # before: the nominal transform, δ(t) fitted
     before, _, _, _, _, _ = _fit(pb, start, 0, params)
+    # the heading constraints again, with the drift rate of δ(t) (a second-order term)
+    th, yh, sh = _heading_constraints(odom, tp, pp, t_prism, params,
+                                      delta_rate=lambda tt: pb.delta_rate(before.d, tt))
+    pb.set_heading(th, yh, sh)
     n_glob = 6 if estimate_lever_arm else 3
     sol, Hinv, mask_o, mask_h, vf, iterations = _fit(pb, before, n_glob, params)
 
