@@ -194,6 +194,7 @@ class AbsOrientNode:
         self.time_offset = config.time_offset
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
+        self._reconfigured: Dict[str, object] = {}          # the values it last handed over
         self._pending_for_pipeline: Dict[str, object] = {}  # waiting for the pipeline to exist
         self._throttle = _Throttle()
 
@@ -261,9 +262,12 @@ class AbsOrientNode:
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
 
     def _on_reconfigure(self, config, level):
-        changes = {k: config[k] for k in reconfigurable_names() if k in config}
+        # the server hands over every parameter each time: pass on only what changed (a detection
+        # parameter rebuilds the tracker, which then searches the full frame once)
         with self._param_lock:
-            self._pending_params.update(changes)
+            for k in reconfigurable_names():
+                if k in config and self._reconfigured.get(k) != config[k]:
+                    self._pending_params[k] = self._reconfigured[k] = config[k]
         return config
 
     # ------------------------------------------------------------------ main loop
@@ -341,14 +345,13 @@ class AbsOrientNode:
     def _feed_prisms(self) -> None:
         while self.prism_errors:
             self._error("bad_prism", f"ms60/prism: {self.prism_errors.popleft()}")
-        while self.prisms:
+        while self.prisms and self.pipeline is not None:  # kept (bounded) until the pipeline exists
             t, p = self.prisms.popleft()
             if self.last_prism_stamp is not None and t < self.last_prism_stamp - self.config.time_jump_tolerance:
                 self._reset(f"ms60/prism time jumped back by {self.last_prism_stamp - t:.3f} s")
             self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
             self.counts["prisms"] += 1
-            if self.pipeline is not None:
-                self.pipeline.add_prism(t, p)
+            self.pipeline.add_prism(t, p)
 
     def _odom_T_base(self, stamp) -> Optional[np.ndarray]:
         """odom→base_link at ``stamp``, waiting up to ~tf_timeout (wall clock) for it to arrive."""
