@@ -852,7 +852,9 @@ class MarkerDetector:
         if keep:
             tiles = list(keep)
             quads = np.array([keep[k] for k in tiles])
-            refined = refine_quads(sample, quads, bits, q.view_refine_iterations) if q.edge_refine else quads
+            # OpenCV's corners in a view are close: fewer, shorter profiles do (12 × 12 per edge)
+            refined = (refine_quads(sample, quads, bits, q.view_refine_iterations, along=12, samples=12)
+                       if q.edge_refine else quads)
             for k, c, r in zip(tiles, quads, refined):
                 add(k, expect_ids[k], c if np.isnan(r).any() else r)
         def near_centre(c, k):  # the expected marker's centre is within the gate of the view's
