@@ -708,7 +708,8 @@ class MarkerDetector:
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
                 List[np.ndarray]], to_bearing, scale: float, method: str, image: np.ndarray,
-                perspective: bool, expect_id: Optional[int] = None, rescue: bool = True) -> List[MarkerObservation]:
+                perspective: bool, expect_id: Optional[int] = None, rescue: bool = True,
+                skip_ids: Sequence[int] = ()) -> List[MarkerObservation]:
         """Observations from a backend result in ``image``: edge-refined corners of the
         decoded markers, plus rejected quads decoded here (small ones up to
         ``rescue_max_side_px``, large ones from ``close_range_size_deg``).
@@ -718,7 +719,8 @@ class MarkerDetector:
         (corners are refined and read in it directly), else an equirect strip (refined on
         the sphere, :func:`refine_corners`); ``expect_id``: keep only this id (tracking:
         OpenCV's reading of the predicted id at the predicted place is not re-verified);
-        ``rescue``: decode the quads OpenCV rejected.
+        ``rescue``: decode the quads OpenCV rejected; ``skip_ids``: ids OpenCV read that are
+        not wanted (already observed).
         """
         q = self.params
         bits = self.backend.bits
@@ -726,7 +728,7 @@ class MarkerDetector:
         sample = image_sampler(image)
         out = []
         for i, c in zip(ids, corners):
-            if expect_id is not None and i != expect_id:
+            if (expect_id is not None and i != expect_id) or i in skip_ids:
                 continue
             b = to_bearing(c[:, 0], c[:, 1])
             r = None
@@ -875,11 +877,11 @@ class MarkerDetector:
         return out
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
-                       method: str = "full", rescue: bool = True, max_el: float = math.pi / 2
-                       ) -> List[MarkerObservation]:
+                       method: str = "full", rescue: bool = True, max_el: float = math.pi / 2,
+                       skip_ids: Sequence[int] = ()) -> List[MarkerObservation]:
         """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam),
         rows within ``max_el`` (radians) of the horizon; ``rescue``: also decode the quads
-        OpenCV rejected (small, close markers)."""
+        OpenCV rejected (small, close markers); ``skip_ids``: ids not wanted."""
         w = equirect.width
         u0 = int(u0) % w
         width = int(min(width, w))
@@ -891,7 +893,7 @@ class MarkerDetector:
             strip = np.hstack([grey[v0:v1, u0:], grey[v0:v1, :u0 + width - w]])
         found = self.backend.detect(strip, self.params.min_marker_perimeter_px)
         return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0,
-                            method, strip, False, rescue=rescue)
+                            method, strip, False, rescue=rescue, skip_ids=skip_ids)
 
     @staticmethod
     def view_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:

@@ -169,7 +169,8 @@ class MarkerTracker:
             stats.sweep_u0 = int(self.frame * step) % eq.width
             # the sweep looks for what the prediction misses: OpenCV's own finds suffice
             candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full", rescue=False,
-                                                       max_el=math.radians(q.sweep_max_el_deg))
+                                                       max_el=math.radians(q.sweep_max_el_deg),
+                                                       skip_ids={o.id for o in candidates})
             self._since_full += 1
         accepted = []
         for o in candidates:
