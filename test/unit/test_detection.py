@@ -239,12 +239,14 @@ def test_centre_bearing_accuracy_1_to_11_m():
 
 
 def test_sigma_estimate_matches_the_errors():
-    ratios = []
+    near, far = [], []
     for img, ms in range_frames():
         for o in detector().detect(img):
-            ratios.append(err_deg(o, ms[o.id]) * DEG / o.sigma)
-    # |error| of a 2-D Gaussian with per-axis σ: median ≈ 1.18 σ
-    assert 0.4 < np.median(ratios) < 2.5
+            ratio = err_deg(o, ms[o.id]) * DEG / o.sigma
+            (near if o.side_px > 20 else far).append(ratio)
+    # |error| of a 2-D Gaussian with per-axis σ: median ≈ 1.18 σ; near and far alike
+    assert 0.4 < np.median(near) < 3.0
+    assert 0.4 < np.median(far) < 3.0
 
 
 def test_no_elevation_bias_at_1_m_and_45_to_60_deg():

@@ -35,7 +35,7 @@ def frame(k, ids=None, T=None):
 
 def test_tracks_every_map_marker_at_the_right_bearing():
     tracker = MarkerTracker(MAP)
-    modes, errors = [], []
+    modes, errors, ratios = [], [], []
     for k in range(5):
         img, pc = frame(k)
         res = tracker.process(img, pose(k))
@@ -43,6 +43,7 @@ def test_tracks_every_map_marker_at_the_right_bearing():
         got = {o.id: o for o in res.observations}
         assert sorted(got) == list(range(len(POSITIONS)))
         errors += [float(angle_between(o.centre, pc[i])) / DEG for i, o in got.items()]
+        ratios += [float(angle_between(o.centre, pc[i])) / o.sigma for i, o in got.items()]
         if res.stats.mode == "tracked":
             assert res.stats.predicted == len(POSITIONS)
             assert res.stats.found == {"tracked": len(POSITIONS)}
@@ -51,6 +52,7 @@ def test_tracks_every_map_marker_at_the_right_bearing():
     assert modes == ["full", "tracked", "tracked", "tracked", "tracked"]
     # 1920 px: half the resolution of the 0.03° figure at 3840 (bench/detection.py)
     assert np.median(errors) < 0.03 and max(errors) < 0.06
+    assert 0.4 < np.median(ratios) < 3.0  # σ is honest (median |error| of a 2-D Gaussian: 1.18 σ)
 
 
 def test_unknown_pose_searches_the_whole_frame_and_accepts_only_map_ids():
