@@ -158,6 +158,7 @@ def section_range(args, det):
     hits = np.zeros(len(dists))
     naive = np.zeros(len(dists))
     errs = [[] for _ in dists]
+    ratios = [[] for _ in dists]
     for f in range(args.range_frames):
         rng = np.random.default_rng(600 + f)
         ms = [facing_marker(i, SIZE, d * azel_to_bearing(-3.05 + 6.1 * i / len(dists) + rng.uniform(0, 0.1),
@@ -168,6 +169,7 @@ def section_range(args, det):
             if o.id < len(dists) and float(angle_between(o.centre, unit(ms[o.id].center))) < 0.5 * DEG:
                 hits[o.id] += 1
                 errs[o.id].append(float(angle_between(o.centre, unit(ms[o.id].center))) / DEG)
+                ratios[o.id].append(errs[o.id][-1] * DEG / o.sigma)
         ids, _, _ = det.backend.detect(img, det.params.min_marker_perimeter_px)
         for i in set(ids):
             if i < len(dists):
@@ -175,10 +177,11 @@ def section_range(args, det):
     eq = Equirect(args.width, args.width // 2)
     rows = [(f"{d} m", f"{2 * math.atan(SIZE / 2 / d) / eq.rad_per_px:.1f}",
              f"{100 * hits[i] / args.range_frames:.0f} %", f"{100 * naive[i] / args.range_frames:.0f} %",
-             f"{np.median(errs[i]):.4f}" if errs[i] else "-") for i, d in enumerate(dists)]
+             f"{np.median(errs[i]):.4f}" if errs[i] else "-", f"{np.median(ratios[i]):.2f}" if ratios[i] else "-")
+            for i, d in enumerate(dists)]
     table(f"Detection rate of a {SIZE} m DICT_4X4_50 marker facing the camera, {args.width} px, "
           f"{args.range_frames} frames per range",
-          ["range", "side px", "ours", "plain OpenCV", "median err deg"], rows)
+          ["range", "side px", "ours", "plain OpenCV", "median err deg", "median err/sigma (1.18 ideal)"], rows)
 
 
 def section_fp(args, det):
