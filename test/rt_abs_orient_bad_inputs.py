@@ -19,9 +19,13 @@ from aruco_abs_orient.transforms import wrap_angle, yaw_of
 STATUS = "abs_orient: pipeline"
 
 
-class BadInputs(unittest.TestCase):
+class LiveFeedCase(unittest.TestCase):
+    """The live-fed scene, the node's diagnostics and map->odom; subclasses add the tests."""
+
+    raw = False  # feed sensor_msgs/Image instead of JPEG
+
     def setUp(self):
-        rospy.init_node("rt_abs_orient_bad_inputs")
+        rospy.init_node("rt_abs_orient_live")
         self.tf = tf2_ros.Buffer(debug=False)
         self.listener = tf2_ros.TransformListener(self.tf)
         self.lock = threading.Lock()
@@ -29,7 +33,7 @@ class BadInputs(unittest.TestCase):
         self.status_count = 0
         rospy.Subscriber("/diagnostics", DiagnosticArray, self._on_diag)
         base_T_camera, base_T_prism = scene.lever_arms(self.tf)
-        self.feed = scene.Feed(scene.render_frames(base_T_camera), base_T_prism, rate=10.0)
+        self.feed = scene.Feed(scene.render_frames(base_T_camera), base_T_prism, rate=10.0, raw=self.raw)
         self.feed.start()
 
     def tearDown(self):
@@ -88,6 +92,9 @@ class BadInputs(unittest.TestCase):
         self.assert_map_odom_right()
         return s
 
+
+
+class BadInputs(LiveFeedCase):
     def test_bad_inputs_while_running(self):
         self.wait_status(lambda s: s.level == DiagnosticStatus.OK, 40, "initialised and OK")
         self.assert_map_odom_right()

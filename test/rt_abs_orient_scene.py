@@ -11,13 +11,14 @@ import time
 
 import numpy as np
 import rospy
+from cv_bridge import CvBridge
 from geometry_msgs.msg import PointStamped
-from sensor_msgs.msg import CompressedImage
+from sensor_msgs.msg import CompressedImage, Image
 from tf2_msgs.msg import TFMessage
 
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.ros.conversions import matrix_to_transform_stamped, transform_to_matrix
-from aruco_abs_orient.synthetic.render import encode_jpeg, facing_marker, render_equirect
+from aruco_abs_orient.synthetic.render import decode_jpeg, encode_jpeg, facing_marker, render_equirect
 from aruco_abs_orient.transforms import invert_T, make_T, rpy_to_matrix, transform_points
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -55,14 +56,21 @@ class Feed(threading.Thread):
     """Publishes odometry (tf), prism and image at ``rate`` Hz; switch inputs with the attributes
     ``image`` ('good' | 'unknown' | 'corrupt'), ``nan_tf`` and ``prism``."""
 
-    def __init__(self, frames, base_T_prism, rate=10.0):
+    def __init__(self, frames, base_T_prism, rate=10.0, raw=False):
+        """``raw``: publish sensor_msgs/Image (mono8, decoded here) on camera/image instead of JPEG."""
         super().__init__(daemon=True)
         self.frames, self.rate = frames, rate
         self.prism_map = transform_points(MAP_T_BASE, base_T_prism[:3, 3])
         self.image, self.nan_tf, self.prism = "good", False, True
         self.pub_tf = rospy.Publisher("/tf", TFMessage, queue_size=10)
         self.pub_prism = rospy.Publisher("ms60/prism", PointStamped, queue_size=10)
-        self.pub_image = rospy.Publisher("camera/image/compressed", CompressedImage, queue_size=2)
+        self.raw = raw
+        if raw:
+            self.pub_image = rospy.Publisher("camera/image", Image, queue_size=2)
+            self.raw_frames = {k: CvBridge().cv2_to_imgmsg(decode_jpeg(v), "mono8") for k, v in frames.items()
+                               if k != "corrupt"}
+        else:
+            self.pub_image = rospy.Publisher("camera/image/compressed", CompressedImage, queue_size=2)
         self.stop = threading.Event()
         self.sent = 0
         self.sent_wall = {}  # image stamp (ns) -> time.monotonic() at publication (the last 1000)
@@ -81,7 +89,10 @@ class Feed(threading.Thread):
                 msg.header.stamp, msg.header.frame_id = now, "map"
                 msg.point.x, msg.point.y, msg.point.z = (float(v) for v in self.prism_map)
                 self.pub_prism.publish(msg)
-            img = CompressedImage(format="jpeg", data=self.frames[self.image])
+            if self.raw:
+                img = self.raw_frames[self.image]
+            else:
+                img = CompressedImage(format="jpeg", data=self.frames[self.image])
             img.header.stamp, img.header.frame_id = now, "camera"
             self.sent_wall[now.to_nsec()] = time.monotonic()
             if len(self.sent_wall) > 1000:
