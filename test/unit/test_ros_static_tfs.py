@@ -55,3 +55,25 @@ def test_errors_name_the_file_and_key(tmp_path, text, message):
 def test_missing_file(tmp_path):
     with pytest.raises(CalibrationError, match="cannot read"):
         load_calibration(str(tmp_path / "nope.yaml"))
+
+
+def test_reads_what_the_calibration_tool_writes(tmp_path):
+    """calibration.write_static_tf_yaml → load_calibration: the calibrated camera mounting, the prism arm."""
+    from aruco_abs_orient.calibration import Calibration, write_static_tf_yaml
+    from aruco_abs_orient.transforms import make_T, rpy_to_matrix
+
+    z3 = np.zeros(3)
+    calib = Calibration(boresight_rpy=np.radians([0.2, -0.1, 0.35]), boresight_sigma=np.radians([0.01] * 3),
+                        lever_arm_delta=np.array([0.004, -0.002, 0.001]), lever_arm_sigma=np.full(3, 0.001),
+                        lever_arm_estimated=True, cov=np.eye(6), residual_rms_before=0.01, residual_rms_after=0.002,
+                        residual_median_before=0.01, residual_median_after=0.002, heading_rms=0.01,
+                        variance_factors={}, n_observations=10, n_used=10, n_markers=3, n_heading=5,
+                        moving_time=10.0, iterations=3, used=np.ones(10, bool), residuals_before=z3,
+                        residuals_after=z3)
+    nominal = make_T(rpy_to_matrix(0.0, 0.0, math.radians(90.0)), [0.1, 0.0, 0.8])
+    prism = make_T(np.eye(3), [-0.25, 0.05, 1.1])
+    path = str(tmp_path / "calibration.yaml")
+    write_static_tf_yaml(path, calib, nominal, prism)
+    arms = load_calibration(path)
+    np.testing.assert_allclose(arms["camera"], calib.apply(nominal), atol=1e-6)  # 5 decimals in the file
+    np.testing.assert_allclose(arms["prism"], prism, atol=1e-9)
