@@ -51,7 +51,7 @@ def scenario(preset: str) -> Path:
     for p in sorted(pkg.glob("synthetic/*.py")) + [pkg / "camera.py", pkg / "markers.py", pkg / "tum.py"]:
         h.update(p.read_bytes())
     out = ROOT / ".cache" / "rostest" / f"{preset}-{h.hexdigest()[:12]}"
-    if not (out / "scenario.bag").exists():
+    if not all((out / f).exists() for f in ("scenario.bag", "truth.tum", "markers.yaml", "hidden.yaml")):
         out.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.monotonic()
         proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"],
