@@ -224,17 +224,15 @@ class _Problem:
     def delta_at(self, d: np.ndarray, i: np.ndarray, a: np.ndarray) -> np.ndarray:
         return (1.0 - a) * d[i] + a * d[i + 1]
 
+    def camera_to_marker(self, dl, delta) -> np.ndarray:
+        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P) − (t_cam + Δl − t_prism)."""
+        R = rot_z(delta) @ self.R_odom                                   # map_R_base (N, 3, 3)
+        return np.einsum("nji,nj->ni", R, self.M - self.P) - (self.t_cam + dl - self.t_prism)
+
     def predict(self, rpy, dl, delta) -> np.ndarray:
         """Predicted unit bearings (N, 3) in the camera frame."""
-        R = rot_z(delta) @ self.R_odom                                   # map_R_base (N, 3, 3)
-        g = np.einsum("nji,nj->ni", R, self.M - self.P) - (self.t_cam + dl - self.t_prism)
-        q = g @ (rpy_to_matrix(*rpy) @ self.R_bc)                          # (B R_bc)ᵀ g
+        q = self.camera_to_marker(dl, delta) @ (rpy_to_matrix(*rpy) @ self.R_bc)   # (B R_bc)ᵀ g
         return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-    def ranges(self, dl, delta) -> np.ndarray:
-        R = rot_z(delta) @ self.R_odom
-        g = np.einsum("nji,nj->ni", R, self.M - self.P) - (self.t_cam + dl - self.t_prism)
-        return np.linalg.norm(g, axis=1)
 
     def residuals(self, rpy, dl, delta) -> np.ndarray:
         return np.cross(self.u, self.predict(rpy, dl, delta))
@@ -559,7 +557,7 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     R_odom = quat_to_matrix(q_odom[idx])
     pb = _Problem(u[idx] / norm[idx, None], M, P[idx], R_odom, sig[idx], t[idx], th, yh, sh, knots,
                   Tc[:3, :3].copy(), t_cam, t_prism, math.radians(params.drift_sigma_deg))
-    rng = np.maximum(pb.ranges(np.zeros(3), np.zeros(len(idx))), 1e-3)
+    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(3), np.zeros(len(idx))), axis=1), 1e-3)
     pb.sigma = np.sqrt(pb.sigma ** 2 + (sM ** 2 + params.prism_sigma ** 2) / rng ** 2)
 
     # start: δ constant, the robust mean of the heading constraints
