@@ -98,7 +98,9 @@ def _read_umask() -> int:
     return mask
 
 
-_UMASK = _read_umask()  # read once, at import (os.umask is process-wide: not from worker threads)
+# mkstemp makes 0600; a result file is as readable as any other file the user writes. The umask
+# is read once, at import (os.umask is process-wide: not to be called from worker threads).
+RESULT_FILE_MODE = 0o666 & ~_read_umask()
 
 
 def atomic_write_text(path: str, text: str) -> None:
@@ -111,7 +113,7 @@ def atomic_write_bytes(path: str, data: bytes) -> None:
     directory = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
     try:
-        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; a result file is as readable as any other
+        os.fchmod(fd, RESULT_FILE_MODE)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)

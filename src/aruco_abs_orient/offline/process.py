@@ -29,7 +29,7 @@ import numpy as np
 from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineParams
-from ..tum import Trajectory, atomic_write_text, write_tum
+from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
 from .bagio import BagData, BagTopics, iter_images, read_bag_data
 
 __all__ = ["ProcessResult", "process_bag", "OBSERVATION_COLUMNS"]
@@ -108,6 +108,7 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
 
     fd, obs_tmp = tempfile.mkstemp(prefix=".observations.csv.", suffix=".tmp", dir=out_dir)
+    os.fchmod(fd, RESULT_FILE_MODE)
     stamps: List[float] = []
     poses: List[np.ndarray] = []
     errors: Dict[str, int] = {}
