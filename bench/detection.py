@@ -7,6 +7,7 @@ textured background), full size (3840×1920 by default). Prints one table per se
   bias      signed elevation error at 1 m and 45–60°: sphere centre vs pixel-space centre
   range     detection rate 1–18 m of a 0.19 m DICT_4X4_50 marker facing the camera
             (this package vs plain OpenCV on the full frame)
+  seam_pole markers straddling the ±180° seam and at ±70° elevation, 1.5 m
   fp        false detections over textured frames without markers
   speed     a moving-camera sequence: ms/frame of plain full-frame OpenCV detection vs the
             map-guided tracker, their ratio, and what each finds
@@ -184,6 +185,38 @@ def section_range(args, det):
           ["range", "side px", "ours", "plain OpenCV", "median err deg", "median err/sigma (1.18 ideal)"], rows)
 
 
+def section_seam_pole(args, det):
+    seam_hit = seam_n = pole_hit = pole_n = 0
+    seam_err, pole_err = [], []
+    for f in range(args.range_frames):
+        rng = np.random.default_rng(900 + f)
+        # one marker per elevation band, so that none hides another
+        seam = [facing_marker(i, SIZE, d * azel_to_bearing(math.pi + rng.uniform(-0.4, 0.4) * SIZE / d,
+                                                           (el + rng.uniform(-2, 2)) * DEG),
+                              roll=rng.uniform(-0.7, 0.7))
+                for i, (d, el) in enumerate([(0.6, -38), (1.0, -12), (2.0, 8), (4.0, 22), (8.0, 36)])]
+        pole = [facing_marker(10 + i, SIZE, 1.5 * azel_to_bearing(-3.0 + 1.0 * i + rng.uniform(0, 0.5),
+                                                                   (70.0 if i % 2 else -70.0) * DEG),
+                              roll=rng.uniform(-0.7, 0.7)) for i in range(6)]
+        found = {o.id: o for o in det.detect(render_equirect(args.width, seam + pole, seed=950 + f))}
+        for m, hits, errs in [(m, "seam", seam_err) for m in seam] + [(m, "pole", pole_err) for m in pole]:
+            ok = m.id in found
+            if hits == "seam":
+                seam_n += 1
+                seam_hit += ok
+            else:
+                pole_n += 1
+                pole_hit += ok
+            if ok:
+                errs.append(float(angle_between(found[m.id].centre, unit(m.center))) / DEG)
+    table(f"Markers on the ±180 deg seam (0.6-8 m, |el| < 40 deg) and at ±70 deg elevation, 1.5 m "
+          f"({args.range_frames} frames)", ["case", "found", "rate", "median err deg", "max err deg"],
+          [("seam", f"{seam_hit}/{seam_n}", f"{100.0 * seam_hit / seam_n:.0f} %", f"{np.median(seam_err):.4f}",
+            f"{max(seam_err):.4f}"),
+           ("±70 deg", f"{pole_hit}/{pole_n}", f"{100.0 * pole_hit / pole_n:.0f} %", f"{np.median(pole_err):.4f}",
+            f"{max(pole_err):.4f}")])
+
+
 def section_fp(args, det):
     ids_in_map = list(range(10))
     mmap = MarkerMap([Marker(i, np.array([float(i), 1.0, 1.0]), SIZE, 0.002) for i in ids_in_map])
@@ -261,7 +294,7 @@ def section_speed(args, det):
 
 
 SECTIONS = {"jpeg": section_jpeg, "accuracy": section_accuracy, "bias": section_bias, "range": section_range,
-            "fp": section_fp, "speed": section_speed}
+            "seam_pole": section_seam_pole, "fp": section_fp, "speed": section_speed}
 
 
 def main(argv=None):
