@@ -49,6 +49,7 @@ __all__ = [
     "sphere_centre_bearing",
     "pixel_centre_bearing",
     "marker_angular_size",
+    "bearing_sigma",
     "refine_corners",
     "decode_marker",
     "refine_quad",
