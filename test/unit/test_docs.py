@@ -34,10 +34,6 @@ ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "doc"
 ROS_API = DOC / "ros_api.md"
 PACKAGE = "aruco_abs_orient"
-# Files `make demo` writes; links to them are allowed before the demo has run.
-GENERATED_BY_DEMO = {ROOT / "doc" / "images" / "demo.png"}
-# doc/README_proposal.md is the text of the top-level README.md: its links resolve from the repository root.
-LINK_BASE = {DOC / "README_proposal.md": ROOT}
 
 
 # ---------------------------------------------------------------------------------------------- markdown
@@ -509,10 +505,9 @@ def test_relative_links_point_at_existing_files_and_headings():
             if re.match(r"^[a-z][a-z0-9+.-]*:", target):
                 continue
             file_part, _, fragment = target.partition("#")
-            resolved = (LINK_BASE.get(path, path.parent) / file_part).resolve() if file_part else path
+            resolved = (path.parent / file_part).resolve() if file_part else path
             if not resolved.exists():
-                if resolved not in GENERATED_BY_DEMO:
-                    broken.append(f"{path.relative_to(ROOT)}: {target}")
+                broken.append(f"{path.relative_to(ROOT)}: {target}")
             elif fragment and resolved.suffix == ".md" and fragment not in anchors(resolved):
                 broken.append(f"{path.relative_to(ROOT)}: {target} (no such heading)")
     assert not broken, "broken relative links:\n" + "\n".join(broken)
