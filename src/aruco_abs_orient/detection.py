@@ -261,24 +261,21 @@ class MarkerObservation:
 # --------------------------------------------------------------------------- geometry
 
 def sphere_centre_bearing(corners) -> np.ndarray:
-    """Centre bearing (3,) of a marker from its four corner bearings (4, 3).
+    """Centre bearing (..., 3) of markers from their four corner bearings (..., 4, 3).
 
     Intersection of the great circles through opposite corners (n1 = c0×c2, n2 = c1×c3,
     centre = ±n1×n2, the sign nearest the corners' mean). Exact for a planar square seen
     by a central camera: the diagonals' intersection is the square's centre and lines
-    project to great circles.
+    project to great circles. A degenerate quad gives the corners' mean direction.
     """
     c = np.asarray(corners, dtype=float)
     c = c / np.linalg.norm(c, axis=-1, keepdims=True)
-    n1 = np.cross(c[0], c[2])
-    n2 = np.cross(c[1], c[3])
-    m = np.cross(n1, n2)
-    norm = np.linalg.norm(m)
-    mean = c.mean(axis=0)
-    if norm < 1e-15:  # degenerate quad: fall back to the corners' mean direction
-        return mean / np.linalg.norm(mean)
-    m = m / norm
-    return m if np.dot(m, mean) >= 0 else -m
+    m = np.cross(np.cross(c[..., 0, :], c[..., 2, :]), np.cross(c[..., 1, :], c[..., 3, :]))
+    norm = np.linalg.norm(m, axis=-1, keepdims=True)
+    mean = c.mean(axis=-2)
+    m = np.where(norm < 1e-15, mean, m / np.maximum(norm, 1e-300))
+    m = np.where(np.sum(m * mean, axis=-1, keepdims=True) < 0, -m, m)
+    return m / np.linalg.norm(m, axis=-1, keepdims=True)
 
 
 def pixel_centre_bearing(equirect: Equirect, corners_px) -> np.ndarray:
@@ -298,10 +295,12 @@ def pixel_centre_bearing(equirect: Equirect, corners_px) -> np.ndarray:
     return equirect.pixel_to_bearing(u, v)
 
 
-def marker_angular_size(corners) -> float:
-    """Mean side of a marker (radians): great-circle angles between adjacent corner bearings (4, 3)."""
+def marker_angular_size(corners):
+    """Mean side of markers (radians): great-circle angles between adjacent corner bearings
+    (..., 4, 3); a float for one marker."""
     c = np.asarray(corners, dtype=float)
-    return float(np.mean(angle_between(c, np.roll(c, -1, axis=0))))
+    size = np.mean(angle_between(c, np.roll(c, -1, axis=-2)), axis=-1)
+    return float(size) if size.ndim == 0 else size
 
 
 def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: str = "full") -> float:
@@ -701,16 +700,25 @@ class MarkerDetector:
     def observation(self, equirect: Equirect, marker_id: int, corners: np.ndarray,
                     method: str) -> MarkerObservation:
         """A record from corner bearings (4, 3) in ArUco order."""
-        centre = sphere_centre_bearing(corners)
-        u, v = equirect.bearing_to_pixel(centre)
-        cu, cv = equirect.bearing_to_pixel(corners)
-        cu = equirect.unwrap_u(cu, cu[0])
-        size = marker_angular_size(corners)
-        side_px = size / equirect.rad_per_px
-        return MarkerObservation(
-            id=int(marker_id), corners=corners, centre=centre, pixel=(float(u), float(v)),
-            corners_px=np.stack([cu, cv], axis=1), angular_size=size,
-            sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px, method), method=method, side_px=side_px)
+        return self.observations(equirect, [marker_id], np.asarray(corners)[None], method)[0]
+
+    def observations(self, equirect: Equirect, ids: Sequence[int], corners: np.ndarray,
+                     method: str) -> List[MarkerObservation]:
+        """Records from corner bearings (M, 4, 3) in ArUco order, all at once."""
+        corners = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+        centres = sphere_centre_bearing(corners)
+        u, v = equirect.bearing_to_pixel(np.concatenate([centres[:, None], corners], axis=1))  # (M, 5)
+        cu = equirect.unwrap_u(u[:, 1:], u[:, 1:2])
+        sizes = np.atleast_1d(marker_angular_size(corners))
+        out = []
+        for k, marker_id in enumerate(ids):
+            side_px = float(sizes[k]) / equirect.rad_per_px
+            out.append(MarkerObservation(
+                id=int(marker_id), corners=corners[k], centre=centres[k], pixel=(float(u[k, 0]), float(v[k, 0])),
+                corners_px=np.stack([cu[k], v[k, 1:]], axis=1), angular_size=float(sizes[k]),
+                sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px, method), method=method,
+                side_px=side_px))
+        return out
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
                 List[np.ndarray]], to_bearing, scale: float, method: str, image: np.ndarray,
@@ -838,7 +846,6 @@ class MarkerDetector:
         ids, corners, rejected = self.backend.detect(mosaic, self.params.min_marker_perimeter_px * scale)
         sample = image_sampler(mosaic)
         bits, q = self.backend.bits, self.params
-        out: List[MarkerObservation] = []
         found = set()
 
         def tile_of(c):
@@ -848,9 +855,11 @@ class MarkerDetector:
 
         def add(k, marker_id, quad):
             view, y0 = views[k], float(tops[k])
-            b = view.pixel_to_bearing(quad[:, 0], quad[:, 1] - y0)
-            out.append(self.observation(equirect, marker_id, b, method))
+            bearings.append(view.pixel_to_bearing(quad[:, 0], quad[:, 1] - y0))
+            marker_ids.append(marker_id)
             found.add(k)
+
+        bearings, marker_ids = [], []
 
         keep = {}
         for i, c in zip(ids, corners):
@@ -880,7 +889,7 @@ class MarkerDetector:
                 hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
                 if hit is not None and hit[0] == expect_ids[k]:
                     add(k, hit[0], hit[1])
-        return out
+        return self.observations(equirect, marker_ids, np.array(bearings), method) if bearings else []
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
                        method: str = "full", rescue: bool = True, max_el: float = math.pi / 2,
