@@ -137,6 +137,8 @@ class DetectorParams:
     - ``sweep_tile_deg``: width (degrees of azimuth) of the vertical strip searched each
       frame while tracking, so markers the prediction misses are found.
     - ``sweep_period_frames``: frames for the sweeping tile to go once around 360°.
+    - ``sweep_every_frames``: the tile is searched on every n-th frame only (and moves by
+      n steps then).
     - ``sweep_max_el_deg``: the tile spans elevations within this (degrees) of the horizon.
     - ``max_full_interval``: frames between forced full-frame searches while tracking
       (0 = only at start-up and after a loss).
@@ -190,6 +192,7 @@ class DetectorParams:
     min_predicted_side_px: float = 6.0
     sweep_tile_deg: float = 8.0
     sweep_period_frames: int = 72
+    sweep_every_frames: int = 2
     sweep_max_el_deg: float = 60.0
     max_full_interval: int = 0
     lost_after_frames: int = 3
@@ -824,7 +827,8 @@ class MarkerDetector:
 
     def detect_in_views(self, grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView],
                         maps: Sequence[Tuple[np.ndarray, np.ndarray]], expect_ids: Sequence[int],
-                        method: str = "tracked") -> List[MarkerObservation]:
+                        method: str = "tracked", expect_sizes: Optional[Sequence[float]] = None
+                        ) -> List[MarkerObservation]:
         """The expected marker in each of several small gnomonic views, in one OpenCV call.
 
         The views (with their :meth:`view_maps`, step ≤ 4) are rendered into one mosaic
@@ -832,7 +836,8 @@ class MarkerDetector:
         assigned to its view and kept only if it is that view's ``expect_ids`` entry; its
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
         get their rejected quads within ``gate_deg`` of the view centre decoded
-        (:func:`decode_quad`), as in :meth:`detect`.
+        (:func:`decode_quad`), as in :meth:`detect`; with ``expect_sizes`` (predicted
+        angular sizes, radians) only quads within 35 % of that size are tried.
         """
         if not views:
             return []
@@ -866,26 +871,33 @@ class MarkerDetector:
             k = tile_of(c)
             if k >= 0 and i == expect_ids[k] and k not in keep:
                 keep[k] = c
-        if keep:
-            tiles = list(keep)
-            quads = np.array([keep[k] for k in tiles])
-            # OpenCV's corners in a view are close: fewer, shorter profiles do (12 × 12 per edge)
-            refined = (refine_quads(sample, quads, bits, q.view_refine_iterations, along=12, samples=12)
-                       if q.edge_refine else quads)
-            for k, c, r in zip(tiles, quads, refined):
-                add(k, expect_ids[k], c if np.isnan(r).any() else r)
+
         def near_centre(c, k):  # the expected marker's centre is within the gate of the view's
             dx = c.mean(axis=0) - (views[k].cx, views[k].cy + tops[k])
             return float(np.hypot(*dx)) <= math.tan(math.radians(q.gate_deg)) * views[k].focal + 2.0
 
-        tries = [(k, c.mean(axis=0) + shrink * (c - c.mean(axis=0)))
-                 for c, k in ((c, tile_of(c)) for c in rejected) if k >= 0 and k not in found and near_centre(c, k)
-                 for shrink in RESCUE_SHRINK]
-        if tries:
-            refined = refine_quads(sample, np.array([t[1] for t in tries]), bits)
-            for (k, _), r in zip(tries, refined):
-                if k in found or np.isnan(r).any():
-                    continue
+        def plausible(quad, k):
+            if expect_sizes is None:
+                return True
+            side = float(np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)))
+            return abs(side / (expect_sizes[k] * views[k].focal) - 1.0) <= 0.35
+
+        tries = [(k, quad) for c, k in ((c, tile_of(c)) for c in rejected)
+                 if k >= 0 and k not in keep and near_centre(c, k)
+                 for quad in (c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for shrink in RESCUE_SHRINK)
+                 if plausible(quad, k)]
+        # OpenCV's finds and the rejected quads worth reading, refined in one batch; OpenCV's
+        # corners in a view are close: short profiles do (12 × 12 per edge)
+        batch = [(k, keep[k], True) for k in keep] + [(k, quad, False) for k, quad in tries]
+        if not batch:
+            return []
+        quads = np.array([b[1] for b in batch])
+        refined = (refine_quads(sample, quads, bits, q.view_refine_iterations, along=12, samples=12)
+                   if q.edge_refine or tries else quads)
+        for (k, c, read_by_opencv), r in zip(batch, refined):
+            if read_by_opencv:
+                add(k, expect_ids[k], c if (np.isnan(r).any() or not q.edge_refine) else r)
+            elif k not in found and not np.isnan(r).any():
                 hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
                 if hit is not None and hit[0] == expect_ids[k]:
                     add(k, hit[0], hit[1])

@@ -8,7 +8,8 @@ vertical axis), instead of in the whole equirect frame. The whole frame is searc
 (:meth:`MarkerDetector.detect`) at start-up, when no pose is given, after a loss and every
 ``max_full_interval`` frames if set; while
 tracking, a vertical strip of the equirect sweeps around the panorama (one
-``sweep_tile_deg`` tile per frame, once around in ``sweep_period_frames`` frames) so
+``sweep_tile_deg`` tile every ``sweep_every_frames`` frames, once around in
+``sweep_period_frames`` frames) so
 markers the prediction misses are still found. Ids not in the map are rejected, and so is
 any observation farther than ``gate_deg`` from its prediction.
 
@@ -151,7 +152,7 @@ class MarkerTracker:
             self._since_full = 0
         else:
             gate = math.radians(q.gate_deg)
-            views, maps, expect = [], [], []
+            views, maps, expect, sizes = [], [], [], []
             for m in preds:
                 side = m.angular_size / eq.rad_per_px
                 if side < q.min_predicted_side_px:
@@ -162,15 +163,18 @@ class MarkerTracker:
                 views.append(view)
                 maps.append(view_maps)
                 expect.append(m.id)
+                sizes.append(m.angular_size)
             stats.predicted = len(views)
-            candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked")
-            step = eq.width / q.sweep_period_frames
-            width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
-            stats.sweep_u0 = int(self.frame * step) % eq.width
-            # the sweep looks for what the prediction misses: OpenCV's own finds suffice
-            candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full", rescue=False,
-                                                       max_el=math.radians(q.sweep_max_el_deg),
-                                                       skip_ids={o.id for o in candidates})
+            candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked", sizes)
+            every = max(1, int(q.sweep_every_frames))
+            if self.frame % every == 0:
+                step = eq.width / q.sweep_period_frames * every
+                width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
+                stats.sweep_u0 = int(self.frame // every * step) % eq.width
+                # the sweep looks for what the prediction misses: OpenCV's own finds suffice
+                candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full", rescue=False,
+                                                           max_el=math.radians(q.sweep_max_el_deg),
+                                                           skip_ids={o.id for o in candidates})
             self._since_full += 1
         accepted = []
         for o in candidates:
