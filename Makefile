@@ -27,10 +27,10 @@ bench: setup
 
 lint: setup
 	@$(ENV) ruff check . && \
-	catkin_lint -W2 --strict .ws/src/aruco_abs_orient && \
+	catkin_lint -W2 --strict $$AAO_WORKSPACE/src/aruco_abs_orient && \
 	vermin --target=3.8- --no-tips --violations -q \
 	  $$(find src/aruco_abs_orient scripts -name '*.py' -not -path '*/offline/*' -not -path '*/synthetic/*') \
 	  $$(grep -l 'python' scripts/* 2>/dev/null) && echo "lint: clean"
 
 clean:
-	rm -rf .ws .venv .pytest_cache .hypothesis .ruff_cache
+	source tools/paths.sh && rm -rf "$$(aao_workspace "$$PWD")" .venv .pytest_cache .hypothesis .ruff_cache

@@ -2,9 +2,9 @@
 # Idempotent set-up of aruco_abs_orient on Debian 12 (run as root, or with passwordless sudo):
 #   1. Debian's ROS 1 packages (apt, only when one is missing),
 #   2. the venv .venv (/usr/bin/python3 --system-site-packages) with the pinned requirements,
-#   3. the real robot_localization, built by ../shared/tools/build-robot-localization into .ws/rl,
-#   4. the catkin workspace .ws (the repository linked as .ws/src/aruco_abs_orient), built with
-#      the venv's python.
+#   3. the real robot_localization, built by ../shared/tools/build-robot-localization into $WS/rl,
+#   4. the catkin workspace $WS (the repository linked as $WS/src/aruco_abs_orient), built with
+#      the venv's python. $WS is outside the repository (tools/paths.sh says why and where).
 # Each step is skipped when a stamp says nothing it depends on changed, so a repeated run takes
 # seconds. No `set -u`: catkin's setup.bash reads unset variables.
 set -eo pipefail
@@ -14,7 +14,10 @@ cd "$ROOT"
 export PATH=/usr/bin:/bin:/usr/sbin:/sbin:$PATH
 unset PYTHONPATH PYTHONHOME PYENV_VERSION CMAKE_PREFIX_PATH ROS_PACKAGE_PATH
 export DEBIAN_FRONTEND=noninteractive
-STAMPS=$ROOT/.ws/stamps
+# shellcheck disable=SC1091
+source "$ROOT/tools/paths.sh"
+WS=$(aao_workspace "$ROOT")
+STAMPS=$WS/stamps
 mkdir -p "$STAMPS"
 log() { echo "setup: $*" >&2; }
 t_start=$(date +%s.%N)
@@ -70,7 +73,7 @@ fi
 RL_TOOL=$ROOT/../shared/tools/build-robot-localization
 RL_SETUP=
 if [[ -x $RL_TOOL ]]; then
-  RL_SETUP=$("$RL_TOOL" "$ROOT/.ws/rl" | tail -n 1)
+  RL_SETUP=$("$RL_TOOL" "$WS/rl" | tail -n 1)
   log "robot_localization: $RL_SETUP"
 else
   log "robot_localization: $RL_TOOL not found: skipped (the EKF rostests will be skipped;" \
@@ -79,7 +82,6 @@ fi
 echo "$RL_SETUP" >"$STAMPS/rl_setup"
 
 # --------------------------------------------------------------------------- 4. catkin workspace
-WS=$ROOT/.ws
 mkdir -p "$WS/src"
 if [[ "$(readlink -f "$WS/src/aruco_abs_orient" 2>/dev/null)" != "$ROOT" ]]; then
   rm -rf -- "$WS/src/aruco_abs_orient"
