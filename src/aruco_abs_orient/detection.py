@@ -811,7 +811,7 @@ class MarkerDetector:
         ``expect_id``: only this id is wanted (see :meth:`_finish`).
         """
         if maps is None:
-            maps = _clipped_maps(view, equirect, map_step)
+            maps = view.remap_maps(equirect, map_step)
         img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
         found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
@@ -924,8 +924,8 @@ class MarkerDetector:
 
     @staticmethod
     def view_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:
-        """Remap maps equirect → ``view`` for :meth:`detect_in_view` (see ``_clipped_maps``)."""
-        return _clipped_maps(view, equirect, step)
+        """Remap maps equirect → ``view`` for :meth:`detect_in_view` (``GnomonicView.remap_maps``)."""
+        return view.remap_maps(equirect, step)
 
     def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0) -> GnomonicView:
         """A square gnomonic view of full field of view ``fov`` (radians) around a bearing, at
@@ -942,7 +942,7 @@ class MarkerDetector:
             views = []
             for z in (1.0, -1.0):
                 view = self.view_around(equirect, np.array([0.0, 0.0, z]), fov)
-                views.append((view, _clipped_maps(view, equirect)))
+                views.append((view, view.remap_maps(equirect)))
             self._pole_maps = {key: views}
         return self._pole_maps[key]
 
@@ -970,30 +970,6 @@ class MarkerDetector:
                          if abs(o.elevation) > band]
                 found = dedupe_observations(found + polar)
         return sorted(found, key=lambda o: o.id)
-
-
-def _clipped_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:
-    """``cv2.remap`` maps from the equirect to ``view`` (as GnomonicView.render: rows clamped,
-    columns wrapped). With ``step`` > 1 the exact mapping is computed every ``step`` view
-    pixels and interpolated bilinearly in between (≪ 0.1 px off for small views; the
-    corners are refined on the sphere afterwards anyway), ~step² times cheaper.
-    """
-    if step <= 1:
-        map_x, map_y = view.remap_maps(equirect)
-    else:
-        nx = -(-(view.width - 1) // step) + 1
-        ny = -(-(view.height - 1) // step) + 1
-        gx, gy = np.meshgrid(np.arange(nx, dtype=float) * step, np.arange(ny, dtype=float) * step)
-        u, v = equirect.bearing_to_pixel(view.pixel_to_bearing(gx, gy))
-        u = equirect.unwrap_u(u, u[ny // 2, nx // 2])  # no jump at the seam; remap wraps columns
-        fx, fy = np.meshgrid(np.arange(view.width, dtype=np.float32) / step,
-                             np.arange(view.height, dtype=np.float32) / step)
-        map_x = cv2.remap(u.astype(np.float32), fx, fy, cv2.INTER_LINEAR)
-        map_y = cv2.remap(v.astype(np.float32), fx, fy, cv2.INTER_LINEAR)
-    map_x = map_x.astype(np.float32)
-    map_y = map_y.astype(np.float32)
-    np.clip(map_y, 0.0, equirect.height - 1.0, out=map_y)
-    return map_x, map_y
 
 
 def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:

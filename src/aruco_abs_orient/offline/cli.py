@@ -82,6 +82,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="output directory of `process` (trajectory.tum, observations.csv)")
     p.add_argument("--reference", required=True, help="TUM file of base_link in map (e.g. the truth)")
     p.add_argument("--out", help="report directory (default: the run directory)")
+    p.add_argument("--fused", metavar="BAG", help="also evaluate /odometry/filtered (robot_localization) recorded "
+                   "in BAG by postprocess.launch record:=BAG")
+    p.add_argument("--fused-clock-offset", type=float, default=0.0, metavar="S",
+                   help="the recorded stamps are on the camera clock: subtract S s (the --time-offset used)")
+    p.add_argument("--after", type=float, default=0.0, metavar="T",
+                   help="evaluate the fused output from reference time T on (s; default: all)")
     p.add_argument("--overview", nargs=2, metavar=("BAG", "MARKERS"),
                    help="also draw overview.png: a frame of BAG with its markers above the trajectory")
 
@@ -144,7 +150,13 @@ def cmd_timesync(a: argparse.Namespace) -> int:
 def cmd_evaluate(a: argparse.Namespace) -> int:
     from .evaluate import evaluate_run
 
-    res = evaluate_run(a.run, a.reference, a.out)
+    extra = {}
+    if a.fused:
+        from .evaluate import fused_errors, odometry_from_bag
+
+        extra["fused_ekf"] = fused_errors(odometry_from_bag(a.fused, clock_offset=a.fused_clock_offset),
+                                          a.reference, after=a.after)
+    res = evaluate_run(a.run, a.reference, a.out, extra=extra)
     if a.overview:
         from .evaluate import overview_figure
 
@@ -154,6 +166,10 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     ape = res["heading_ape"].stats
     print(f"heading vs reference: RMSE {math.degrees(ape.rmse):.3f}°, p95 {math.degrees(ape.p95):.3f}°, "
           f"coverage {100 * ape.coverage:.1f} %")
+    if "fused_ekf" in res:
+        f = res["fused_ekf"]
+        print(f"robot_localization EKF (/odometry/filtered) vs reference: heading RMSE "
+              f"{math.degrees(f['heading_ape'].stats.rmse):.3f}°, position RMSE {1e3 * f['position']['rmse_m']:.1f} mm")
     agree = res.get("per_marker_agreement")
     if hasattr(agree, "stats"):
         st = agree.stats

@@ -20,7 +20,8 @@ from .. import evaluation as ev
 from ..transforms import wrap_angle, yaw_of
 from ..tum import TumError, read_tum
 
-__all__ = ["EvaluateError", "read_observations", "evaluate_run"]
+__all__ = ["EvaluateError", "read_observations", "evaluate_run", "odometry_from_bag", "fused_errors",
+           "overview_figure"]
 
 
 class EvaluateError(ValueError):
@@ -48,12 +49,51 @@ def read_observations(path: str) -> Dict[str, np.ndarray]:
     return {k: np.asarray(v) for k, v in cols.items()}
 
 
-def evaluate_run(run_dir: str, reference: str, out_dir: Optional[str] = None,
-                 max_gap: float = 0.2) -> Dict[str, object]:
+def odometry_from_bag(bag: str, topic: str = "/odometry/filtered", clock_offset: float = 0.0):
+    """The poses of a nav_msgs/Odometry topic of a bag as a TUM trajectory, stamps minus
+    ``clock_offset`` (s; e.g. the camera offset when the outputs carry camera-clock stamps)."""
+    from ..transforms import make_T, quat_to_matrix
+    from ..tum import Trajectory
+    from .bagio import BagError, open_reader
+
+    reader = open_reader(bag)
+    stamps, poses = [], []
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            raise BagError(f"{bag}: no topic {topic}")
+        for c, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, c.msgtype)
+            p, q = msg.pose.pose.position, msg.pose.pose.orientation
+            stamps.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - clock_offset)
+            poses.append(make_T(quat_to_matrix([q.x, q.y, q.z, q.w]), [p.x, p.y, p.z]))
+    finally:
+        reader.close()
+    order = np.argsort(stamps, kind="stable")
+    return Trajectory.from_transforms(np.asarray(stamps)[order], np.asarray(poses).reshape(-1, 4, 4)[order])
+
+
+def fused_errors(trajectory, reference: str, after: float = 0.0, max_gap: float = 0.2) -> Dict[str, object]:
+    """Heading APE and position RMSE of a trajectory (e.g. the EKF's) vs a reference TUM file,
+    from time ``after`` on (s, reference clock)."""
+    ref = read_tum(reference)
+    sel = trajectory.stamps >= after
+    if not np.any(sel):
+        raise EvaluateError(f"no fused pose after t = {after:.3f} s")
+    t, T = trajectory.stamps[sel], trajectory.transforms[sel]
+    ape = ev.yaw_ape(t, yaw_of(T[:, :3, :3]), ref.stamps, yaw_of(ref.rotations), max_gap=max_gap)
+    p_ref, _, ok = ref.interpolate(t)
+    d = np.linalg.norm(T[ok, :3, 3] - p_ref[ok], axis=1)
+    return {"heading_ape": ape, "position": {"rmse_m": float(np.sqrt(np.mean(d * d))), "n": int(ok.sum())}}
+
+
+def evaluate_run(run_dir: str, reference: str, out_dir: Optional[str] = None, max_gap: float = 0.2,
+                 extra: Optional[Dict[str, object]] = None) -> Dict[str, object]:
     """Evaluate ``run_dir`` (outputs of ``process``) against the TUM file ``reference``.
 
     Writes ``report.md``, ``report.json`` and PNG plots into ``out_dir`` (default ``run_dir``)
-    and returns the results (objects of :mod:`aruco_abs_orient.evaluation`).
+    and returns the results (objects of :mod:`aruco_abs_orient.evaluation`); ``extra`` sections
+    (e.g. :func:`fused_errors` of the EKF) are added to the report.
     """
     out_dir = out_dir or run_dir
     os.makedirs(out_dir, exist_ok=True)
@@ -109,6 +149,7 @@ def evaluate_run(run_dir: str, reference: str, out_dir: Optional[str] = None,
                 results["error_by_frame_position"] = bias
                 plots["yaw error by position in the frame (paper fig. 13)"] = ev.plot_frame_position(
                     os.path.join(out_dir, "frame_position.png"), bias)
+    results.update(extra or {})
     results["plots"] = plots
     md, js = ev.write_report(out_dir, results, title=f"aruco_abs_orient evaluation of {os.path.abspath(run_dir)}")
     results["report_md"], results["report_json"] = md, js
