@@ -48,8 +48,11 @@ if rospack find robot_localization >/dev/null 2>&1; then
     bag:="$SCEN/scenario.bag" markers:="$SCEN/markers.yaml" use_ekf:=true time_offset:="$OFFSET" \
     record:="$RUN/fused.bag" >"$RUN/postprocess.log" 2>&1 || true
   if [[ -f $RUN/fused.bag ]]; then
-    FUSED=(--fused "$RUN/fused.bag" --fused-clock-offset "$OFFSET"
-      --after "$(awk 'NR==1 && !/^#/ {print $1} /^[0-9]/ {print $1; exit}' "$RUN/trajectory.tum")")
+    # the EKF starts from the odometry's heading and converges within a second of the first
+    # absolute yaw (end of the standstill): it is judged from then on
+    AFTER=$(python -c "import yaml,sys; c=yaml.safe_load(open(sys.argv[1]))['config']; \
+print(c['start_time'] + c['standstill'] + 1.0)" "$SCEN/hidden.yaml")
+    FUSED=(--fused "$RUN/fused.bag" --fused-clock-offset "$OFFSET" --after "$AFTER")
     echo "recorded the node's and the EKF's outputs: $RUN/fused.bag (log: $RUN/postprocess.log)"
   else
     echo "postprocess.launch recorded nothing; see $RUN/postprocess.log"
