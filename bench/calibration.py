@@ -17,6 +17,11 @@ Then, in one run:
         [--work /tmp/aruco_calib_bench] [--boresight-deg 0.5]
 
 Scenarios are cached in ``--work`` (re-rendered only with ``--force``).
+
+Measured (demo preset, 60 s, 30 fps, 3840×1920, seed 3, every 3rd image, 2 cores): boresight error
+0.0059° (−0.0017, −0.0022, −0.0052 rpy; σ 0.0007, 0.0008, 0.0075); heading RMSE naive 0.508°, calibrated
+0.039°, no-error recording 0.029° (the difference lies in the last 20 s, the filter's noise on other
+images; the constant part left is +0.005°); frame-position bias 0.526° → 0.013° (no-error 0.008°).
 """
 
 from __future__ import annotations
