@@ -3,7 +3,8 @@
 #   1. generate the demo scenario (60 s, 30 fps, 3840x1920, 19 cm markers at 2-12 m; cached in
 #      .cache/demo/scenario — DEMO_FORCE=1 re-renders it; DEMO_PRESET=ci for a quick look),
 #   2. estimate the camera <-> total-station time offset (timesync),
-#   3. process the bag (detection -> per-marker yaw -> map->odom filter -> trajectory),
+#   3. calibrate the camera's mounting rotation (boresight) from the bag, then process the bag
+#      with it (detection -> per-marker yaw -> map->odom filter -> trajectory),
 #   4. replay the bag through the ROS node and the real robot_localization EKF
 #      (roslaunch aruco_abs_orient postprocess.launch use_ekf:=true), recording the outputs,
 #   5. evaluate both against the hidden truth: report (Markdown + JSON) and plots.
@@ -35,8 +36,18 @@ else
     "known offset, $OFFSET s"
 fi
 
-step "3/5 process the bag with the estimated offset"
-aruco-abs-orient process "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --out "$RUN" --time-offset "$OFFSET"
+step "3/5 calibrate the boresight, then process the bag with the offset and the calibration"
+CAL=()
+if aruco-abs-orient calibrate "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --time-offset "$OFFSET" \
+  --every 3 --out "$RUN/calibration.yaml"; then
+  CAL=(--calibration "$RUN/calibration.yaml")
+  python -c "import yaml,sys; b=yaml.safe_load(open(sys.argv[1]))['boresight']['rpy_deg']; \
+print('(the scenario\'s hidden boresight error, roll pitch yaw: %.4f %.4f %.4f deg)' % tuple(b))" "$SCEN/hidden.yaml"
+else
+  echo "no calibration from this recording (see above): processing with the bag's own lever arms"
+fi
+aruco-abs-orient process "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --out "$RUN" --time-offset "$OFFSET" \
+  "${CAL[@]}"
 
 step "4/5 the ROS node and robot_localization on the bag (postprocess.launch, played at its own speed)"
 FUSED=()

@@ -62,6 +62,7 @@ __all__ = [
     "static_tf_yaml",
     "write_static_tf_yaml",
     "launch_snippet",
+    "load_calibration",
 ]
 
 
@@ -676,3 +677,43 @@ def launch_snippet(calib: Calibration, base_T_camera_nominal, base_T_prism, base
         out.append(f'<node pkg="tf2_ros" type="static_transform_publisher" name="{name}" '
                    f'args="{args} {base_frame} {child}"/>')
     return "\n".join(out) + "\n"
+
+
+# --------------------------------------------------------------------------- reading it back
+
+#: keys of the calibration YAML → the child frame each one places on base_link
+CALIBRATION_KEYS = {"base_link_to_camera": "camera", "base_link_to_prism": "prism"}
+
+
+def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
+    value = entry.get(key, default)
+    if (not isinstance(value, (list, tuple)) or len(value) != 3
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
+        raise CalibrationError(f"{where}.{key}: expected [a, b, c] of finite numbers, got {value!r}")
+    return np.array(value, dtype=float)
+
+
+def load_calibration(path: str) -> Dict[str, np.ndarray]:
+    """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres).
+    Raises CalibrationError naming the file and the key."""
+    import yaml
+
+    try:
+        with open(path) as f:
+            data = yaml.safe_load(f)
+    except OSError as e:
+        raise CalibrationError(f"{path}: cannot read: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise CalibrationError(f"{path}: not valid YAML: {e}") from None
+    if not isinstance(data, dict):
+        raise CalibrationError(f"{path}: expected a mapping with {' and '.join(CALIBRATION_KEYS)}")
+    out = {}
+    for key, child in CALIBRATION_KEYS.items():
+        entry = data.get(key)
+        where = f"{path}: {key}"
+        if not isinstance(entry, dict):
+            raise CalibrationError(f"{where}: missing; expected {{xyz: [x, y, z], rpy_deg: [r, p, y]}}")
+        xyz = _vector(entry, "xyz", where)
+        rpy = np.radians(_vector(entry, "rpy_deg", where, default=[0.0, 0.0, 0.0]))
+        out[child] = make_T(rpy_to_matrix(*rpy), xyz)
+    return out

@@ -23,11 +23,11 @@ from aruco_abs_orient.calibration import (
     CalibrationParams,
     calibrate,
     launch_snippet,
+    load_calibration,
     static_tf_yaml,
     write_static_tf_yaml,
 )
 from aruco_abs_orient.markers import Marker, MarkerMap
-from aruco_abs_orient.ros.static_tfs import load_calibration
 from aruco_abs_orient.solver import yaw_from_marker
 from aruco_abs_orient.transforms import make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
 from aruco_abs_orient.tum import Trajectory

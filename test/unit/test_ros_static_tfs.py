@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from aruco_abs_orient.ros.static_tfs import CalibrationError, load_calibration
+from aruco_abs_orient.calibration import CalibrationError, load_calibration
 from aruco_abs_orient.transforms import transform_points
 
 

@@ -25,6 +25,8 @@ EXAMPLES = """examples:
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367
   aruco-abs-orient evaluate results/ --reference truth.tum
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
+  aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367 \\
+      --calibration calibration.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --image-topic /theta/image/compressed
 """
 
@@ -60,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output directory (created; files are replaced atomically)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
                    help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
+    p.add_argument("--calibration", metavar="YAML",
+                   help="lever arms and camera rotation from this calibration file (written by `calibrate`) "
+                        "instead of the bag's /tf_static")
     p.add_argument("--jpeg-reduce", type=int, choices=(1, 2, 4, 8), default=PipelineParams.jpeg_reduce,
                    help="decode images at 1/N resolution (default 1: full; faster, less accurate)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -103,9 +108,11 @@ def _fail(msg: str, code: int = 2) -> int:
 
 
 def cmd_process(a: argparse.Namespace) -> int:
+    from ..calibration import load_calibration
     from .process import process_bag
 
     marker_map = MarkerMap.load(a.markers)
+    calibration = load_calibration(a.calibration) if a.calibration else None
     try:
         os.makedirs(a.out, exist_ok=True)
     except OSError as e:
@@ -114,7 +121,7 @@ def cmd_process(a: argparse.Namespace) -> int:
         return _fail(f"{a.out}: output directory is not writable")
     params = PipelineParams(jpeg_reduce=a.jpeg_reduce)
     result = process_bag(a.bag, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
-                         progress=not a.quiet)
+                         progress=not a.quiet, calibration=calibration)
     s = result.summary
     print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
     for w in s["warnings"]:
@@ -180,6 +187,7 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
+    from ..calibration import CalibrationError
     from .evaluate import EvaluateError
 
     parser = build_parser()
@@ -188,7 +196,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if a.command == "calibrate":
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate}[a.command](a)
-    except (MarkerMapError, BagError, PipelineError, EvaluateError) as e:
+    except (MarkerMapError, BagError, PipelineError, EvaluateError, CalibrationError) as e:
         return _fail(str(e))
     except KeyboardInterrupt:
         return _fail("interrupted", 130)

@@ -93,18 +93,24 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
 
 def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: float = 0.0,
                 topics: Optional[BagTopics] = None, params: Optional[PipelineParams] = None,
-                progress: bool = True, data: Optional[BagData] = None, **pipeline_kwargs) -> ProcessResult:
+                progress: bool = True, data: Optional[BagData] = None, calibration: Optional[Dict] = None,
+                **pipeline_kwargs) -> ProcessResult:
     """Process ``bag`` into ``out_dir`` (created if needed).
 
     ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the
-    timesync tool estimates). Raises BagError when the bag cannot be used at all.
+    timesync tool estimates). ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}``
+    (``calibration.load_calibration``) used instead of the bag's /tf_static lever arms. Raises
+    BagError when the bag cannot be used at all.
     """
     topics = topics or BagTopics()
     params = params or PipelineParams()
     t_start = time.perf_counter()
     data = data or read_bag_data(bag, topics)
     os.makedirs(out_dir, exist_ok=True)
-    pipe = AbsOrientPipeline(marker_map, data.base_T_camera, data.base_T_prism, params, **pipeline_kwargs)
+    base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
+    if calibration is not None:
+        base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
+    pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, params, **pipeline_kwargs)
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
 
     fd, obs_tmp = tempfile.mkstemp(prefix=".observations.csv.", suffix=".tmp", dir=out_dir)
@@ -182,6 +188,7 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
         "bag": os.path.abspath(bag),
         "markers": marker_map.source,
         "time_offset_s": time_offset,
+        "lever_arms": "calibration file" if calibration is not None else "bag /tf_static",
         "frames": frames,
         "frames_with_pose": with_pose,
         "frames_without_odometry": odom_missing,

@@ -14,56 +14,11 @@ file → one line naming the file and the key, exit status 2.
 
 from __future__ import annotations
 
-import math
 import sys
-from typing import Dict
 
-import numpy as np
+from ..calibration import CalibrationError, load_calibration
 
-from ..transforms import make_T, rpy_to_matrix
-
-__all__ = ["CalibrationError", "load_calibration", "main"]
-
-KEYS = {"base_link_to_camera": "camera", "base_link_to_prism": "prism"}
-
-
-class CalibrationError(ValueError):
-    """A calibration YAML that cannot be used: the message names the file and the key."""
-
-
-def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
-    value = entry.get(key, default)
-    if (not isinstance(value, (list, tuple)) or len(value) != 3
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)):
-        raise CalibrationError(f"{where}.{key}: expected [a, b, c] of finite numbers, got {value!r}")
-    return np.array(value, dtype=float)
-
-
-def load_calibration(path: str) -> Dict[str, np.ndarray]:
-    """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres).
-    Raises CalibrationError naming the file and the key."""
-    import yaml
-
-    try:
-        with open(path) as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        raise CalibrationError(f"{path}: not valid YAML: {e}") from None
-    if not isinstance(data, dict):
-        raise CalibrationError(f"{path}: expected a mapping with {' and '.join(KEYS)}")
-    out = {}
-    for key, child in KEYS.items():
-        entry = data.get(key)
-        where = f"{path}: {key}"
-        if not isinstance(entry, dict):
-            raise CalibrationError(f"{where}: missing; expected {{xyz: [x, y, z], rpy_deg: [r, p, y]}}")
-        xyz = _vector(entry, "xyz", where)
-        rpy = np.radians(_vector(entry, "rpy_deg", where, default=[0.0, 0.0, 0.0]))
-        out[child] = make_T(rpy_to_matrix(*rpy), xyz)
-    return out
-
+__all__ = ["main"]
 
 def main(argv=None) -> int:
     """Node entry point: publish the two static transforms (latched) and spin."""
