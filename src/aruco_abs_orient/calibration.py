@@ -52,7 +52,7 @@ from .markers import MarkerMap
 from .solver import yaw_consensus
 from .timesync import TimeSyncError, heading_from_track
 from .transforms import make_T, matrix_to_rpy, quat_to_matrix, rot_z, rpy_to_matrix, wrap_angle, yaw_of
-from .tum import Trajectory, atomic_write_text
+from .tum import Trajectory, atomic_write_text, read_yaml
 
 __all__ = [
     "CalibrationError",
@@ -696,15 +696,7 @@ def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
 def load_calibration(path: str) -> Dict[str, np.ndarray]:
     """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres).
     Raises CalibrationError naming the file and the key."""
-    import yaml
-
-    try:
-        with open(path) as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        raise CalibrationError(f"{path}: not valid YAML: {e}") from None
+    data = read_yaml(path, CalibrationError)
     if not isinstance(data, dict):
         raise CalibrationError(f"{path}: expected a mapping with {' and '.join(CALIBRATION_KEYS)}")
     out = {}

@@ -111,16 +111,9 @@ class MarkerMap:
     @classmethod
     def load(cls, path: str) -> MarkerMap:
         """Load and validate a marker map YAML file. Raises MarkerMapError."""
-        import yaml
+        from .tum import read_yaml
 
-        try:
-            with open(path) as f:
-                data = yaml.safe_load(f)
-        except OSError as e:
-            raise MarkerMapError(f"{path}: cannot read: {e.strerror}") from None
-        except yaml.YAMLError as e:
-            raise MarkerMapError(f"{path}: not valid YAML: {e}") from None
-        return cls.from_dict(data, source=path)
+        return cls.from_dict(read_yaml(path, MarkerMapError), source=path)
 
     def to_dict(self) -> dict:
         return {

@@ -1,7 +1,8 @@
 """TUM trajectory files: one pose per line, ``t x y z qx qy qz qw`` (seconds, metres).
 
-The package's one reader/writer of the format (truth files, offline results, simulator input).
-Writing is atomic: the file appears complete or not at all.
+The package's one reader/writer of the format (truth files, offline results, simulator input),
+and its file helpers: atomic writes (the file appears complete or not at all) and YAML reading
+with errors that name the file.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import numpy as np
 
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
-__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp"]
+__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp",
+           "read_yaml"]
 
 
 class TumError(ValueError):
@@ -146,6 +148,20 @@ def read_tum(path: str) -> Trajectory:
         raise TumError(f"{path}: cannot read: {e.strerror}") from None
     data = np.array(rows, dtype=float).reshape(-1, 8)
     return Trajectory(data[:, 0], data[:, 1:4], data[:, 4:8])
+
+
+def read_yaml(path: str, error: type):
+    """The parsed YAML document of ``path``; ``error`` (an exception class) naming the file when
+    it cannot be read or is not valid YAML."""
+    import yaml
+
+    try:
+        with open(path) as f:
+            return yaml.safe_load(f)
+    except OSError as e:
+        raise error(f"{path}: cannot read: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise error(f"{path}: not valid YAML: {e}") from None
 
 
 def write_tum(path: str, trajectory: Trajectory, header: str = "") -> None:

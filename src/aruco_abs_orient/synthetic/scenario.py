@@ -27,7 +27,7 @@ import numpy as np
 
 from ..markers import ARUCO_DICTIONARIES, Marker, MarkerMap
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
-from ..tum import atomic_write_text
+from ..tum import atomic_write_text, read_yaml
 from .render import PROFILES, PlacedMarker, facing_marker
 
 __all__ = ["ScenarioError", "ScenarioConfig", "PRESETS", "Scenario", "PrismTrack"]
@@ -416,15 +416,7 @@ class Scenario:
     @classmethod
     def from_hidden(cls, path: str) -> Scenario:
         """Rebuild the scenario from a hidden-parameters YAML written by the generator."""
-        import yaml
-
-        try:
-            with open(path) as f:
-                data = yaml.safe_load(f)
-        except OSError as e:
-            raise ScenarioError(f"{path}: cannot read: {e.strerror}") from None
-        except yaml.YAMLError as e:
-            raise ScenarioError(f"{path}: not valid YAML: {e}") from None
+        data = read_yaml(path, ScenarioError)
         if not isinstance(data, dict) or "config" not in data:
             raise ScenarioError(f"{path}: no 'config' mapping: not a hidden-parameters file")
         scenario = cls(ScenarioConfig.from_dict(data["config"], source=f"{path}: config"))
