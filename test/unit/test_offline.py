@@ -170,15 +170,40 @@ def test_corrupt_images_and_nan_tf_are_counted_and_skipped(tiny, tmp_path):
     assert res.summary["frames_with_pose"] > 0
 
 
-def test_truncated_bag_is_a_clear_error(tiny, tmp_path, capsys):
+def test_truncated_bag_is_salvaged_up_to_the_cut(scenario_factory, tmp_path, capsys):
+    """A recording cut short (no index): its complete chunks are processed, the cut is reported,
+    and the salvaged copy does not stay behind; Debian's rosbag reads the same copy."""
+    tiny = scenario_factory("ci")  # long enough to initialise before the cut
     data = Path(tiny.bag).read_bytes()
     dst = tmp_path / "trunc.bag"
-    dst.write_bytes(data[: len(data) // 2])
-    rc = cli_main(["process", str(dst), "--markers", tiny.markers, "--out", str(tmp_path / "o"), "--quiet"])
+    dst.write_bytes(data[: 2 * len(data) // 3])
+    out = tmp_path / "o"
+    rc = cli_main(["process", str(dst), "--markers", tiny.markers, "--out", str(out), "--quiet",
+                   "--time-offset", str(_hidden(tiny)["camera_time_offset"])])
     err = capsys.readouterr().err
+    assert rc == 0
+    assert "trunc.bag: cannot read the bag" in err and "complete chunks" in err
+    summary = json.loads((out / "summary.json").read_text())
+    full = read_bag_data(tiny.bag).image_count
+    assert 0.4 * full < summary["frames"] < 0.8 * full
+    assert summary["frames_with_pose"] > 0
+    assert sorted(p.name for p in out.iterdir()) == ["observations.csv", "summary.json", "trajectory.tum"]
+
+    from aruco_abs_orient.offline.bagio import salvage_bag
+
+    n, _ = salvage_bag(str(dst), str(tmp_path / "copy.bag"))
+    import rosbag  # Debian's: the salvaged bag is a proper indexed bag
+
+    with rosbag.Bag(str(tmp_path / "copy.bag")) as b:
+        assert b.get_message_count() == n
+
+
+def test_bag_cut_before_its_first_chunk_is_a_clear_error(tiny, tmp_path, capsys):
+    dst = tmp_path / "cut.bag"
+    dst.write_bytes(Path(tiny.bag).read_bytes()[:5000])
+    rc = cli_main(["process", str(dst), "--markers", tiny.markers, "--out", str(tmp_path / "o"), "--quiet"])
     assert rc == 2
-    assert "trunc.bag" in err and "rosbag reindex" in err
-    assert not (tmp_path / "o" / "trajectory.tum").exists()
+    assert "cut.bag: truncated before its first complete chunk" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("text,field", [("markers: [1, 2", "not valid YAML"),

@@ -18,11 +18,16 @@ import numpy as np
 from ..transforms import make_T, quat_to_matrix
 from ..tum import Trajectory
 
-__all__ = ["BagError", "BagTopics", "BagData", "read_bag_data", "iter_images", "open_reader"]
+__all__ = ["BagError", "BagReadError", "BagTopics", "BagData", "read_bag_data", "iter_images", "open_reader",
+           "salvage_bag"]
 
 
 class BagError(RuntimeError):
     """A bag that cannot be used: names the file and the topic/frame."""
+
+
+class BagReadError(BagError):
+    """A file rosbags cannot open as a bag (truncated, no index, not a bag)."""
 
 
 @dataclass
@@ -69,8 +74,8 @@ def open_reader(path):
     try:
         reader.open()
     except Exception as e:  # rosbags raises its own classes for every kind of broken file
-        raise BagError(f"{path}: cannot read the bag ({e}); a truncated bag can be repaired with "
-                       "`rosbag reindex`") from None
+        raise BagReadError(f"{path}: cannot read the bag ({e}); a truncated bag can be repaired with "
+                           "`rosbag reindex`") from None
     return reader
 
 
@@ -199,3 +204,76 @@ def _raw_image(msg):
     if msg.encoding == "rgb8":
         img = img[..., ::-1]
     return img[..., 0] if channels == 1 else np.ascontiguousarray(img)
+
+
+def _fields(header: bytes) -> Dict[str, bytes]:
+    out, i = {}, 0
+    while i + 4 <= len(header):
+        n = int.from_bytes(header[i:i + 4], "little")
+        name, _, value = header[i + 4:i + 4 + n].partition(b"=")
+        out[name.decode("ascii", "replace")] = value
+        i += 4 + n
+    return out
+
+
+def _records(buf: bytes, start: int = 0):
+    """(header fields, data) of the complete records of a ROS 1 bag stream; stops at a cut."""
+    i = start
+    while i + 4 <= len(buf):
+        hlen = int.from_bytes(buf[i:i + 4], "little")
+        if i + 8 + hlen > len(buf):
+            return
+        header = buf[i + 4:i + 4 + hlen]
+        dlen = int.from_bytes(buf[i + 4 + hlen:i + 8 + hlen], "little")
+        if i + 8 + hlen + dlen > len(buf):
+            return
+        yield _fields(header), buf[i + 8 + hlen:i + 8 + hlen + dlen]
+        i += 8 + hlen + dlen
+
+
+def salvage_bag(src: str, dst: str) -> Tuple[int, float]:
+    """Copy the complete chunks of a truncated (unindexed) ROS 1 bag ``src`` into a new, indexed
+    bag ``dst`` (rosbags writer): what `rosbag reindex` does, without ROS. Returns (messages
+    kept, stamp of the last one in s). Raises BagError when nothing can be recovered."""
+    import bz2
+
+    from rosbags.rosbag1 import Writer
+
+    with open(src, "rb") as f:
+        buf = f.read()
+    if not buf.startswith(b"#ROSBAG V2.0\n"):
+        raise BagError(f"{src}: not a ROS 1 bag (no '#ROSBAG V2.0' header)")
+    conns: Dict[int, dict] = {}
+    messages = []
+    for fields, data in _records(buf, 13):
+        if fields.get("op") != b"\x05":  # only chunks hold messages; the index at the end is lost
+            continue
+        compression = fields.get("compression", b"none")
+        if compression == b"bz2":
+            data = bz2.decompress(data)
+        elif compression != b"none":
+            continue  # lz4 chunks need a library the core does not depend on
+        for inner, payload in _records(data):
+            op = inner.get("op")
+            if op == b"\x07":
+                info = _fields(payload)
+                conns[int.from_bytes(inner["conn"], "little")] = {
+                    "topic": inner["topic"].decode(), "type": info["type"].decode(),
+                    "md5sum": info["md5sum"].decode(), "msgdef": info["message_definition"].decode(),
+                    "callerid": info.get("callerid", b"").decode() or None,
+                    "latching": int(info["latching"]) if info.get("latching") else None}
+            elif op == b"\x02":
+                t = inner["time"]
+                messages.append((int.from_bytes(inner["conn"], "little"),
+                                 int.from_bytes(t[:4], "little") * 10**9 + int.from_bytes(t[4:8], "little"), payload))
+    messages = [m for m in messages if m[0] in conns]
+    if not messages:
+        raise BagError(f"{src}: truncated before its first complete chunk: nothing to recover")
+    with Writer(dst) as writer:
+        out = {cid: writer.add_connection(c["topic"], c["type"].replace("/", "/msg/", 1), msgdef=c["msgdef"],
+                                          md5sum=c["md5sum"],
+                                          callerid=c["callerid"], latching=c["latching"])
+               for cid, c in conns.items()}
+        for cid, stamp, payload in messages:
+            writer.write(out[cid], stamp, payload)
+    return len(messages), messages[-1][1] * 1e-9

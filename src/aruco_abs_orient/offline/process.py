@@ -30,7 +30,7 @@ from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineParams
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
-from .bagio import BagData, BagTopics, iter_images, read_bag_data
+from .bagio import BagData, BagReadError, BagTopics, iter_images, read_bag_data, salvage_bag
 
 __all__ = ["ProcessResult", "process_bag", "OBSERVATION_COLUMNS"]
 
@@ -105,8 +105,27 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
     topics = topics or BagTopics()
     params = params or PipelineParams()
     t_start = time.perf_counter()
-    data = data or read_bag_data(bag, topics)
     os.makedirs(out_dir, exist_ok=True)
+    salvaged = None
+    if data is None:
+        try:
+            data = read_bag_data(bag, topics)
+        except BagReadError as e:  # a recording cut short: process its complete chunks
+            salvaged = os.path.join(out_dir, f".salvaged.{os.getpid()}.bag")
+            n, last = salvage_bag(bag, salvaged)
+            data = read_bag_data(salvaged, topics)
+            data.warnings.append(f"{e}: processed the {n} messages of its complete chunks (up to t = {last:.3f} s)")
+    try:
+        return _process(bag, salvaged or bag, data, marker_map, out_dir, time_offset, topics, params, progress,
+                        calibration, t_start, pipeline_kwargs)
+    finally:
+        if salvaged is not None and os.path.exists(salvaged):
+            os.unlink(salvaged)
+
+
+def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, topics, params, progress, calibration,
+             t_start, pipeline_kwargs) -> ProcessResult:
+    """process_bag's work on ``readable`` (the bag, or what was salvaged of it); ``bag`` is the user's."""
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
     if calibration is not None:
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
@@ -125,7 +144,8 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
     items: queue.Queue = queue.Queue(maxsize=4)
     stop = threading.Event()
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
-    reader = threading.Thread(target=_reader, args=(bag, topics, int(params.jpeg_reduce), items, stop), daemon=True)
+    reader = threading.Thread(target=_reader, args=(readable, topics, int(params.jpeg_reduce), items, stop),
+                              daemon=True)
     bar = None
     if progress:
         from tqdm import tqdm
