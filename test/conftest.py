@@ -1,6 +1,10 @@
 """Shared pytest set-up: hypothesis profiles (no deadlines on a shared 2-core machine) and the
 synthetic scenarios the pipeline tests share."""
+import importlib.util
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -29,3 +33,18 @@ def scenario_factory(tmp_path_factory):
         return cache[key]
 
     return make
+
+
+@pytest.fixture(scope="session")
+def generated_cfg(tmp_path_factory):
+    """cfg/AbsOrient.cfg through dynamic_reconfigure's own generator; the generated Python module."""
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path_factory.mktemp("cfg")
+    proc = subprocess.run([sys.executable, str(root / "cfg" / "AbsOrient.cfg"), "/usr/share/dynamic_reconfigure",
+                           str(out / "bin"), str(out / "cpp"), str(out / "py")], cwd=str(out),
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout
+    spec = importlib.util.spec_from_file_location("AbsOrientConfig", str(out / "py" / "cfg" / "AbsOrientConfig.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

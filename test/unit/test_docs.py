@@ -222,20 +222,6 @@ def launch_args() -> dict:
 
 
 @pytest.fixture(scope="module")
-def cfg_module(tmp_path_factory):
-    """cfg/AbsOrient.cfg run through dynamic_reconfigure's generator: the generated module."""
-    out = tmp_path_factory.mktemp("cfg")
-    proc = subprocess.run([sys.executable, str(ROOT / "cfg" / "AbsOrient.cfg"), "/usr/share/dynamic_reconfigure",
-                           str(out / "bin"), str(out / "cpp"), str(out / "py")], cwd=str(out),
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=60)
-    assert proc.returncode == 0, proc.stdout
-    spec = importlib.util.spec_from_file_location("AbsOrientConfig", str(out / "py" / "cfg" / "AbsOrientConfig.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(scope="module")
 def api() -> str:
     return ROS_API.read_text()
 
@@ -267,25 +253,26 @@ def test_every_node_parameter_is_documented_with_its_default(api):
     assert not problems, "doc/ros_api.md is out of date:\n" + "\n".join(problems)
 
 
-def test_every_dynamic_reconfigure_entry_is_documented_with_default_and_range(api, cfg_module):
+def test_every_dynamic_reconfigure_entry_is_documented_with_default_and_range(api, generated_cfg):
     body = section(section(api, 2, "`abs_orient`"), 3, "dynamic_reconfigure")
-    problems = check_rows(body, dict(cfg_module.defaults), "dynamic_reconfigure")
+    problems = check_rows(body, dict(generated_cfg.defaults), "dynamic_reconfigure")
     rows = table_rows(body)
-    for name in cfg_module.defaults:
-        if name in rows and cfg_module.type[name] != "bool":
-            lo, hi = (default_matches(rows[name][2], cfg_module.min[name]),
-                      default_matches(rows[name][3], cfg_module.max[name]))
+    for name in generated_cfg.defaults:
+        if name in rows and generated_cfg.type[name] != "bool":
+            lo, hi = (default_matches(rows[name][2], generated_cfg.min[name]),
+                      default_matches(rows[name][3], generated_cfg.max[name]))
             if not (lo and hi):
-                problems.append(f"dynamic_reconfigure: `{name}`: range {cfg_module.min[name]}..{cfg_module.max[name]} "
+                cfg_range = f"{generated_cfg.min[name]}..{generated_cfg.max[name]}"
+                problems.append(f"dynamic_reconfigure: `{name}`: range {cfg_range} "
                                 f"in the cfg, the document says {rows[name][2]}..{rows[name][3]}")
     assert not problems, "doc/ros_api.md is out of date:\n" + "\n".join(problems)
 
 
-def test_the_pipeline_tunables_without_a_cfg_entry_are_listed(api, cfg_module):
+def test_the_pipeline_tunables_without_a_cfg_entry_are_listed(api, generated_cfg):
     """Tunables the pipeline has but the node cannot change (documented as fixed at their defaults)."""
     from aruco_abs_orient.pipeline import all_param_fields
 
-    fixed = {name: default for _, name, default in all_param_fields() if name not in cfg_module.defaults}
+    fixed = {name: default for _, name, default in all_param_fields() if name not in generated_cfg.defaults}
     body = section(section(api, 2, "`abs_orient`"), 3, "Fixed tunables")
     problems = check_rows(body, fixed, "fixed tunables")
     assert not problems, "doc/ros_api.md is out of date:\n" + "\n".join(problems)

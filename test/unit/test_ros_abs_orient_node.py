@@ -3,10 +3,7 @@ through dynamic_reconfigure's real generator and checked against the pipeline's 
 
 (The node itself runs in the rostests test/abs_orient_*.test.) Needs tools/env.sh sourced, as `make test`.
 """
-import importlib.util
 import math
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -69,20 +66,6 @@ def test_mailbox_keeps_the_newest_and_counts_what_it_replaced():
     assert taken == sorted(taken)                # never an older one after a newer one
     assert len(taken) + box.dropped == 300       # every item is taken or counted as dropped
     assert box.dropped > 100                     # the producer was ~10x faster
-
-
-@pytest.fixture(scope="module")
-def generated_cfg(tmp_path_factory):
-    """cfg/AbsOrient.cfg through dynamic_reconfigure's own generator; the generated Python module."""
-    out = tmp_path_factory.mktemp("cfg")
-    proc = subprocess.run([sys.executable, str(ROOT / "cfg" / "AbsOrient.cfg"), "/usr/share/dynamic_reconfigure",
-                           str(out / "bin"), str(out / "cpp"), str(out / "py")], cwd=str(out),
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=60)
-    assert proc.returncode == 0, proc.stdout
-    spec = importlib.util.spec_from_file_location("AbsOrientConfig", str(out / "py" / "cfg" / "AbsOrientConfig.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_cfg_entries_are_pipeline_tunables_with_their_defaults(generated_cfg):
