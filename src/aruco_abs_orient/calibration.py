@@ -5,7 +5,9 @@ refined from ALL marker observations of a recording by robust weighted least squ
 
 * boresight: a rotation ``B = rpy_to_matrix(roll, pitch, yaw)`` in base_link applied on top of the
   nominal mounting, ``R_bc = B · R_bc_nominal`` (three small angles, radians);
-* lever arm (optional): ``t_cam = t_cam_nominal + Δl`` (base_link, metres).
+* lever arm (optional): ``t_cam = t_cam_nominal + Δl`` (base_link, metres);
+* time offset (optional): a residual ``Δτ`` (s) of the camera ↔ total-station offset given, so that the
+  prism at camera time t is ``P(t − Δτ) ≈ P(t) − V(t)·Δτ`` (V the prism velocity from the track).
 
 Observation model of one marker bearing ``u`` (camera frame) at time t, as in ``solver``: with the
 prism P(t) (map), the odometry attitude ``odom_R_base(t)`` (tilt and relative yaw from VO) and the
@@ -28,6 +30,14 @@ the base_link origin (prism velocity minus ω × lever arm, ``timesync.heading_f
 speed), left out at standstill (speed < ``min_speed``) and in fast turns/turns in place (|yaw rate| >
 ``max_turn_rate_deg``). The boresight roll and pitch are observable from the markers with the VO tilt
 (map→odom has no tilt); the lever arm from markers in different directions and at different ranges.
+Δτ moves the camera along its direction of travel by V·Δτ: the bearing of a marker at range r turns
+by up to |V|Δτ/r, differently for each marker, while a boresight turns all of them alike — markers at
+several ranges and in several directions separate the two, and a camera lever arm along x is told apart
+from Δτ by the standstill and the speed changes (|V|Δτ scales with speed, a lever arm does not). The
+heading constraints carry Δτ too (the track heading at t − Δτ: ∂/∂Δτ = −turn rate). A 5 ms offset at
+0.8 m/s is 4 mm: over a recording's thousands of bearings to markers 2–12 m away it is determined to
+a fraction of a millisecond, where the heading alone (``timesync``) is limited by the VO drift.
+
 A recording that lacks what a parameter needs (no motion, no markers, too few) raises
 :class:`CalibrationError` saying so; a parameter whose σ exceeds its limit is reported as not
 determined, never as a number.
@@ -88,8 +98,9 @@ class CalibrationParams:
     - ``min_observations``, ``min_markers``: least usable observations and distinct marker ids.
     - ``loss_scale``: Cauchy scale (in σ) of the robust stage; ``outlier_gate``: normalised residual
       beyond which an observation is dropped before the least-squares stage.
-    - ``max_boresight_sigma_deg``, ``max_lever_sigma``: a boresight angle (degrees) / lever-arm axis (m)
-      with a larger 1-σ is not determined: :class:`CalibrationError`.
+    - ``max_boresight_sigma_deg``, ``max_lever_sigma``, ``max_time_offset_sigma``: a boresight angle
+      (degrees) / lever-arm axis (m) / time offset (s) with a larger 1-σ is not determined:
+      :class:`CalibrationError`.
     - ``max_iterations``: Gauss-Newton iterations per stage.
     """
 
@@ -109,6 +120,7 @@ class CalibrationParams:
     outlier_gate: float = 4.0
     max_boresight_sigma_deg: float = 0.1
     max_lever_sigma: float = 0.02
+    max_time_offset_sigma: float = 0.005
     max_iterations: int = 30
 
     def validate(self) -> None:
@@ -125,7 +137,7 @@ class Calibration:
       ``boresight_sigma`` (3,) rad, 1-σ.
     - ``lever_arm_delta`` (3,) m: correction of the camera origin in base_link (zero when not estimated);
       ``lever_arm_sigma`` (3,) m (NaN when not estimated); ``lever_arm_estimated``.
-    - ``cov``: covariance of (roll, pitch, yaw[, Δx, Δy, Δz]) in rad² / m².
+    - ``cov``: covariance of (roll, pitch, yaw[, Δx, Δy, Δz][, Δτ]) in rad², m², s² (the ones estimated).
     - ``residual_rms_before`` / ``residual_rms_after`` (rad): RMS angle between observed and predicted
       bearings with the nominal and with the calibrated transform (δ(t) fitted in both), over the
       observations kept; ``residual_median_before`` / ``_after`` likewise (rad).
@@ -135,6 +147,9 @@ class Calibration:
       heading constraints kept, ``moving_time`` (s) they cover, ``skipped`` reason → count.
     - ``used`` (N,) bool over the input observations; ``residuals_before`` / ``residuals_after`` (N,)
       rad (NaN where unusable).
+    - ``time_offset_delta`` (s): the residual time offset found (0 when not estimated): the camera
+      stamps are total-station time + (the offset given + it); ``time_offset_sigma`` (s, NaN when not
+      estimated); ``time_offset_estimated``.
     """
 
     boresight_rpy: np.ndarray
@@ -159,6 +174,9 @@ class Calibration:
     residuals_before: np.ndarray
     residuals_after: np.ndarray
     skipped: Dict[str, int] = field(default_factory=dict)
+    time_offset_delta: float = 0.0
+    time_offset_sigma: float = float("nan")
+    time_offset_estimated: bool = False
 
     @property
     def boresight_matrix(self) -> np.ndarray:
@@ -191,6 +209,9 @@ class Calibration:
             "iterations": self.iterations,
             "skipped": dict(self.skipped),
         }
+        if self.time_offset_estimated:
+            out["time_offset_delta_ms"] = round(1e3 * self.time_offset_delta, 3)
+            out["time_offset_sigma_ms"] = round(1e3 * self.time_offset_sigma, 3)
         if self.lever_arm_estimated:
             out["lever_arm_delta_mm"] = [round(1e3 * float(x), 3) for x in self.lever_arm_delta]
             out["lever_arm_sigma_mm"] = [round(1e3 * float(x), 3) for x in self.lever_arm_sigma]
@@ -201,21 +222,24 @@ class Calibration:
 
 
 class _Problem:
-    """Marker observations and heading constraints with everything interpolated to their times."""
+    """Marker observations and heading constraints with everything interpolated to their times.
 
-    def __init__(self, u, M, P, R_odom, sigma, t_obs, t_head, yaw_head, sigma_head, knots, R_bc, t_cam,
-                 t_prism, drift_sigma):
-        self.u, self.M, self.P, self.R_odom, self.sigma = u, M, P, R_odom, sigma
+    The global unknowns are the 7-vector x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ) (rad, m, s), of
+    which ``_solve`` frees a subset; the knot values d of δ(t) are always free."""
+
+    def __init__(self, u, M, P, V, R_odom, sigma, t_obs, heading, knots, R_bc, t_cam, t_prism, drift_sigma):
+        self.u, self.M, self.P, self.V, self.R_odom, self.sigma = u, M, P, V, R_odom, sigma
         self.R_bc, self.t_cam, self.t_prism = R_bc, t_cam, t_prism
         self.knots = knots
         self.i_obs, self.a_obs = _knot_weights(knots, t_obs)
-        self.set_heading(t_head, yaw_head, sigma_head)
+        self.set_heading(*heading)
         self.drift_sigma = drift_sigma      # rad per knot interval
 
-    def set_heading(self, t_head, yaw_head, sigma_head) -> None:
+    def set_heading(self, t_head, yaw_head, sigma_head, rate_head) -> None:
         self.i_head, self.a_head = _knot_weights(self.knots, t_head)
         self.yaw_head = yaw_head            # heading of travel − yaw(odom_R_base): measures δ (rad)
         self.sigma_head = sigma_head        # rad
+        self.rate_head = rate_head          # turn rate of the travel heading (rad/s): ∂(residual)/∂Δτ
 
     def delta_rate(self, d: np.ndarray, t: np.ndarray) -> np.ndarray:
         """dδ/dt (rad/s) of the piecewise-linear δ with knot values ``d`` at times ``t``."""
@@ -225,18 +249,22 @@ class _Problem:
     def delta_at(self, d: np.ndarray, i: np.ndarray, a: np.ndarray) -> np.ndarray:
         return (1.0 - a) * d[i] + a * d[i + 1]
 
-    def camera_to_marker(self, dl, delta) -> np.ndarray:
-        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P) − (t_cam + Δl − t_prism)."""
+    def camera_to_marker(self, x, delta) -> np.ndarray:
+        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P + V Δτ) − (t_cam + Δl − t_prism)."""
         R = rot_z(delta) @ self.R_odom                                   # map_R_base (N, 3, 3)
-        return np.einsum("nji,nj->ni", R, self.M - self.P) - (self.t_cam + dl - self.t_prism)
+        return np.einsum("nji,nj->ni", R, self.M - self.P + self.V * x[6]) - (self.t_cam + x[3:6] - self.t_prism)
 
-    def predict(self, rpy, dl, delta) -> np.ndarray:
+    def predict(self, x, delta) -> np.ndarray:
         """Predicted unit bearings (N, 3) in the camera frame."""
-        q = self.camera_to_marker(dl, delta) @ (rpy_to_matrix(*rpy) @ self.R_bc)   # (B R_bc)ᵀ g
+        q = self.camera_to_marker(x, delta) @ (rpy_to_matrix(*x[:3]) @ self.R_bc)   # (B R_bc)ᵀ g
         return q / np.linalg.norm(q, axis=1, keepdims=True)
 
-    def residuals(self, rpy, dl, delta) -> np.ndarray:
-        return np.cross(self.u, self.predict(rpy, dl, delta))
+    def residuals(self, x, delta) -> np.ndarray:
+        return np.cross(self.u, self.predict(x, delta))
+
+    def heading_residuals(self, x, d) -> np.ndarray:
+        """δ(t) − (travel heading at t − Δτ − odometry yaw), linearised in Δτ (rad)."""
+        return wrap_angle(self.delta_at(d, self.i_head, self.a_head) - self.yaw_head + self.rate_head * x[6])
 
 
 def _knot_weights(knots: np.ndarray, t: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -250,28 +278,32 @@ def _cauchy(e: np.ndarray, k: float) -> np.ndarray:
 
 
 class _Solution:
-    def __init__(self, rpy, dl, d):
-        self.rpy, self.dl, self.d = rpy, dl, d
+    """Globals x (7,) = (roll, pitch, yaw, Δl (3), Δτ) and the knot values d of δ(t)."""
+
+    def __init__(self, x, d):
+        self.x, self.d = x, d
 
 
-def _solve(pb: _Problem, sol: _Solution, n_glob: int, mask_o, mask_h, robust: bool, scale_o: float,
+def _solve(pb: _Problem, sol: _Solution, free: Tuple[int, ...], mask_o, mask_h, robust: bool, scale_o: float,
            scale_h: float, params: CalibrationParams) -> Tuple[_Solution, np.ndarray, int]:
-    """Gauss-Newton over (boresight rpy, [lever arm], knots). ``n_glob`` 0 (knots only), 3 or 6.
+    """Gauss-Newton over the globals ``free`` (indices into x; () for the knots only) and the knots.
 
     ``scale_o``/``scale_h`` multiply the a-priori σ of the groups. Returns the solution, the
-    inverse normal matrix (covariance, same σ scaling) and the iterations."""
+    inverse normal matrix (covariance of the free globals then the knots, same σ scaling) and the
+    iterations."""
     K = len(pb.knots)
+    n_glob = len(free)
     n = n_glob + K
-    rpy, dl, d = sol.rpy.copy(), sol.dl.copy(), sol.d.copy()
+    x, d = sol.x.copy(), sol.d.copy()
     h = 1e-6
     Hinv = np.zeros((n, n))
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007  (reported)
         delta = pb.delta_at(d, pb.i_obs, pb.a_obs)
-        r = pb.residuals(rpy, dl, delta)                                  # (N, 3)
+        r = pb.residuals(x, delta)                                        # (N, 3)
         sig = pb.sigma * scale_o
         e = np.linalg.norm(r, axis=1) / sig
-        rh = wrap_angle(pb.delta_at(d, pb.i_head, pb.a_head) - pb.yaw_head)
+        rh = pb.heading_residuals(x, d)
         sigh = pb.sigma_head * scale_h
         eh = np.abs(rh) / sigh
         w = mask_o / sig ** 2
@@ -283,12 +315,11 @@ def _solve(pb: _Problem, sol: _Solution, n_glob: int, mask_o, mask_h, robust: bo
             wh = wh * _cauchy(eh, k_h)
         # Jacobians: globals and δ by central differences (the model is cheap and vectorised)
         Jg = np.empty(r.shape + (n_glob,))
-        for j in range(n_glob):
-            step = np.zeros(6)
-            step[j] = h
-            Jg[:, :, j] = (pb.residuals(rpy + step[:3], dl + step[3:], delta)
-                           - pb.residuals(rpy - step[:3], dl - step[3:], delta)) / (2 * h)
-        c = (pb.residuals(rpy, dl, delta + h) - pb.residuals(rpy, dl, delta - h)) / (2 * h)   # ∂r/∂δ
+        for j, g in enumerate(free):
+            step = np.zeros(7)
+            step[g] = h
+            Jg[:, :, j] = (pb.residuals(x + step, delta) - pb.residuals(x - step, delta)) / (2 * h)
+        c = (pb.residuals(x, delta + h) - pb.residuals(x, delta - h)) / (2 * h)   # ∂r/∂δ
         i, a = pb.i_obs, pb.a_obs
         H = np.zeros((n, n))
         gvec = np.zeros(n)
@@ -311,6 +342,14 @@ def _solve(pb: _Problem, sol: _Solution, n_glob: int, mask_o, mask_h, robust: bo
             gvec[n_glob:] += np.bincount(ia, wh * rh * wa, minlength=K)
             for wb, ib in (((1 - ah), ih), (ah, ih + 1)):
                 np.add.at(H, (n_glob + ia, n_glob + ib), wh * wa * wb)
+        if 6 in free:  # the heading residuals depend on Δτ too (∂/∂Δτ = turn rate)
+            jt = free.index(6)
+            H[jt, jt] += np.sum(wh * pb.rate_head ** 2)
+            gvec[jt] += np.sum(wh * pb.rate_head * rh)
+            for wa, ia in (((1 - ah), ih), (ah, ih + 1)):
+                col = np.bincount(ia, wh * pb.rate_head * wa, minlength=K)
+                H[jt, n_glob:] += col
+                H[n_glob:, jt] += col
         # random-walk prior between adjacent knots
         wp = 1.0 / pb.drift_sigma ** 2
         dd = np.diff(d)
@@ -330,46 +369,43 @@ def _solve(pb: _Problem, sol: _Solution, n_glob: int, mask_o, mask_h, robust: bo
             raise CalibrationError("the normal equations are singular: the recording does not determine "
                                    "the calibration (too few markers or no motion)")
         dx = -Hinv @ gvec
-        if n_glob:
-            rpy = rpy + dx[:3]
-        if n_glob == 6:
-            dl = dl + dx[3:6]
+        x[list(free)] += dx[:n_glob]
         d = d + dx[n_glob:]
         if float(np.max(np.abs(dx))) < 1e-10:
             break
-    return _Solution(rpy, dl, d), Hinv, iterations
+    return _Solution(x, d), Hinv, iterations
 
 
 def _angles(pb: _Problem, sol: _Solution) -> np.ndarray:
     """Angle (rad) between observed and predicted bearings."""
     delta = pb.delta_at(sol.d, pb.i_obs, pb.a_obs)
-    r = pb.residuals(sol.rpy, sol.dl, delta)
-    dot = np.sum(pb.u * pb.predict(sol.rpy, sol.dl, delta), axis=1)
+    r = pb.residuals(sol.x, delta)
+    dot = np.sum(pb.u * pb.predict(sol.x, delta), axis=1)
     return np.arctan2(np.linalg.norm(r, axis=1), dot)
 
 
-def _fit(pb: _Problem, sol: _Solution, n_glob: int, params: CalibrationParams):
+def _fit(pb: _Problem, sol: _Solution, free: Tuple[int, ...], params: CalibrationParams):
     """Robust stage, gate, least squares with variance component estimation.
 
     Returns (solution, covariance, mask_o, mask_h, variance factors, iterations)."""
     n_o, n_h = len(pb.u), len(pb.yaw_head)
     mask_o, mask_h = np.ones(n_o), np.ones(n_h)
-    sol, _, it = _solve(pb, sol, n_glob, mask_o, mask_h, True, 1.0, 1.0, params)
+    sol, _, it = _solve(pb, sol, free, mask_o, mask_h, True, 1.0, 1.0, params)
     scale_o = scale_h = 1.0
     vf = {"markers": float("nan"), "heading": float("nan")}
     Hinv = None
     for _ in range(4):
         delta = pb.delta_at(sol.d, pb.i_obs, pb.a_obs)
-        e = np.linalg.norm(pb.residuals(sol.rpy, sol.dl, delta), axis=1) / (pb.sigma * scale_o)
-        eh = np.abs(wrap_angle(pb.delta_at(sol.d, pb.i_head, pb.a_head) - pb.yaw_head)) / (pb.sigma_head * scale_h)
+        e = np.linalg.norm(pb.residuals(sol.x, delta), axis=1) / (pb.sigma * scale_o)
+        eh = np.abs(pb.heading_residuals(sol.x, sol.d)) / (pb.sigma_head * scale_h)
         # a 2-D residual: gate on its norm; heading: on its absolute value
         mask_o = (e <= params.outlier_gate).astype(float)
         mask_h = (eh <= params.outlier_gate).astype(float)
-        sol, Hinv, it2 = _solve(pb, sol, n_glob, mask_o, mask_h, False, scale_o, scale_h, params)
+        sol, Hinv, it2 = _solve(pb, sol, free, mask_o, mask_h, False, scale_o, scale_h, params)
         it += it2
         delta = pb.delta_at(sol.d, pb.i_obs, pb.a_obs)
-        e = np.linalg.norm(pb.residuals(sol.rpy, sol.dl, delta), axis=1) / (pb.sigma * scale_o)
-        eh = np.abs(wrap_angle(pb.delta_at(sol.d, pb.i_head, pb.a_head) - pb.yaw_head)) / (pb.sigma_head * scale_h)
+        e = np.linalg.norm(pb.residuals(sol.x, delta), axis=1) / (pb.sigma * scale_o)
+        eh = np.abs(pb.heading_residuals(sol.x, sol.d)) / (pb.sigma_head * scale_h)
         f_o = float(np.sum(mask_o * e ** 2) / max(2.0 * mask_o.sum(), 1.0))
         f_h = float(np.sum(mask_h * eh ** 2) / max(mask_h.sum(), 1.0)) if n_h else 1.0
         vf = {"markers": f_o * scale_o ** 2, "heading": f_h * scale_h ** 2 if n_h else float("nan")}
@@ -407,7 +443,8 @@ def _interp_prism(t_prism: np.ndarray, p_prism: np.ndarray, t: np.ndarray, max_g
 
 def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, params: CalibrationParams,
                          delta_rate=None):
-    """Times (s), δ-measurements (rad: heading of travel − odometry yaw) and σ (rad) while driving.
+    """Times (s), δ-measurements (rad: heading of travel − odometry yaw), σ (rad) and the yaw rate
+    (rad/s) while driving.
 
     ``delta_rate``: None or a function of time (s) → dδ/dt (rad/s), the map→odom yaw drift rate of a
     previous fit: the platform's true yaw rate is the VO's plus it (a 4°/min VO drift turns a 0.25 m
@@ -459,12 +496,12 @@ def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, para
     ok = (valid & v0 & v1 & vc & np.isfinite(bias) & (speed_b >= params.min_speed)
           & (np.abs(yaw_rate) <= math.radians(params.max_turn_rate_deg)))
     sigma = params.velocity_sigma / np.maximum(speed_b, 1e-9)
-    return tq[ok], wrap_angle(heading - yaw_odom)[ok], sigma[ok]
+    return tq[ok], wrap_angle(heading - yaw_odom)[ok], sigma[ok], yaw_rate[ok]
 
 
 def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_times, prism_positions,
               marker_map: MarkerMap, base_T_camera, base_T_prism, *, estimate_lever_arm: bool = False,
-              params: Optional[CalibrationParams] = None) -> Calibration:
+              estimate_time_offset: bool = False, params: Optional[CalibrationParams] = None) -> Calibration:
     """Boresight (and optionally lever arm) of the camera from all marker observations of a recording.
 
     Args:
@@ -479,6 +516,9 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
         base_T_camera: nominal static transform base_link ← camera (4×4).
         base_T_prism: static transform base_link ← prism (4×4; its translation is used).
         estimate_lever_arm: also estimate the camera origin in base_link (3 more unknowns).
+        estimate_time_offset: also estimate the residual time offset Δτ (s) of the prism stamps given
+            (one more unknown; linearised, so the offset given should be within ~0.1 s, as
+            ``timesync.estimate_offset`` gives it).
         params: :class:`CalibrationParams`.
 
     Raises:
@@ -488,6 +528,23 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     """
     params = params or CalibrationParams()
     params.validate()
+    args = (obs_times, obs_ids, bearings, sigmas, odom, prism_times, prism_positions, marker_map, base_T_camera,
+            base_T_prism, estimate_lever_arm, estimate_time_offset, params)
+    cal = _calibrate_once(*args, 0.0)
+    shift = cal.time_offset_delta
+    for _ in range(4):  # Δτ is linearised: move the prism clock by it and solve again until it is ≪ 1 ms
+        if abs(cal.time_offset_delta) < 2e-4:
+            break
+        cal = _calibrate_once(*args, shift)
+        shift += cal.time_offset_delta
+    cal.time_offset_delta = shift
+    return cal
+
+
+def _calibrate_once(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_times, prism_positions,
+                    marker_map: MarkerMap, base_T_camera, base_T_prism, estimate_lever_arm: bool,
+                    estimate_time_offset: bool, params: CalibrationParams, time_shift: float) -> Calibration:
+    """One linearised solve of :func:`calibrate` with the prism stamps moved by ``time_shift`` (s)."""
     t = _as_array(obs_times, (), "obs_times")
     n = len(t)
     ids = np.asarray(obs_ids).ravel()
@@ -508,7 +565,7 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     if len(odom.stamps) < 2:
         raise CalibrationError("fewer than 2 odometry poses: the calibration needs odom→base_link")
     order = np.argsort(tp, kind="stable")
-    tp, pp = tp[order], pp[order]
+    tp, pp = tp[order] + time_shift, pp[order]
 
     skipped: Dict[str, int] = {}
 
@@ -533,7 +590,8 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     idx = np.flatnonzero(keep)
     used_ids = {int(i) for i in ids[idx]}
     t_cam, t_prism = Tc[:3, 3].copy(), Tp[:3, 3].copy()
-    th, yh, sh = _heading_constraints(odom, tp, pp, t_prism, params)
+    heading = _heading_constraints(odom, tp, pp, t_prism, params)
+    th, yh, sh = heading[:3]
     moving = len(th) * params.heading_step
     problems = []
     if len(idx) < params.min_observations or len(used_ids) < params.min_markers:
@@ -556,37 +614,49 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     K = max(2, int(math.ceil((k1 - k0) / params.knot_spacing)) + 1)
     knots = k0 + params.knot_spacing * np.arange(K)
     R_odom = quat_to_matrix(q_odom[idx])
-    pb = _Problem(u[idx] / norm[idx, None], M, P[idx], R_odom, sig[idx], t[idx], th, yh, sh, knots,
+    try:
+        trk = heading_from_track(tp, pp, t[idx], smooth=params.heading_smooth, min_speed=0.0)
+    except TimeSyncError as e:
+        raise CalibrationError(f"prism track: {e}") from None
+    V = np.zeros((len(idx), 3))
+    V[:, 0] = np.where(trk.valid, trk.speed * np.cos(trk.heading), 0.0)
+    V[:, 1] = np.where(trk.valid, trk.speed * np.sin(trk.heading), 0.0)
+    pb = _Problem(u[idx] / norm[idx, None], M, P[idx], V, R_odom, sig[idx], t[idx], heading, knots,
                   Tc[:3, :3].copy(), t_cam, t_prism, math.radians(params.drift_sigma_deg))
-    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(3), np.zeros(len(idx))), axis=1), 1e-3)
+    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(7), np.zeros(len(idx))), axis=1), 1e-3)
     pb.sigma = np.sqrt(pb.sigma ** 2 + (sM ** 2 + params.prism_sigma ** 2) / rng ** 2)
 
     # start: δ constant, the robust mean of the heading constraints
     sub = np.linspace(0, len(yh) - 1, min(len(yh), 2000)).astype(int)
     d0 = yaw_consensus(yh[sub], sh[sub], floor=math.radians(2.0))[0]
-    start = _Solution(np.zeros(3), np.zeros(3), np.full(K, d0))
+    start = _Solution(np.zeros(7), np.full(K, d0))
     # before: the nominal transform, δ(t) fitted
-    before, _, _, _, _, _ = _fit(pb, start, 0, params)
+    before, _, _, _, _, _ = _fit(pb, start, (), params)
     # the heading constraints again, with the drift rate of δ(t) (a second-order term)
-    th, yh, sh = _heading_constraints(odom, tp, pp, t_prism, params,
-                                      delta_rate=lambda tt: pb.delta_rate(before.d, tt))
-    pb.set_heading(th, yh, sh)
-    n_glob = 6 if estimate_lever_arm else 3
-    sol, Hinv, mask_o, mask_h, vf, iterations = _fit(pb, before, n_glob, params)
+    pb.set_heading(*_heading_constraints(odom, tp, pp, t_prism, params,
+                                         delta_rate=lambda tt: pb.delta_rate(before.d, tt)))
+    free = (0, 1, 2) + ((3, 4, 5) if estimate_lever_arm else ()) + ((6,) if estimate_time_offset else ())
+    sol, Hinv, mask_o, mask_h, vf, iterations = _fit(pb, before, free, params)
 
+    n_glob = len(free)
     cov = Hinv[:n_glob, :n_glob]
-    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    sd = np.full(7, np.nan)
+    sd[list(free)] = np.sqrt(np.maximum(np.diag(cov), 0.0))
     bad = [name for name, s in zip(("roll", "pitch", "yaw"), sd[:3])
            if not s <= math.radians(params.max_boresight_sigma_deg)]
     if estimate_lever_arm:
         bad += [f"lever arm {name}" for name, s in zip("xyz", sd[3:6]) if not s <= params.max_lever_sigma]
+    if estimate_time_offset and not sd[6] <= params.max_time_offset_sigma:
+        bad.append("time offset")
     if bad:
         raise CalibrationError(
             "the recording does not determine the boresight " + ", ".join(bad) + " (1-σ "
             + ", ".join(f"{math.degrees(s):.3f}°" for s in sd[:3])
             + (", " + ", ".join(f"{1e3 * s:.1f} mm" for s in sd[3:6]) if estimate_lever_arm else "")
-            + f"; limits {params.max_boresight_sigma_deg}° and {1e3 * params.max_lever_sigma:.0f} mm): record "
-            "markers in more directions and at several ranges while driving")
+            + (f", {1e3 * sd[6]:.1f} ms" if estimate_time_offset else "")
+            + f"; limits {params.max_boresight_sigma_deg}°, {1e3 * params.max_lever_sigma:.0f} mm and "
+            f"{1e3 * params.max_time_offset_sigma:.0f} ms): record markers in more directions and at several "
+            "ranges while driving")
 
     a_before = _angles(pb, before)
     a_after = _angles(pb, sol)
@@ -597,12 +667,12 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
     used = np.zeros(n, dtype=bool)
     used[idx[mask_o]] = True
     skip(keep & ~used, "outlier (beyond the gate)")
-    rh = wrap_angle(pb.delta_at(sol.d, pb.i_head, pb.a_head) - pb.yaw_head)[mask_h]
+    rh = pb.heading_residuals(sol.x, sol.d)[mask_h]
     return Calibration(
-        boresight_rpy=sol.rpy.copy(),
+        boresight_rpy=sol.x[:3].copy(),
         boresight_sigma=sd[:3].copy(),
-        lever_arm_delta=sol.dl.copy() if estimate_lever_arm else np.zeros(3),
-        lever_arm_sigma=sd[3:6].copy() if estimate_lever_arm else np.full(3, np.nan),
+        lever_arm_delta=sol.x[3:6].copy(),
+        lever_arm_sigma=sd[3:6].copy(),
         lever_arm_estimated=bool(estimate_lever_arm),
         cov=cov.copy(),
         residual_rms_before=float(np.sqrt(np.mean(a_before[mask_o] ** 2))),
@@ -621,6 +691,9 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
         residuals_before=res_b,
         residuals_after=res_a,
         skipped=skipped,
+        time_offset_delta=float(sol.x[6]),
+        time_offset_sigma=float(sd[6]),
+        time_offset_estimated=bool(estimate_time_offset),
     )
 
 

@@ -370,6 +370,30 @@ class Scenario:
             out.append(facing_marker(first, self.markers[first].size, np.array([2.8, 2.8, 0.3])))
         return out
 
+    def marker_bearings(self, t, max_range: float = 12.0, max_incidence_deg: float = 80.0, noise: float = 0.0,
+                        rng=None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact bearings of the markers the true camera sees at true times ``t`` (N,), without rendering:
+        those within ``max_range`` m whose face is turned less than ``max_incidence_deg`` from the camera.
+
+        Returns (frame index into ``t`` (K,), marker ids (K,), unit bearings (K, 3) in the true camera
+        frame, boresight error included), each bearing perturbed by ``noise`` rad per axis (``rng``: a
+        numpy Generator). For tests and benchmarks of the geometry that detection would only slow down."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        T = self.map_T_camera(t)                                                   # (N, 4, 4)
+        M = np.array([m.position for m in self.markers])                           # (J, 3)
+        normals = np.array([self.marker_normals[m.id] for m in self.markers])      # (J, 3)
+        ids = np.array([m.id for m in self.markers])
+        d = M[None, :, :] - T[:, None, :3, 3]                                      # camera → marker, map
+        r = np.linalg.norm(d, axis=2)
+        facing = -np.einsum("njk,jk->nj", d, normals) / r                          # cos(incidence)
+        seen = (r < max_range) & (facing > math.cos(math.radians(max_incidence_deg)))
+        frame, j = np.nonzero(seen)
+        u = np.einsum("nki,nk->ni", T[frame, :3, :3], d[frame, j] / r[frame, j, None])
+        if noise > 0:
+            u = u + (rng or np.random.default_rng()).normal(0.0, noise, u.shape)
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+        return frame, ids[j], u
+
     def has_impostor(self, t: float) -> bool:
         """Whether the frame at true time t shows the false-id impostor (seeded, per frame)."""
         rate = self.config.impostor_rate
