@@ -2,8 +2,9 @@
 # make demo: the main job on the embedded demo scenario, as a user would run it on a recording:
 #   1. generate the demo scenario (60 s, 30 fps, 3840x1920, 19 cm markers at 2-12 m; cached in
 #      .cache/demo/scenario — DEMO_FORCE=1 re-renders it; DEMO_PRESET=ci for a quick look),
-#   2. estimate the camera <-> total-station time offset (timesync),
-#   3. calibrate the camera's mounting rotation (boresight) from the bag, then process the bag
+#   2. estimate the camera <-> total-station time offset (timesync, from the VO heading),
+#   3. calibrate the camera's mounting rotation (boresight) from the bag and refine the time offset
+#      with the marker bearings, then process the bag
 #      with it (detection -> per-marker yaw -> map->odom filter -> trajectory),
 #   4. replay the bag through the ROS node and the real robot_localization EKF
 #      (roslaunch aruco_abs_orient postprocess.launch use_ekf:=true), recording the outputs,
@@ -36,13 +37,17 @@ else
     "known offset, $OFFSET s"
 fi
 
-step "3/5 calibrate the boresight, then process the bag with the offset and the calibration"
+step "3/5 calibrate the boresight and refine the time offset with the marker bearings, then process the bag"
 CAL=()
+CALFILE=
 if aruco-abs-orient calibrate "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --time-offset "$OFFSET" \
-  --every 3 --out "$RUN/calibration.yaml"; then
-  CAL=(--calibration "$RUN/calibration.yaml")
+  --refine-time-offset --every 3 --out "$RUN/calibration.yaml" | tee "$RUN/calibration.txt"; then
+  CALFILE=$RUN/calibration.yaml
+  CAL=(--calibration "$CALFILE")
+  OFFSET=$(sed -n 's/.*--time-offset \([-0-9.]*\).*/\1/p' "$RUN/calibration.txt")
   python -c "import yaml,sys; b=yaml.safe_load(open(sys.argv[1]))['boresight']['rpy_deg']; \
-print('(the scenario\'s hidden boresight error, roll pitch yaw: %.4f %.4f %.4f deg)' % tuple(b))" "$SCEN/hidden.yaml"
+print('(the scenario\'s hidden boresight error, roll pitch yaw: %.4f %.4f %.4f deg; hidden time offset %s s)' \
+% (tuple(b) + (sys.argv[2],)))" "$SCEN/hidden.yaml" "$TRUE_OFFSET"
 else
   echo "no calibration from this recording (see above): processing with the bag's own lever arms"
 fi
@@ -56,7 +61,7 @@ if rospack find robot_localization >/dev/null 2>&1; then
   # its own master on a free port, so a roscore already running is not disturbed
   PORT=$(python -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
   ROS_MASTER_URI=http://localhost:$PORT roslaunch -p "$PORT" aruco_abs_orient postprocess.launch \
-    bag:="$SCEN/scenario.bag" markers:="$SCEN/markers.yaml" use_ekf:=true time_offset:="$OFFSET" \
+    bag:="$SCEN/scenario.bag" markers:="$SCEN/markers.yaml" use_ekf:=true time_offset:="$OFFSET" calibration:="$CALFILE" \
     record:="$RUN/fused.bag" >"$RUN/postprocess.log" 2>&1 || true
   if [[ -f $RUN/fused.bag ]]; then
     # the EKF starts from the odometry's heading and converges within a second of the first

@@ -41,6 +41,8 @@ __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_pars
 EXAMPLES = """examples:
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
   aruco-abs-orient calibrate run.bag --markers markers.yaml --lever-arm --out calibration.yaml
+  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset \
+      --out calibration.yaml
   roslaunch aruco_abs_orient live.launch markers:=markers.yaml calibration:=calibration.yaml
 
 The recording must show markers while the platform DRIVES (straight stretches and gentle curves):
@@ -111,11 +113,12 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
 
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
                   progress: bool = True, estimate_lever_arm: bool = False,
-                  params: Optional[CalibrationParams] = None, observations: Optional[CalibrateResult] = None
-                  ) -> Calibration:
+                  params: Optional[CalibrationParams] = None, observations: Optional[CalibrateResult] = None,
+                  estimate_time_offset: bool = False) -> Calibration:
     """Calibrate the camera of ``bag`` against ``marker_map``.
 
-    ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign).
+    ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign);
+    with ``estimate_time_offset`` it is refined (the result's ``time_offset_delta`` is added to it).
     ``observations``: a :func:`collect_observations` result to reuse (detection is the slow part).
     Raises BagError (unusable bag) or CalibrationError (the recording cannot determine it: why).
     """
@@ -125,7 +128,7 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
         raise CalibrationError(f"{bag}: no prism track: the calibration needs the total station's prism positions")
     cal = calibrate(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
                     d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism,
-                    estimate_lever_arm=estimate_lever_arm, params=params)
+                    estimate_lever_arm=estimate_lever_arm, estimate_time_offset=estimate_time_offset, params=params)
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
     return cal
@@ -149,6 +152,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="YAML",
                    help="calibration YAML to write (atomically); the launch snippet goes to YAML.launch.xml")
     p.add_argument("--lever-arm", action="store_true", help="also estimate the camera lever arm (3 more unknowns)")
+    p.add_argument("--refine-time-offset", action="store_true",
+                   help="also estimate the time offset (1 more unknown), starting from --time-offset (from "
+                        "`timesync`, within ~0.2 s); prints the refined value to use with `process`")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -188,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(e))
     try:
         cal = calibrate_bag(args.bag, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
-                            observations=obs)
+                            observations=obs, estimate_time_offset=args.refine_time_offset)
     except CalibrationError as e:
         return _fail(f"{args.bag}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
@@ -198,4 +204,9 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(args.out + ".launch.xml", snippet)
     print(json.dumps(cal.report_dict(), default=float))
     print(f"wrote {args.out}\n      {args.out}.launch.xml")
+    if cal.time_offset_estimated:
+        offset = args.time_offset + cal.time_offset_delta
+        print(f"time offset refined with the marker bearings: {1e3 * offset:+.1f} ms ± "
+              f"{1e3 * cal.time_offset_sigma:.1f} ms (given {1e3 * args.time_offset:+.1f} ms)")
+        print(f"use: aruco-abs-orient process {args.bag} --time-offset {offset:.4f} --calibration {args.out} ...")
     return 0

@@ -22,6 +22,7 @@ from .bagio import BagError, BagTopics
 
 EXAMPLES = """examples:
   aruco-abs-orient timesync run.bag
+  aruco-abs-orient timesync run.bag --markers markers.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367
   aruco-abs-orient evaluate results/ --reference truth.tum
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
@@ -71,9 +72,18 @@ def build_parser() -> argparse.ArgumentParser:
     _add_topics(p)
 
     p = sub.add_parser("timesync", help="camera/VO ↔ total-station time offset of a recording",
-                       epilog="example:\n  aruco-abs-orient timesync run.bag --plot results/",
+                       description="The camera/VO ↔ total-station time offset of a recording: phase coherence of "
+                       "the VO yaw with the prism track's heading (the paper's cross-correlation printed beside "
+                       "it); with --markers refined with the marker bearings (sub-millisecond where the VO "
+                       "drifts; detects the markers in every N-th image, the slow part).",
+                       epilog="examples:\n  aruco-abs-orient timesync run.bag --plot results/\n"
+                       "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", help="ROS 1 bag with /tf (odom→base_link) and the prism")
+    p.add_argument("bag", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, with --markers)")
+    p.add_argument("--markers", metavar="YAML", help="marker map: refine the offset with the marker bearings")
+    p.add_argument("--every", type=int, default=3, metavar="N",
+                   help="with --markers: search every N-th image (default 3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--search", type=float, nargs=2, default=(-1.0, 1.0), metavar=("MIN", "MAX"),
                    help="offsets searched, seconds (default -1 1)")
     p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
@@ -134,8 +144,12 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     from ..timesync import TimeSyncError
     from .sync import estimate_bag_offset
 
+    if a.every < 1:
+        return _fail(f"--every: expected an integer ≥ 1, got {a.every}")
+    marker_map = MarkerMap.load(a.markers) if a.markers else None
     try:
-        out = estimate_bag_offset(a.bag, _topics(a), tuple(a.search), plot_dir=a.plot)
+        out = estimate_bag_offset(a.bag, _topics(a), tuple(a.search), plot_dir=a.plot, marker_map=marker_map,
+                                  every=a.every, progress=not a.quiet)
     except TimeSyncError as e:
         return _fail(f"no time offset: {e}", 1)
     est, base = out["timesync"], out["timesync_baseline"]
@@ -147,9 +161,19 @@ def cmd_timesync(a: argparse.Namespace) -> int:
         print(f"paper's cross-correlation baseline: {base['not_available']}")
     if "plot" in out:
         print(f"wrote {out['plot']}")
+    refined = out.get("timesync_markers")
+    if refined is not None:
+        if hasattr(refined, "offset"):
+            print(f"refined with the marker bearings:               {1e3 * refined.offset:+.1f} ms ± "
+                  f"{1e3 * refined.sigma:.1f} ms (confidence {refined.confidence:.2f}, "
+                  f"{refined.n_samples} bearings)")
+            if refined.confidence >= a.min_confidence:
+                est = refined
+        else:
+            print(f"no refinement with the marker bearings: {refined['not_available']}")
     if est.confidence < a.min_confidence:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
-                     "weak: record longer, with more turns of varying rate)", 1)
+                     "weak: record longer, with more turns of varying rate, or give --markers)", 1)
     print(f"use: aruco-abs-orient process {a.bag} --time-offset {est.offset:.4f} ...")
     return 0
 

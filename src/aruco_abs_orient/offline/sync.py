@@ -3,23 +3,53 @@
 Uses the odometry yaw (``odom → base_link`` on /tf, camera clock) and the prism track (total-station
 clock) of a bag: the phase-coherence estimate of :mod:`aruco_abs_orient.timesync` (DESIGN §4.7,
 invariant to the unknown yaw offset), with the paper's cross-correlation printed beside it.
+
+With the marker map, the estimate is refined with the marker bearings: a time offset moves the
+camera along its track by speed × offset, which turns the bearing of every marker by an amount that
+depends on its range and direction; the least squares of :func:`aruco_abs_orient.calibration.calibrate`
+with the offset as an unknown (beside the boresight, which it must not absorb) find it to a fraction
+of a millisecond, where the heading alone is limited by the VO's yaw drift and random walk.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Dict, Optional, Tuple
 
+import numpy as np
+
 from .. import timesync
+from ..calibration import Calibration, CalibrationError, CalibrationParams
+from ..markers import MarkerMap
 from ..transforms import yaw_of
 from .bagio import BagData, BagTopics, read_bag_data
 
-__all__ = ["estimate_bag_offset"]
+__all__ = ["estimate_bag_offset", "marker_offset_estimate"]
+
+# σ (s) at which the confidence of a marker-bearing estimate has fallen to 1/2
+MARKER_SIGMA_REF = 0.005
+
+
+def marker_offset_estimate(coarse: float, cal: Calibration) -> timesync.OffsetEstimate:
+    """The offset (s) refined by a calibration with ``estimate_time_offset``: ``coarse`` (the offset
+    the calibration was given) + its Δτ, as an :class:`~aruco_abs_orient.timesync.OffsetEstimate`
+    (method "marker bearings"; confidence = share of observations kept × 1/(1 + (σ/5 ms)²))."""
+    sigma = float(cal.time_offset_sigma)
+    confidence = cal.n_used / max(cal.n_observations, 1) / (1.0 + (sigma / MARKER_SIGMA_REF) ** 2)
+    return timesync.OffsetEstimate(offset=coarse + cal.time_offset_delta, sigma=sigma, confidence=confidence,
+                                   coherence=float("nan"), taus=np.empty(0), curve=np.empty(0),
+                                   method="marker bearings", n_samples=cal.n_used, overlap=cal.moving_time,
+                                   extra={"boresight_rpy_deg": [math.degrees(float(a)) for a in cal.boresight_rpy]})
 
 
 def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tuple[float, float] = (-1.0, 1.0),
-                        data: Optional[BagData] = None, plot_dir: Optional[str] = None) -> Dict[str, object]:
-    """``{"timesync": OffsetEstimate, "timesync_baseline": OffsetEstimate or reason}`` of a bag.
+                        data: Optional[BagData] = None, plot_dir: Optional[str] = None,
+                        marker_map: Optional[MarkerMap] = None, every: int = 3,
+                        progress: bool = False) -> Dict[str, object]:
+    """``{"timesync": OffsetEstimate, "timesync_baseline": OffsetEstimate or reason}`` of a bag, and
+    with ``marker_map`` ``"timesync_markers"``: the estimate refined with the marker bearings of every
+    ``every``-th image (an OffsetEstimate, or the reason it is not possible).
 
     Offsets in seconds, camera stamps = total-station time + offset. Raises
     ``timesync.TimeSyncError`` when the recording cannot determine it (no motion, too short).
@@ -43,4 +73,14 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tu
         base = out["timesync_baseline"]
         out["plot"] = plot_coherence(os.path.join(plot_dir, "timesync.png"), est,
                                      baseline=base if isinstance(base, timesync.OffsetEstimate) else None)
+    if marker_map is not None:
+        from .calibrate import calibrate_bag, collect_observations
+
+        obs = collect_observations(bag, marker_map, topics, progress, data=data, every=every)
+        try:
+            cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs, estimate_time_offset=True,
+                                params=CalibrationParams(max_boresight_sigma_deg=1.0))
+            out["timesync_markers"] = marker_offset_estimate(est.offset, cal)
+        except CalibrationError as e:
+            out["timesync_markers"] = {"not_available": str(e)}
     return out
