@@ -8,6 +8,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from aruco_abs_orient.pipeline import all_param_fields
@@ -38,6 +39,24 @@ def test_node_config_defaults_and_values():
 def test_node_config_errors_name_the_parameter(values, message):
     with pytest.raises(NodeConfigError, match=message.replace("(", r"\(")):
         NodeConfig.from_params(_getter(values))
+
+
+def test_calibration_file_replaces_the_tf_lever_arms_or_stops_the_node(tmp_path):
+    good = tmp_path / "calibration.yaml"
+    good.write_text("base_link_to_camera: {xyz: [0.1, 0.0, 0.8], rpy_deg: [0.3, 0.0, 90.0]}\n"
+                    "base_link_to_prism: {xyz: [-0.25, 0.05, 1.1]}\n")
+    arms = NodeConfig.from_params(_getter({"~markers": "m", "~calibration": str(good)})).calibrated_lever_arms()
+    np.testing.assert_allclose(arms["camera"][:3, 3], [0.1, 0.0, 0.8])
+    R = arms["camera"][:3, :3]  # Rz(90°)·Rx(0.3°): x → y, z → (sin 0.3°, 0, cos 0.3°)
+    np.testing.assert_allclose(R @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(R @ [0.0, 0.0, 1.0], [math.sin(math.radians(0.3)), 0.0, math.cos(math.radians(0.3))],
+                               atol=1e-12)
+    np.testing.assert_allclose(arms["prism"][:3, 3], [-0.25, 0.05, 1.1])
+    assert NodeConfig.from_params(_getter({"~markers": "m"})).calibrated_lever_arms() is None
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("base_link_to_camera: {xyz: [0.1, 0.0]}\n")
+    with pytest.raises(NodeConfigError, match=r"~calibration: .*bad.yaml: base_link_to_camera"):
+        NodeConfig.from_params(_getter({"~markers": "m", "~calibration": str(bad)}))
 
 
 def test_mailbox_keeps_the_newest_and_counts_what_it_replaced():

@@ -52,6 +52,7 @@ from typing import Deque, Dict, Optional, Tuple
 
 import numpy as np
 
+from ..calibration import CalibrationError, load_calibration
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..transforms import yaw_of
@@ -73,6 +74,9 @@ class NodeConfig:
     - ``markers``: marker map YAML path (required).
     - ``image_transport``: 'compressed' (``camera/image/compressed``) or 'raw' (``camera/image``).
     - ``time_offset``: s, camera stamps = true time + offset.
+    - ``calibration``: calibration YAML of ``aruco-abs-orient calibrate`` whose lever arms replace the
+      static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static); empty:
+      the lever arms come from tf.
     - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
     - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
     - ``tf_timeout``: s (wall clock), how long to wait for ``odom → base_link`` at an image stamp.
@@ -86,6 +90,7 @@ class NodeConfig:
     markers: str = ""
     image_transport: str = "compressed"
     time_offset: float = 0.0
+    calibration: str = ""
     publish_tf: bool = True
     tf_rate: float = 20.0
     tf_timeout: float = 0.05
@@ -120,6 +125,7 @@ class NodeConfig:
         config = cls(**kw)
         if not config.markers:
             raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
+        config.calibrated_lever_arms()  # a file that does not load: one clear line at start-up
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
@@ -127,6 +133,16 @@ class NodeConfig:
             if getattr(config, name) <= 0:
                 raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
         return config
+
+    def calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
+        """``{"camera": base_T_camera, "prism": base_T_prism}`` of ``calibration`` (None without one).
+        Raises NodeConfigError naming the file and the key."""
+        if not self.calibration:
+            return None
+        try:
+            return load_calibration(self.calibration)
+        except CalibrationError as e:
+            raise NodeConfigError(f"~calibration: {e}") from None
 
 
 class Mailbox:
@@ -323,9 +339,13 @@ class AbsOrientNode:
     def _ensure_pipeline(self) -> bool:
         if self.pipeline is not None:
             return True
-        arms = {}
         c = self.config
+        calibrated = c.calibrated_lever_arms()
+        source = f"calibration {c.calibration}" if calibrated else "tf"
+        arms = {} if calibrated is None else {c.camera_frame: calibrated["camera"], c.prism_frame: calibrated["prism"]}
         for child in (c.camera_frame, c.prism_frame):
+            if child in arms:
+                continue
             try:
                 tr = self.tf_buffer.lookup_transform(c.base_frame, child, self.rospy.Time(0))
                 arms[child] = self.cv.transform_to_matrix(tr.transform, f"{c.base_frame}->{child}")
@@ -335,11 +355,12 @@ class AbsOrientNode:
         try:
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame])
         except PipelineError as e:
-            self._error("no_static_tf", f"unusable lever arms from tf: {e}")
+            self._error("no_static_tf", f"unusable lever arms from {source}: {e}")
             return False
         self._update_pipeline_params()
-        self.rospy.loginfo(f"abs_orient: lever arms from tf: camera at {arms[c.camera_frame][:3, 3].round(3)} m, "
-                           f"prism at {arms[c.prism_frame][:3, 3].round(3)} m in {c.base_frame}")
+        camera, prism = arms[c.camera_frame][:3, 3].round(3), arms[c.prism_frame][:3, 3].round(3)
+        self.rospy.loginfo(f"abs_orient: lever arms from {source}: camera at {camera} m, prism at {prism} m "
+                           f"in {c.base_frame}")
         return True
 
     def _feed_prisms(self) -> None:
