@@ -1,9 +1,12 @@
 """The map→odom correction (DESIGN §4.6): a small Kalman filter with gating and initialisation.
 
-State ``x = (δψ, tx, ty, tz)`` with ``map_T_odom = [Rz(δψ), t]`` (radians, metres): visual
-odometry is smooth but its yaw drifts, so δψ is a random walk; the translation follows from
-the total-station prism. Inputs, all time-stamped in seconds, each with the odometry pose
-``odom_T_base`` (4×4) at the measurement time (the caller interpolates odometry):
+State ``x = (δψ, tx, ty, tz, ω)`` with ``map_T_odom = [Rz(δψ), t]`` (radians, metres) and ω = dδψ/dt
+(rad/s), the odometry's yaw drift rate: visual odometry is smooth but its yaw drifts, mostly at a
+slowly changing rate (a gyro-like bias: the demo's 4°/min), so δψ is integrated from ω plus a random
+walk, and between marker sightings map→odom keeps turning with the drift instead of freezing (a 2 s
+gap at 4°/min would otherwise cost 0.13°); the translation follows from the total-station prism.
+Inputs, all time-stamped in seconds, each with the odometry pose ``odom_T_base`` (4×4) at the
+measurement time (the caller interpolates odometry):
 
 * ``add_prism(t, p_map, cov, odom_T_base)`` — prism position in map (m, 3×3 m²):
   ``p = Rz(δψ)·q + t`` with ``q`` the prism in odom (``odom_T_base · prism_in_base``).
@@ -13,11 +16,13 @@ the total-station prism. Inputs, all time-stamped in seconds, each with the odom
 
 Model details:
 
-* Process noise: δψ is a random walk (``yaw_random_walk`` rad/√s) that turns map→odom about the
-  robot's **current** position (VO heading drift does not teleport the robot: the translation
-  moves with it, ``dt = −dδψ · e_z × Rz(δψ) q``); the translation has its own random walk
-  (``translation_random_walk`` m/√s) for VO position drift. The odometry itself is taken as exact
-  over the short term.
+* Process model: δψ changes by ω·dt plus a random walk (``yaw_random_walk`` rad/√s), ω by its own
+  random walk (``drift_rate_walk`` rad/s/√s; it starts at 0 ± ``initial_drift_rate_sigma``); every
+  change of δψ turns map→odom about the robot's **current** position (VO heading drift does not
+  teleport the robot: the translation moves with it, ``dt = −dδψ · e_z × Rz(δψ) q``); the translation
+  has its own random walk (``translation_random_walk`` m/√s) for VO position drift. The odometry
+  itself is taken as exact over the short term. ``drift_rate_walk = initial_drift_rate_sigma = 0``
+  is the plain random walk of δψ.
 * Start-up: measurements are buffered until a **standstill** of ``standstill_duration`` s is seen
   (odometry moved less than ``standstill_odom_tolerance`` m / ``standstill_yaw_tolerance`` rad and
   the means of the first and second half of the prism positions differ by less than
@@ -82,7 +87,9 @@ class NotInitialisedError(CorrectionError):
 class FilterParams:
     """Tuning of :class:`MapOdomFilter` (flat scalars: exposed via dynamic_reconfigure)."""
 
-    yaw_random_walk: float = math.radians(0.1)      # rad/√s, VO yaw drift (3°/min tracked well)
+    yaw_random_walk: float = math.radians(0.05)     # rad/√s, VO yaw wander beyond its drift rate
+    drift_rate_walk: float = math.radians(0.1) / 60.0   # rad/s/√s, change of the VO yaw drift rate
+    initial_drift_rate_sigma: float = math.radians(10.0) / 60.0  # rad/s, prior σ of the drift rate
     translation_random_walk: float = 0.01           # m/√s, VO position drift
     gate_chi2_yaw: float = 10.83                    # χ²(1 dof), p = 0.001
     gate_chi2_prism: float = 16.27                  # χ²(3 dof), p = 0.001
@@ -97,7 +104,8 @@ class FilterParams:
     max_delay: float = 1.0                          # s, oldest late measurement still applied
 
     def validate(self) -> None:
-        for name in ("yaw_random_walk", "translation_random_walk", "standstill_odom_tolerance",
+        for name in ("yaw_random_walk", "drift_rate_walk", "initial_drift_rate_sigma", "translation_random_walk",
+                     "standstill_odom_tolerance",
                      "standstill_yaw_tolerance", "standstill_prism_tolerance", "init_yaw_floor", "max_delay"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -191,8 +199,8 @@ class MapOdomFilter:
             raise CorrectionError(f"prism_in_base: expected 3 finite numbers (m), got {prism_in_base!r}")
         self.prism_in_base = t
         self.stats = FilterStats()
-        self.x = np.zeros(4)
-        self.P = np.zeros((4, 4))
+        self.x = np.zeros(5)
+        self.P = np.zeros((5, 5))
         self.t = float("-inf")              # time of the state (s)
         self._odom_pos = np.zeros(3)        # latest base_link position in odom (for the process noise)
         self._odom_pos_t = float("-inf")
@@ -212,7 +220,7 @@ class MapOdomFilter:
 
     @property
     def state(self) -> Tuple[float, np.ndarray, np.ndarray]:
-        """(time s, state (δψ rad, tx, ty, tz m), covariance 4×4)."""
+        """(time s, state (δψ rad, tx, ty, tz m, ω rad/s), covariance 5×5)."""
         return self.t, self.x.copy(), self.P.copy()
 
     def map_T_odom(self, t: float) -> Tuple[np.ndarray, np.ndarray]:
@@ -224,8 +232,11 @@ class MapOdomFilter:
         if not self.initialised:
             raise NotInitialisedError("map→odom is not initialised yet (waiting for a standstill with "
                                       f"{self.params.init_min_yaws} consistent marker yaws)")
-        P = self.P + self._process_noise(max(0.0, float(t) - self.t), self._odom_pos)
-        return make_T(rot_z(self.x[0]), self.x[1:]), P
+        dt = max(0.0, float(t) - self.t)
+        F = self._transition(dt, self._odom_pos)
+        x = F @ self.x
+        P = F @ self.P @ F.T + self._process_noise(dt, self._odom_pos)
+        return make_T(rot_z(x[0]), x[1:4]), P[:4, :4]
 
     # ------------------------------------------------------------------ inputs
 
@@ -256,10 +267,10 @@ class MapOdomFilter:
         if late is None:
             return UpdateResult("too_old", float("nan"), float("nan"))
         Rq = rot_z(self.x[0]) @ q
-        H = np.zeros((3, 4))
+        H = np.zeros((3, 5))       # a late prism: ω turns map→odom about the robot, hardly moving the prism
         H[:, 0] = _ez_cross(Rq)
-        H[:, 1:] = np.eye(3)
-        nu = p - (Rq + self.x[1:])
+        H[:, 1:4] = np.eye(3)
+        nu = p - (Rq + self.x[1:4])
         R = C + H @ self._process_noise(late, q) @ H.T
         res = self._update(H, nu, R, self.params.gate_chi2_prism, t)
         if res.accepted:
@@ -291,8 +302,8 @@ class MapOdomFilter:
         late = self._late(t)
         if late is None:
             return UpdateResult("too_old", float("nan"), float("nan"))
-        H = np.array([[1.0, 0.0, 0.0, 0.0]])
-        nu = np.array([float(wrap_angle(sample.offset - self.x[0]))])
+        H = np.array([[1.0, 0.0, 0.0, 0.0, -late]])   # δψ at t = δψ now − ω · delay
+        nu = np.array([float(wrap_angle(sample.offset - self.x[0] + self.x[4] * late))])
         R = np.array([[sigma * sigma]]) + H @ self._process_noise(late, self._odom_pos) @ H.T
         res = self._update(H, nu, R, self.params.gate_chi2_yaw, t)
         res = UpdateResult(res.status, res.chi2, float(nu[0]))
@@ -315,18 +326,36 @@ class MapOdomFilter:
         else:
             self.stats.yaw_rejected += 1
 
+    def _transition(self, dt: float, q_odom: np.ndarray) -> np.ndarray:
+        """F (5×5) over ``dt`` s: δψ += ω dt, turning map→odom about the robot at ``q_odom`` (odom, m)."""
+        F = np.eye(5)
+        F[0, 4] = dt
+        F[1:4, 4] = -dt * _ez_cross(rot_z(self.x[0]) @ q_odom)
+        return F
+
     def _process_noise(self, dt: float, q_odom: np.ndarray) -> np.ndarray:
-        """Q (4×4) over ``dt`` s: yaw random walk about the robot at ``q_odom`` (odom, m) + translation walk."""
+        """Q (5×5) over ``dt`` s: yaw random walk and integrated drift-rate walk about the robot at
+        ``q_odom`` (odom, m), drift-rate walk, translation walk."""
         if dt <= 0:
-            return np.zeros((4, 4))
-        G = np.concatenate([[1.0], -_ez_cross(rot_z(self.x[0]) @ q_odom)])
-        Q = self.params.yaw_random_walk ** 2 * dt * np.outer(G, G)
-        Q[1:, 1:] += self.params.translation_random_walk ** 2 * dt * np.eye(3)
+            return np.zeros((5, 5))
+        G = np.zeros((5, 2))                   # (δψ, ω) → state: δψ turns about the robot
+        G[0, 0] = 1.0
+        G[1:4, 0] = -_ez_cross(rot_z(self.x[0]) @ q_odom)
+        G[4, 1] = 1.0
+        a2, w2 = self.params.yaw_random_walk ** 2, self.params.drift_rate_walk ** 2
+        Q2 = np.array([[a2 * dt + w2 * dt ** 3 / 3.0, w2 * dt ** 2 / 2.0],
+                       [w2 * dt ** 2 / 2.0, w2 * dt]])
+        Q = G @ Q2 @ G.T
+        Q[1:4, 1:4] += self.params.translation_random_walk ** 2 * dt * np.eye(3)
         return Q
 
     def _predict_to(self, t: float) -> None:
         if t > self.t:
-            self.P = self.P + self._process_noise(t - self.t, self._odom_pos)
+            dt = t - self.t
+            F = self._transition(dt, self._odom_pos)
+            self.x = F @ self.x
+            self.x[0] = float(wrap_angle(self.x[0]))
+            self.P = F @ self.P @ F.T + self._process_noise(dt, self._odom_pos)
             self.t = t
 
     def _late(self, t: float) -> Optional[float]:
@@ -347,7 +376,7 @@ class MapOdomFilter:
         if chi2 > gate:
             return UpdateResult("gated", chi2, innovation)
         K = self.P @ H.T @ Sinv
-        IKH = np.eye(4) - K @ H
+        IKH = np.eye(len(self.x)) - K @ H
         self.x = self.x + K @ nu
         self.x[0] = float(wrap_angle(self.x[0]))
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T          # Joseph form
@@ -404,15 +433,18 @@ class MapOdomFilter:
         self._yaws, self._prisms = [], []
         return UpdateResult("initialised", float("nan"), float("nan"))
 
-    def _anchor(self, dpsi: float, var: float, p: np.ndarray, C: np.ndarray, q: np.ndarray) -> None:
-        """State from δψ (rad, variance rad²) and a prism position p (m, cov C m²) seen at q in odom (m)."""
+    def _anchor(self, dpsi: float, var: float, p: np.ndarray, C: np.ndarray, q: np.ndarray,
+                drift: float = 0.0, drift_var: Optional[float] = None) -> None:
+        """State from δψ (rad, variance rad²) and a prism position p (m, cov C m²) seen at q in odom (m);
+        the drift rate ``drift`` (rad/s, variance ``drift_var``; default 0 ± initial_drift_rate_sigma)."""
         Rq = rot_z(dpsi) @ q
         g = _ez_cross(Rq)
-        self.x = np.concatenate([[dpsi], p - Rq])
-        self.P = np.zeros((4, 4))
+        self.x = np.concatenate([[dpsi], p - Rq, [drift]])
+        self.P = np.zeros((5, 5))
         self.P[0, 0] = var
-        self.P[0, 1:] = self.P[1:, 0] = -g * var
-        self.P[1:, 1:] = C + var * np.outer(g, g)
+        self.P[0, 1:4] = self.P[1:4, 0] = -g * var
+        self.P[1:4, 1:4] = C + var * np.outer(g, g)
+        self.P[4, 4] = self.params.initial_drift_rate_sigma ** 2 if drift_var is None else drift_var
 
     def _reanchor(self, t: float, p: np.ndarray, C: np.ndarray, q: np.ndarray) -> UpdateResult:
         """After ``reinit_after`` s without an accepted prism: two consecutive prisms that agree (χ² gate on
@@ -428,7 +460,7 @@ class MapOdomFilter:
         if chi2 > self.params.gate_chi2_prism:
             return UpdateResult("buffered", chi2, d)
         self._predict_to(t)
-        self._anchor(float(self.x[0]), float(self.P[0, 0]), p, C, q)
+        self._anchor(float(self.x[0]), float(self.P[0, 0]), p, C, q, float(self.x[4]), float(self.P[4, 4]))
         self._prisms = []
         self.stats.prism_reanchors += 1
         self.stats.prism_accepted += 1
@@ -451,7 +483,8 @@ class MapOdomFilter:
         return len(oy) == 0 or float(np.abs(wrap_angle(oy - oy[0])).max()) <= p.standstill_yaw_tolerance
 
     def _reinitialise(self, t: float) -> UpdateResult:
-        """Reset δψ to the consensus of recent yaws, keeping the robot's map position and its covariance."""
+        """Reset δψ to the consensus of recent yaws (and the drift rate to its prior), keeping the robot's
+        map position and its covariance."""
         cons = self._consensus(self._yaws)
         if cons is None:
             return UpdateResult("buffered", float("nan"), float("nan"))
@@ -459,16 +492,17 @@ class MapOdomFilter:
         self._predict_to(t)
         q = self._odom_pos
         g_old = _ez_cross(rot_z(self.x[0]) @ q)
-        A = np.eye(4)
-        A[1:, 0] = g_old                       # (δψ, t) → (δψ, m = Rz(δψ) q + t)
+        A = np.eye(5)
+        A[1:4, 0] = g_old                      # (δψ, t) → (δψ, m = Rz(δψ) q + t)
         Py = A @ self.P @ A.T
-        m = rot_z(self.x[0]) @ q + self.x[1:]
-        Py[0, :] = Py[:, 0] = 0.0
+        m = rot_z(self.x[0]) @ q + self.x[1:4]
+        Py[[0, 4], :] = Py[:, [0, 4]] = 0.0
         Py[0, 0] = var
+        Py[4, 4] = self.params.initial_drift_rate_sigma ** 2
         g_new = _ez_cross(rot_z(dpsi) @ q)
-        Ainv = np.eye(4)
-        Ainv[1:, 0] = -g_new
-        self.x = np.concatenate([[dpsi], m - rot_z(dpsi) @ q])
+        Ainv = np.eye(5)
+        Ainv[1:4, 0] = -g_new
+        self.x = np.concatenate([[dpsi], m - rot_z(dpsi) @ q, [0.0]])
         self.P = Ainv @ Py @ Ainv.T
         self.stats.state = "tracking"
         self.stats.reinitialisations += 1
