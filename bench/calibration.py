@@ -5,10 +5,13 @@ Renders one synthetic scenario twice with the same seed (same track, markers, VO
 once with a ``--boresight-deg`` camera rotation error (rendered, not published) and once without.
 Then, in one run:
 
-1. ``calibrate`` on the erroneous recording → boresight error vs the hidden truth (deg, per axis and
-   as one rotation angle), with the estimator's σ;
+1. ``timesync`` (VO-heading coherence) then ``calibrate`` with the time offset refined beside the
+   boresight (as ``make demo`` does, nothing hidden is used) on the erroneous recording → boresight
+   error vs the hidden truth (deg, per axis and as one rotation angle) with the estimator's σ, and the
+   time offset's error;
 2. ``process`` (the offline pipeline) three times: the erroneous recording with the nominal transform
-   (naive), with the calibrated transform (ours), and the error-free recording (the no-error level);
+   and the coherence offset (naive), with the calibrated transform and the refined offset (ours), and
+   the error-free recording with the true offset (the no-error level);
    for each the heading (yaw) RMSE of base_link against truth.tum and the position-in-frame bias of the
    per-marker yaws (evaluation.error_by_frame_position: max |mean| over azimuth×elevation bins with
    ≥ ``--min-count`` samples, and the mean per elevation band).
@@ -19,9 +22,10 @@ Then, in one run:
 Scenarios are cached in ``--work`` (re-rendered only with ``--force``).
 
 Measured (demo preset, 60 s, 30 fps, 3840×1920, seed 3, every 3rd image, 2 cores): boresight error
-0.0059° (−0.0017, −0.0022, −0.0052 rpy; σ 0.0007, 0.0008, 0.0075); heading RMSE naive 0.508°, calibrated
-0.039°, no-error recording 0.029° (the difference lies in the last 20 s, the filter's noise on other
-images; the constant part left is +0.005°); frame-position bias 0.526° → 0.013° (no-error 0.008°).
+0.0070° (−0.0017, −0.0022, −0.0064 rpy; σ 0.0007, 0.0008, 0.0081); time offset 396.4 ms from the VO
+heading, refined to 366.86 ± 0.35 ms (truth 367.0); heading RMSE naive 0.756°, calibrated 0.0203°,
+no-error recording 0.0180° (the difference is the +0.005° left of the boresight yaw, within its σ);
+frame-position bias 0.986° → 0.013° (no-error 0.008°).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.offline.bagio import read_bag_data
 from aruco_abs_orient.offline.calibrate import calibrate_bag, collect_observations
 from aruco_abs_orient.offline.process import process_bag
+from aruco_abs_orient.offline.sync import estimate_bag_offset
 from aruco_abs_orient.synthetic.bag import generate
 from aruco_abs_orient.synthetic.scenario import PRESETS
 from aruco_abs_orient.transforms import matrix_to_rpy, yaw_of
@@ -106,8 +111,10 @@ def main(argv=None) -> int:
     bag = os.path.join(err_dir, "scenario.bag")
 
     t0 = time.perf_counter()
+    coarse = estimate_bag_offset(bag)["timesync"].offset
     obs = collect_observations(bag, markers, every=a.every)
-    cal = calibrate_bag(bag, markers, offset, observations=obs)
+    cal = calibrate_bag(bag, markers, coarse, observations=obs, estimate_time_offset=True)
+    refined = coarse + cal.time_offset_delta
     t_cal = time.perf_counter() - t0
     true_T = np.array(hidden["base_T_camera_true"])
     data = read_bag_data(bag)
@@ -129,22 +136,24 @@ def main(argv=None) -> int:
     print(f"  error (deg)         {' '.join(f'{x:+.4f}' for x in est_rpy - truth_rpy)}   "
           f"rotation angle {angle:.4f}° (target ≤ 0.03°)")
     print(f"  bearing residual RMS {math.degrees(cal.residual_rms_before):.4f}° before, "
-          f"{math.degrees(cal.residual_rms_after):.4f}° after", flush=True)
+          f"{math.degrees(cal.residual_rms_after):.4f}° after")
+    print(f"  time offset: true {1e3 * offset:.1f} ms, coherence {1e3 * coarse:.1f} ms, refined {1e3 * refined:.2f} ms "
+          f"± {1e3 * cal.time_offset_sigma:.2f} (error {1e3 * (refined - offset):+.2f} ms)", flush=True)
 
     runs = {}
-    for name, d, T in (("naive (nominal tf, 0.5° error)", err_dir, data.base_T_camera),
-                       ("ours (calibrated tf)", err_dir, calibrated),
-                       ("no-error level", ok_dir, None)):
+    for name, d, T, tau in (("naive (nominal tf, coherence offset)", err_dir, data.base_T_camera, coarse),
+                            ("ours (calibrated tf, refined offset)", err_dir, calibrated, refined),
+                            ("no-error level (true offset)", ok_dir, None, offset)):
         out = os.path.join(a.work, f"{tag}_process_{len(runs)}")
         bd = read_bag_data(os.path.join(d, "scenario.bag"))
         if T is not None:
             bd = dataclasses.replace(bd, base_T_camera=T)
-        process_bag(os.path.join(d, "scenario.bag"), markers, out, time_offset=offset, data=bd, progress=False)
+        process_bag(os.path.join(d, "scenario.bag"), markers, out, time_offset=tau, data=bd, progress=False)
         runs[name] = evaluate(out, os.path.join(d, "truth.tum"), a.min_count)
 
-    print(f"\n  {'run':34s} {'heading RMSE':>13s} {'mean yaw err':>13s} {'frame-pos bias':>15s}  per-marker yaws")
+    print(f"\n  {'run':38s} {'heading RMSE':>13s} {'mean yaw err':>13s} {'frame-pos bias':>15s}  per-marker yaws")
     for name, (rmse, bias, mean_bias, n) in runs.items():
-        print(f"  {name:34s} {rmse:12.4f}° {mean_bias:+12.4f}° {math.degrees(bias.max_abs_bias):14.4f}°  {n}")
+        print(f"  {name:38s} {rmse:12.4f}° {mean_bias:+12.4f}° {math.degrees(bias.max_abs_bias):14.4f}°  {n}")
     naive, ours, level = (runs[k][0] for k in runs)
     print(f"\n  heading RMSE: ours/no-error {ours / level:.3f}, naive/ours {naive / ours:.2f}")
     for name, (_, bias, _, _) in runs.items():
