@@ -98,6 +98,18 @@ def test_wrong_time_offset_is_worse(ci_run, scenario_factory, tmp_path):
     assert ape_bad.stats.rmse > 2 * ape_good.stats.rmse
 
 
+def test_timesync_cli_refines_the_offset_with_the_marker_bearings(ci_run, capsys):
+    """Issue 8 on a rendered bag (the ci preset, 20 s): the VO-heading coherence, then the marker bearings
+    of every 3rd frame; the offset the CLI tells to use is within 5 ms of the hidden one."""
+    scen, _ = ci_run
+    code = cli_main(["timesync", scen.bag, "--markers", scen.markers, "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "phase coherence" in out and "refined with the marker bearings" in out
+    used = float(re.search(r"--time-offset (-?[0-9.]+)", out).group(1))
+    assert abs(used - _hidden(scen)["camera_time_offset"]) < 0.005, out
+
+
 # ----------------------------------------------------------------------------- bad input
 
 
