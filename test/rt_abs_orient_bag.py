@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Checker of the bag rostests (abs_orient_node.test, abs_orient_ekf.test, abs_orient_loop.test): a new
+"""Checker of the bag rostests (abs_orient_node/ekf/loop/calibration.test): a new
 user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated scenario, compared to truth.
 
 1. Generates the synthetic scenario (``--preset``; cached in <repo>/.cache/rostest/, keyed by the
@@ -15,7 +15,11 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
    - ``--mode ekf``: /odometry/filtered yaw RMSE ≤ 0.3° and position RMSE ≤ ``--max-pos-rmse`` (3 cm)
      after the standstill; the only map->odom publisher is the EKF (/ekf_map);
    - ``--mode loop``: the node resets when the bag loops (diagnostics) and the heading after the reset
-     (second pass) meets the same RMSE.
+     (second pass) meets the same RMSE;
+   - ``--mode calibration``: ``calibration:=`` a calibration YAML whose camera is the scenario's TRUE
+     mounting turned by +1° about base_link z: the node must take the lever arms from the file, not
+     from the bag's /tf_static, so base_link's heading comes out 1° low (mean −1° ± 0.1°), otherwise
+     as accurate (RMSE about that mean ≤ 0.3°).
 """
 import argparse
 import hashlib
@@ -155,11 +159,12 @@ class BagRun(unittest.TestCase):
         self.rec = Recorder()
         self.t_still = standstill_end(self.truth)
 
-    def launch(self, use_ekf: bool, loop: bool = False):
+    def launch(self, use_ekf: bool, loop: bool = False, calibration: str = ""):
         """Run postprocess.launch to the end of the bag (with ``loop``: to the end of its second pass)."""
         args = ["roslaunch", "aruco_abs_orient", "postprocess.launch", f"bag:={self.dir / 'scenario.bag'}",
                 f"markers:={self.dir / 'markers.yaml'}", f"time_offset:={self.offset}",
-                f"use_ekf:={str(use_ekf).lower()}", f"rate:={ARGS.rate}", f"loop:={str(loop).lower()}"]
+                f"use_ekf:={str(use_ekf).lower()}", f"rate:={ARGS.rate}", f"loop:={str(loop).lower()}",
+                f"calibration:={calibration}"]
         log_path = Path(os.environ.get("ROS_HOME", "/tmp")) / f"postprocess_{ARGS.mode}.log"
         duration = self.truth.stamps[-1] - self.truth.stamps[0]
         end_stamp = self.truth.stamps[-1] + self.offset - 0.5  # camera clock, near the bag's end
@@ -221,6 +226,29 @@ class BagRun(unittest.TestCase):
         self.assertLessEqual(rmse_deg(yaw_err), ARGS.max_yaw_rmse_deg)
         self.assertLessEqual(pos_rmse, ARGS.max_pos_rmse)
 
+    def check_calibration(self):
+        import yaml
+
+        from aruco_abs_orient.transforms import matrix_to_rpy, rot_z
+
+        hidden = yaml.safe_load((self.dir / "hidden.yaml").read_text())
+        camera = np.array(hidden["base_T_camera_true"], dtype=float)
+        turned = rot_z(math.radians(1.0)) @ camera[:3, :3]
+        prism = np.array(hidden["base_T_prism"], dtype=float)
+        path = Path(os.environ.get("ROS_HOME", "/tmp")) / "rt_calibration.yaml"
+        path.write_text(yaml.safe_dump({
+            "base_link_to_camera": {"xyz": camera[:3, 3].tolist(),
+                                    "rpy_deg": np.degrees(matrix_to_rpy(turned)).tolist()},
+            "base_link_to_prism": {"xyz": prism[:3, 3].tolist()}}))
+        self.launch(use_ekf=False, calibration=str(path))
+        e, n_ok, n = heading_errors_from_tf(self.rec, self.truth, self.offset, self.t_still, self.truth.stamps[-1])
+        self.assertGreater(n_ok, 0.8 * n, f"map->base_link available at only {n_ok} of {n} truth times")
+        mean = math.degrees(float(np.mean(e)))
+        self.report("mean heading error with the camera turned +1 deg", mean, -1.0, "deg")
+        self.assertAlmostEqual(mean, -1.0, delta=0.1)
+        self.report("heading RMSE about that mean", rmse_deg(e - np.mean(e)), ARGS.max_yaw_rmse_deg, "deg")
+        self.assertLessEqual(rmse_deg(e - np.mean(e)), ARGS.max_yaw_rmse_deg)
+
     def check_loop(self):
         self.launch(use_ekf=False, loop=True)
         self.assertGreaterEqual(self.rec.resets, 1, "the node did not reset when the bag looped")
@@ -240,7 +268,7 @@ class BagRun(unittest.TestCase):
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("--mode", choices=("node", "ekf", "loop"), required=True)
+    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration"), required=True)
     ap.add_argument("--preset", default="ci")
     ap.add_argument("--scenario", help="use this generated scenario directory instead of generating --preset")
     ap.add_argument("--rate", type=float, default=1.0, help="playback rate")
