@@ -26,7 +26,7 @@ from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from .transforms import wrap_angle
-from .tum import atomic_write_bytes, atomic_write_text
+from .tum import atomic_write_bytes, atomic_write_text, sorted_series
 
 __all__ = [
     "EvaluationError",
@@ -55,17 +55,6 @@ _EXACT = 1e-6  # s: stamps this close are the same instant (the same image)
 
 class EvaluationError(ValueError):
     """Inputs that cannot be evaluated (empty, mismatched lengths, no common times); says why."""
-
-
-def _series(t, yaw, name: str) -> Tuple[np.ndarray, np.ndarray]:
-    t = np.asarray(t, dtype=float).ravel()
-    yaw = np.asarray(yaw, dtype=float).ravel()
-    if len(t) != len(yaw):
-        raise EvaluationError(f"{name}: {len(t)} stamps but {len(yaw)} yaws")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(yaw))):
-        raise EvaluationError(f"{name}: NaN or inf in the stamps or yaws")
-    order = np.argsort(t, kind="stable")
-    return t[order], yaw[order]
 
 
 def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
@@ -159,8 +148,8 @@ class YawErrors:
 def yaw_ape(t_est, yaw_est, t_ref, yaw_ref, max_gap: Optional[float] = 0.2) -> YawErrors:
     """Absolute yaw error ``wrap(yaw_est − yaw_ref)`` (rad) at the estimate's stamps (s); the
     reference is interpolated on the unit circle across gaps of at most ``max_gap`` s."""
-    t_est, yaw_est = _series(t_est, yaw_est, "estimate")
-    t_ref, yaw_ref = _series(t_ref, yaw_ref, "reference")
+    t_est, yaw_est = sorted_series(t_est, yaw_est, "estimate", EvaluationError)
+    t_ref, yaw_ref = sorted_series(t_ref, yaw_ref, "reference", EvaluationError)
     ref, ok = interp_yaw(t_est, t_ref, yaw_ref, max_gap)
     err = wrap_angle(yaw_est[ok] - ref[ok])
     return YawErrors(t_est[ok], err, error_stats(err, n_total=len(t_est)))
@@ -173,8 +162,8 @@ def yaw_rpe(t_est, yaw_est, t_ref, yaw_ref, delta: float = 1.0, max_gap: Optiona
     offset; shows drift per Δ."""
     if not delta > 0:
         raise EvaluationError(f"RPE delta must be > 0 s, got {delta}")
-    t_est, yaw_est = _series(t_est, yaw_est, "estimate")
-    t_ref, yaw_ref = _series(t_ref, yaw_ref, "reference")
+    t_est, yaw_est = sorted_series(t_est, yaw_est, "estimate", EvaluationError)
+    t_ref, yaw_ref = sorted_series(t_ref, yaw_ref, "reference", EvaluationError)
     e1, ok1 = interp_yaw(t_est + delta, t_est, yaw_est, max_gap)
     r0, ok2 = interp_yaw(t_est, t_ref, yaw_ref, max_gap)
     r1, ok3 = interp_yaw(t_est + delta, t_ref, yaw_ref, max_gap)
@@ -195,7 +184,7 @@ def per_marker_series(t, marker_ids, yaw) -> Dict[int, Tuple[np.ndarray, np.ndar
     out = {}
     for mid in np.unique(ids):
         sel = ids == mid
-        out[int(mid)] = _series(t[sel], yaw[sel], f"marker {int(mid)}")
+        out[int(mid)] = sorted_series(t[sel], yaw[sel], f"marker {int(mid)}", EvaluationError)
     return out
 
 

@@ -41,6 +41,8 @@ from typing import Deque, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .tum import sorted_series
+
 __all__ = [
     "TimeSyncError",
     "TrackHeading",
@@ -117,22 +119,6 @@ class OffsetEstimate:
 # --------------------------------------------------------------------------- track heading
 
 
-def _as_series(t, values, name: str, ncols: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
-    """Validated, time-sorted copies of a stamped series (raises TimeSyncError naming ``name``)."""
-    t = np.asarray(t, dtype=float).ravel()
-    v = np.asarray(values, dtype=float)
-    if ncols is not None:
-        v = v.reshape(-1, ncols) if v.size else v.reshape(0, ncols)
-    else:
-        v = v.ravel()
-    if len(t) != len(v):
-        raise TimeSyncError(f"{name}: {len(t)} stamps but {len(v)} values")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v))):
-        raise TimeSyncError(f"{name}: NaN or inf in the stamps or values")
-    order = np.argsort(t, kind="stable")
-    return t[order], v[order]
-
-
 def _local_quadratic(t: np.ndarray, xy: np.ndarray, tq: np.ndarray, smooth: float):
     """Velocity and acceleration (m/s, m/s²) at ``tq`` from a Gaussian-weighted (σ = ``smooth`` s)
     local quadratic fit of positions ``xy`` (N, 2) at sorted times ``t``; and a validity mask
@@ -176,7 +162,7 @@ def heading_from_track(t, xy, query_t=None, smooth: float = 0.5, min_speed: floa
     xy = np.asarray(xy, dtype=float)
     if xy.ndim != 2 or xy.shape[1] < 2:
         raise TimeSyncError(f"track positions: expected an (N, 2) or (N, 3) array, got shape {xy.shape}")
-    t, xy = _as_series(t, xy[:, :2], "track", ncols=2)
+    t, xy = sorted_series(t, xy[:, :2], "track", TimeSyncError, ncols=2)
     if smooth <= 0:
         raise TimeSyncError(f"smooth must be > 0 s, got {smooth}")
     tq = t if query_t is None else np.asarray(query_t, dtype=float).ravel()
@@ -212,7 +198,7 @@ class _HeadingGrid:
         xy = np.asarray(xy, dtype=float)
         if xy.ndim != 2 or xy.shape[1] < 2:
             raise TimeSyncError(f"track positions: expected an (N, 2) or (N, 3) array, got shape {xy.shape}")
-        t, xy2 = _as_series(t, xy[:, :2], "track", ncols=2)
+        t, xy2 = sorted_series(t, xy[:, :2], "track", TimeSyncError, ncols=2)
         if len(t) < 5:
             raise TimeSyncError(f"track: only {len(t)} prism fixes; need at least 5")
         self.t0 = float(t[0])
@@ -288,7 +274,7 @@ def _make_channel(t, yaw, weights, name: str, window: Optional[float], drift: bo
     w = np.ones_like(raw_t) if weights is None else np.asarray(weights, dtype=float).ravel()
     if len(w) != len(raw_t):
         raise TimeSyncError(f"{name}: {len(raw_t)} samples but {len(w)} weights")
-    t, yaw = _as_series(raw_t, yaw, name)
+    t, yaw = sorted_series(raw_t, yaw, name, TimeSyncError)
     w = w[np.argsort(raw_t, kind="stable")]  # the order _as_series sorted the samples into
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise TimeSyncError(f"{name}: weights must be finite and ≥ 0")
@@ -597,11 +583,11 @@ def cross_correlation_offset(t_vo, yaw_vo, t_track, xy_track, search=(-1.0, 1.0)
     if track_heading not in ("paper", "smoothed"):
         raise TimeSyncError(f"track_heading must be 'paper' or 'smoothed', got {track_heading!r}")
     lo, hi = _check_search(search)
-    t_vo, yaw_vo = _as_series(t_vo, yaw_vo, "VO yaw")
+    t_vo, yaw_vo = sorted_series(t_vo, yaw_vo, "VO yaw", TimeSyncError)
     xy = np.asarray(xy_track, dtype=float)
     if xy.ndim != 2 or xy.shape[1] < 2:
         raise TimeSyncError(f"track positions: expected an (N, 2) or (N, 3) array, got shape {xy.shape}")
-    t_tr, xy = _as_series(t_track, xy[:, :2], "track", ncols=2)
+    t_tr, xy = sorted_series(t_track, xy[:, :2], "track", TimeSyncError, ncols=2)
     if len(t_vo) < 3 or len(t_tr) < 5:
         raise TimeSyncError(f"too short: {len(t_vo)} VO samples and {len(t_tr)} prism fixes")
     if track_heading == "paper":

@@ -10,14 +10,14 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-from typing import NamedTuple
+from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
 __all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp",
-           "read_yaml"]
+           "read_yaml", "sorted_series"]
 
 
 class TumError(ValueError):
@@ -148,6 +148,24 @@ def read_tum(path: str) -> Trajectory:
         raise TumError(f"{path}: cannot read: {e.strerror}") from None
     data = np.array(rows, dtype=float).reshape(-1, 8)
     return Trajectory(data[:, 0], data[:, 1:4], data[:, 4:8])
+
+
+def sorted_series(t, values, name: str, error: type, ncols: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
+    """Validated, time-sorted (stable) copies of a stamped series: ``t`` (N,) s and ``values`` (N,) or,
+    with ``ncols``, (N, ncols). Raises ``error`` (an exception class) naming ``name`` when the lengths
+    differ or a stamp or value is NaN/inf."""
+    t = np.asarray(t, dtype=float).ravel()
+    v = np.asarray(values, dtype=float)
+    if ncols is not None:
+        v = v.reshape(-1, ncols) if v.size else v.reshape(0, ncols)
+    else:
+        v = v.ravel()
+    if len(t) != len(v):
+        raise error(f"{name}: {len(t)} stamps but {len(v)} values")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(v))):
+        raise error(f"{name}: NaN or inf in the stamps or values")
+    order = np.argsort(t, kind="stable")
+    return t[order], v[order]
 
 
 def read_yaml(path: str, error: type):

@@ -7,7 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from aruco_abs_orient.transforms import matrix_to_quat, quat_to_matrix, rpy_to_matrix, yaw_of
-from aruco_abs_orient.tum import Trajectory, TumError, read_tum, slerp, write_tum
+from aruco_abs_orient.tum import Trajectory, TumError, read_tum, slerp, sorted_series, write_tum
 
 
 def _constant_turn(stamps, rate=0.3, speed=1.0):
@@ -60,3 +60,19 @@ def test_interpolation_flags_outside_and_takes_the_short_way():
     q1 = -matrix_to_quat(rpy_to_matrix(0, 0, math.radians(-179)))  # same rotation, other sign
     mid = slerp(q0, q1, 0.5)
     assert abs(math.degrees(float(yaw_of(quat_to_matrix(mid))))) == pytest.approx(180.0, abs=1e-9)
+
+
+def test_sorted_series_sorts_stably_and_names_the_series_in_the_given_error():
+    class MyError(ValueError):
+        pass
+
+    t, v = sorted_series([3.0, 1.0, 2.0, 1.0], [30.0, 10.0, 20.0, 11.0], "yaw", MyError)
+    np.testing.assert_array_equal(t, [1.0, 1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(v, [10.0, 11.0, 20.0, 30.0])   # equal stamps keep their order
+    t, xy = sorted_series([2.0, 1.0], [[2.0, 2.5], [1.0, 1.5]], "track", MyError, ncols=2)
+    np.testing.assert_array_equal(xy, [[1.0, 1.5], [2.0, 2.5]])
+    assert sorted_series([], [], "empty", MyError, ncols=2)[1].shape == (0, 2)
+    with pytest.raises(MyError, match="yaw: 2 stamps but 3 values"):
+        sorted_series([1.0, 2.0], [1.0, 2.0, 3.0], "yaw", MyError)
+    with pytest.raises(MyError, match="track: NaN or inf"):
+        sorted_series([1.0, float("nan")], [[0.0, 0.0], [1.0, 1.0]], "track", MyError, ncols=2)
