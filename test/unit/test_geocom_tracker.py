@@ -4,8 +4,12 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from aruco_abs_orient.geocom.simulator import FaultRates, Ms60Simulator, SimConfig
+from aruco_abs_orient.geocom.client import wire_time_s
+from aruco_abs_orient.geocom.protocol import Rpc, encode_request, parse_coordinate, parse_reply
+from aruco_abs_orient.geocom.simulator import LATE_S, FaultRates, Ms60Simulator, SimConfig
 from aruco_abs_orient.geocom.tracker import Ms60Tracker, TrackerConfig, TrackerError, TrackerState
 
 
@@ -27,7 +31,7 @@ class Run:
         with self.lock:
             self.samples.append((time.time(), s))
 
-    def wait_for_samples(self, n, timeout=5.0):
+    def wait_for_samples(self, n, timeout=10.0):
         deadline = time.time() + timeout
         while time.time() < deadline:
             with self.lock:
@@ -73,6 +77,35 @@ def test_rate_and_stamp_error_without_faults(transport):
     assert rate >= 19.0
     assert np.percentile(errors, 95) < 0.002 and errors.max() < 0.004
     assert run.tracker.stats().lost_samples <= 2
+
+
+@settings(max_examples=300, deadline=None)
+@given(late_s=st.floats(0.0, 0.05), seed=st.integers(0, 1000))
+def test_simulator_sending_late_measures_again_with_its_latency(late_s, seed):
+    """The harness's side of the stamp test: a reply the simulator's thread sends late (a loaded
+    host) reports a newer tick whose modelled latency ends within a tick of the actual send, so
+    the replies the tracker sees keep the instrument's timing; the truth is that newer tick."""
+    sim = Ms60Simulator(SimConfig(), seed=seed)
+    sim.locked = sim.measuring = True
+    t_complete = sim.t_boot + 2.0
+    answer = sim._handle(encode_request(Rpc.TMC_GetCoordinate, (0, 1), 7), t_complete)
+    first = answer.truth
+    assert first.time_s >= t_complete and answer.send_s == pytest.approx(
+        first.time_s + answer.delay_s + wire_time_s(len(answer.data), 115200), abs=1e-9)
+    now = answer.send_s + late_s
+    later = sim._remeasured(answer, now)
+    if late_s <= LATE_S:
+        assert later is None
+        return
+    reading = parse_coordinate(parse_reply(later.data))
+    t = later.truth
+    assert reading.time_ms == t.instrument_ms > first.instrument_ms and parse_reply(later.data).trid == 7
+    assert sim.instrument_ms_at(t.time_s) == pytest.approx(t.instrument_ms, abs=1e-3)  # on a tick (1 µs)
+    assert (reading.east, reading.north, reading.height) == t.position == tuple(sim.track(t.time_s - sim.t_boot))
+    assert later.delay_s == answer.delay_s
+    assert later.send_s == pytest.approx(t.time_s + later.delay_s + wire_time_s(len(later.data), 115200), abs=1e-9)
+    # within a tick (1 ms) plus the wire time of a reply whose numbers have a few more digits
+    assert now <= later.send_s < now + 0.001 + wire_time_s(12, 115200)
 
 
 def test_lost_lock_recovers_within_1s_and_counts_lost_samples():

@@ -18,6 +18,13 @@ What it models (all times are host ``time.time()`` seconds; the truth log uses t
 
 Every TMC_GetCoordinate answer is logged in :attr:`Ms60Simulator.truth` with the true host time
 of its measurement, its instrument time and the true position, so tests can measure errors.
+
+A real instrument keeps its reply timing whatever the host does; the simulator is a host thread
+and may wake late to send (a loaded machine). A coordinate reply that would leave more than
+``LATE_S`` after its due time is measured again at the next counter tick and sent with the same
+latency after it (tracking mode: the instrument answers with its latest measurement); the truth
+records the tick actually reported. The reply timing the client sees stays the modelled one
+instead of every late wake-up lifting the latency.
 """
 
 from __future__ import annotations
@@ -43,8 +50,15 @@ from .protocol import (
     parse_request,
 )
 
-__all__ = ["SimulatorError", "FaultRates", "SimConfig", "TruthRecord", "Ms60Simulator", "builtin_track",
+__all__ = ["LATE_S", "SimulatorError", "FaultRates", "SimConfig", "TruthRecord", "Ms60Simulator", "builtin_track",
            "tum_track"]
+
+
+LATE_S = 0.0005
+"""A coordinate reply due more than this long ago (s) is measured again (an idle host's sleep
+overshoots by ~0.1–0.3 ms; a loaded one by several ms)."""
+
+_MAX_REMEASURE = 20  # then send late rather than never (a host too loaded to keep any timing)
 
 
 class SimulatorError(ValueError):
@@ -101,6 +115,18 @@ class TruthRecord(NamedTuple):
     rc: int
     trid: Optional[int]
     sent: bool
+
+
+class _Answer(NamedTuple):
+    """A reply waiting for its time: ``data`` (bytes), ``send_s`` (host time its last byte is due,
+    s), ``prefix`` (garbage sent before it), ``delay_s`` (modelled measurement-to-first-byte time,
+    s) and, for TMC_GetCoordinate, its ``truth`` (None otherwise)."""
+
+    data: bytes
+    send_s: float
+    prefix: bytes
+    delay_s: float
+    truth: Optional[TruthRecord]
 
 
 def builtin_track(t: float) -> np.ndarray:
@@ -195,9 +221,34 @@ class Ms60Simulator:
     def link_up(self) -> bool:
         return time.time() >= self._link_down_until
 
-    def _handle(self, line: bytes, t_complete: float) -> Optional[Tuple[bytes, float, bytes]]:
-        """Answer one request line completed at ``t_complete``: ``(reply, send_time, prefix)``
-        or None (no answer)."""
+    def _coordinate(self, tick: int, rc: int, trid: Optional[int]) -> Tuple[bytes, TruthRecord]:
+        """TMC_GetCoordinate reply measured at counter ``tick`` (unwrapped ms) with return code
+        ``rc`` (no position unless 0 or a warning), and its truth record."""
+        c = self.config
+        t_meas = self.host_time_of(tick)
+        t_ms = int(tick) % c.wrap_ms
+        p = self.track(t_meas - self.t_boot)
+        e, n, h = (float(v) for v in p) if rc != RC.TMC_ANGLE_OK else (0.0, 0.0, 0.0)
+        reply = encode_reply(rc, (e, n, h, t_ms, e, n, h, t_ms), 0, trid)
+        return reply, TruthRecord(t_meas, t_ms, (float(p[0]), float(p[1]), float(p[2])), int(rc), trid, True)
+
+    def _remeasured(self, answer: _Answer, now: float) -> Optional[_Answer]:
+        """None if ``answer`` may still be sent at host time ``now`` (s), else the same reply
+        measured at the first counter tick from which its latency ``delay_s`` ends after ``now``."""
+        truth = answer.truth
+        if truth is None or now - answer.send_s <= LATE_S:
+            return None
+        baud = self.config.baud
+        tick = math.ceil(self.instrument_ms_at(now - answer.delay_s - 10.0 * len(answer.data) / baud))
+        while True:  # a shorter reply is due earlier on the wire: then the next tick
+            data, later = self._coordinate(tick, truth.rc, truth.trid)
+            send_s = later.time_s + answer.delay_s + 10.0 * len(data) / baud
+            if send_s >= now:
+                return answer._replace(data=data, truth=later, send_s=send_s)
+            tick += 1
+
+    def _handle(self, line: bytes, t_complete: float) -> Optional[_Answer]:
+        """Answer one request line completed at ``t_complete`` (s), or None (no answer)."""
         try:
             req = parse_request(line)
         except GeoComProtocolError:
@@ -207,24 +258,19 @@ class Ms60Simulator:
         t_meas = t_complete
         values: tuple = ()
         rc = RC.OK
+        reply: Optional[bytes] = None
         truth: Optional[TruthRecord] = None
         with self._state_lock:
             rpc = req.rpc
             if rpc == Rpc.TMC_GetCoordinate:
                 tick = math.floor(self.instrument_ms_at(t_complete)) + 1
-                t_meas = self.host_time_of(tick)
-                t_ms = int(tick) % c.wrap_ms
-                p = self.track(t_meas - self.t_boot)
+                rc = RC.TMC_ANGLE_OK
                 if self.locked and self.measuring:
                     rc = RC.OK
                     if rng.random() < f.warning:
                         rc = rng.choice((RC.TMC_NO_FULL_CORRECTION, RC.TMC_ACCURACY_GUARANTEE))
-                    e, n, h = (float(v) for v in p)
-                else:
-                    rc = RC.TMC_ANGLE_OK
-                    e = n = h = 0.0
-                values = (e, n, h, t_ms, e, n, h, t_ms)
-                truth = TruthRecord(t_meas, t_ms, (float(p[0]), float(p[1]), float(p[2])), int(rc), req.trid, True)
+                reply, truth = self._coordinate(tick, rc, req.trid)
+                t_meas = truth.time_s
             elif rpc == Rpc.TMC_GetSimpleCoord:
                 p = self.track(t_complete - self.t_boot)
                 rc = RC.OK if (self.locked and self.measuring) else RC.TMC_ANGLE_OK
@@ -264,7 +310,8 @@ class Ms60Simulator:
                 rc = RC.IVPARAM
             else:
                 rc = RC.COM_PROC_UNAVAIL
-        reply = encode_reply(rc, values, 0, req.trid)
+        if reply is None:
+            reply = encode_reply(rc, values, 0, req.trid)
         delay = c.latency_s + rng.uniform(-c.jitter_s, c.jitter_s)
         if rng.random() < f.spike:
             delay += c.spike_s
@@ -274,11 +321,11 @@ class Ms60Simulator:
         prefix = bytes(rng.randrange(32, 127) for _ in range(rng.randint(1, 40))) if rng.random() < f.garbage else b""
         if rng.random() < 0.5 and prefix:
             prefix += b"\r\n"
-        if truth is not None:
-            self.truth.append(truth._replace(sent=not drop))
         if drop:
+            if truth is not None:
+                self.truth.append(truth._replace(sent=False))
             return None
-        return reply, t_meas + delay + 10.0 * len(reply) / c.baud, prefix
+        return _Answer(reply, t_meas + delay + 10.0 * len(reply) / c.baud, prefix, delay, truth)
 
     # --- transports ------------------------------------------------------------------------
     def _serve_stream(self, read: Callable[[float], bytes], write: Callable[[bytes], None]) -> None:
@@ -305,15 +352,24 @@ class Ms60Simulator:
                 answer = self._handle(line, t_complete)
                 if answer is None:
                     continue
-                reply, t_send, prefix = answer
-                wait = t_send - time.time()
-                if wait > 0:
-                    time.sleep(wait)
+                for _ in range(_MAX_REMEASURE):
+                    wait = answer.send_s - time.time()
+                    if wait > 0:
+                        time.sleep(wait)
+                    later = self._remeasured(answer, time.time())
+                    if later is None:
+                        break
+                    answer = later
+                truth = answer.truth
                 if not self.link_up or self._stop.is_set():
+                    if truth is not None:
+                        self.truth.append(truth._replace(sent=False))
                     buf.clear()
                     break
+                if truth is not None:
+                    self.truth.append(truth)
                 try:
-                    write(prefix + reply)
+                    write(answer.prefix + answer.data)
                 except OSError:
                     return
 

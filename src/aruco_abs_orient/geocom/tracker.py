@@ -7,8 +7,11 @@ again). Every position is stamped with its instrument time mapped to host time
 (:class:`~.clock.InstrumentClock`), never with the reception time. Stamps never go backwards and
 never repeat: a sample whose instrument time or stamp is not newer than the last one is dropped
 and counted. Poll slots without a published sample after the first one are counted as lost.
-The first ``warmup_samples`` positions (1 s at 20 Hz) only feed the clock fit: the lower
-envelope needs a few low-latency replies before its stamps can be trusted.
+The first ``warmup_samples`` positions (2 s at 20 Hz) only feed the clock fit: the lower
+envelope needs a few low-latency replies *received promptly* before its stamps can be trusted.
+On a loaded host the loop thread wakes late for some replies (their reception stamps are late by
+milliseconds); after 1 s the envelope may still rest on such replies (with 8 CPU-bound processes
+on 2 cores the first stamps were up to 3.6 ms late), after 2 s it had a prompt one (p95 < 1.1 ms).
 """
 
 from __future__ import annotations
@@ -46,7 +49,8 @@ class TrackerConfig(NamedTuple):
     between reconnection attempts (s); ``prism_type`` BAP_PRISMTYPE or None (leave as is);
     ``prism_constant_m`` additive constant (m) or None; ``station`` (E0, N0, H0, Hi) in metres
     or None; ``orientation_rad`` Hz orientation (rad) or None; ``min_latency_s`` the
-    instrument's shortest measurement-to-reply time (s) for the clock."""
+    instrument's shortest measurement-to-reply time (s) for the clock; ``warmup_samples``
+    positions that only feed the clock before the first one is published."""
 
     url: str
     baud: int = 115200
@@ -59,7 +63,7 @@ class TrackerConfig(NamedTuple):
     station: Optional[Tuple[float, float, float, float]] = None
     orientation_rad: Optional[float] = None
     min_latency_s: float = 0.0
-    warmup_samples: int = 20
+    warmup_samples: int = 40
 
     def validate(self) -> None:
         """Raise TrackerError naming the first bad setting."""
