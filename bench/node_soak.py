@@ -9,17 +9,11 @@ Prints one line per sample and a summary: RSS growth after the first minute (fla
 the latency median of the last sample vs the first (stable ≈ 1), the dropped fraction.
 """
 import argparse
-import os
 import sys
 import time
 
 import psutil
-
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(HERE, "..", "test"))
-
-from node_latency import Monitor, RosProcesses  # noqa: E402
+from _ros_harness import render_scene, run_with_node, start_feed, stop_feed
 
 
 def rss_mb(pid: int) -> float:
@@ -35,31 +29,12 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=600.0, help="s of soak after initialisation")
     ap.add_argument("--every", type=float, default=30.0, help="s between samples")
     args = ap.parse_args(argv)
-    ros = RosProcesses({"markers": os.path.join(HERE, "..", "test", "abs_orient_scene_markers.yaml")})
-    try:
-        return run(args, ros)
-    finally:
-        ros.stop()
+    return run_with_node(run, args)
 
 
 def run(args, ros) -> int:
-    import rospy
-    import rt_abs_orient_scene as scene
-    import tf2_ros
-
-    rospy.init_node("bench_node_soak", disable_signals=True)
-    tf = tf2_ros.Buffer(debug=False)
-    tf2_ros.TransformListener(tf)
-    base_T_camera, base_T_prism = scene.lever_arms(tf)
-    feed = scene.Feed(scene.render_frames(base_T_camera, width=args.width), base_T_prism, rate=args.fps)
-    mon = Monitor(feed)
-    feed.start()
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and mon.values.get("initialised") != "True":
-        time.sleep(0.2)
-    if mon.values.get("initialised") != "True":
-        print("the node did not initialise within 60 s", file=sys.stderr)
-        return 1
+    frames, base_T_prism, _ = render_scene("bench_node_soak", args.width)
+    feed, mon = start_feed(ros, frames, base_T_prism, args.fps)
     samples = []
     start = time.monotonic()
     print(f"soak: {args.width}x{args.width // 2} at {args.fps:g} fps for {args.duration:g} s")
@@ -77,8 +52,7 @@ def run(args, ros) -> int:
         samples.append(row)
         print(f"  {row[0]:6.0f}  {row[1]:8.1f}  {row[2]:10.1f} / {row[3]:6.1f}  {row[4]:10.1f}  {row[5]:9d}",
               flush=True)
-    feed.stop.set()
-    feed.join(5)
+    stop_feed(feed)
     after_1min = next((s for s in samples if s[0] >= 60.0), samples[0])
     last = samples[-1]
     print(f"\nRSS {after_1min[1]:.1f} MB after {after_1min[0]:.0f} s -> {last[1]:.1f} MB at {last[0]:.0f} s "
