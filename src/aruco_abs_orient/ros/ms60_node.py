@@ -19,6 +19,8 @@ Private parameters (each checked; a bad one ends the node with one line and exit
 (optional), ``~min_latency_ms`` (the instrument's shortest measurement-to-reply time, 0),
 ``~station/x``, ``~station/y``, ``~station/z``, ``~station/instrument_height`` (m, optional, all
 of x, y, z together) and ``~station/orientation_deg`` (optional).
+
+Without a ROS master the node ends with one line (where it looked for one) and exit status 1.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import sys
 import time
 from typing import Any, Dict, Tuple
 
+import rosgraph
 import rospy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
@@ -128,6 +131,11 @@ def _diagnostics(stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
 
 
 def main() -> None:
+    master = rosgraph.get_master_uri()
+    if not rosgraph.is_master_online(master):
+        print(f"ms60_driver: no ROS master at {master}: start roscore or roslaunch aruco_abs_orient ms60.launch",
+              file=sys.stderr)
+        sys.exit(1)
     rospy.init_node("ms60_driver")
     try:
         config, frame_id = config_from_params(rospy.get_param("~", {}))
