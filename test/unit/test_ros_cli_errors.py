@@ -30,6 +30,8 @@ def _run(script, args, env_uri):
     ("ms60_driver", ["_port:=loop://", "_rate:=10"], "ms60.launch"),  # private params: rospy's set_param traceback
     ("abs_orient", [], "live.launch"),  # rospy would retry the registration for ever
     ("abs_orient", ["_markers:=markers.yaml"], "live.launch"),
+    ("static_tfs", ["_calibration:=calibration.yaml"], "live.launch"),
+    ("tf_to_odometry", [], "ekf.launch"),
 ])
 def test_no_master_is_one_line_and_status_1(script, args, launch):
     uri = _dead_master_uri()

@@ -588,14 +588,11 @@ def reconfigurable_names() -> Tuple[str, ...]:
 def main(argv=None) -> int:
     """Entry point of ``scripts/abs_orient``; returns the exit status (1: no ROS master, 2: bad
     parameters or marker map, each with one line)."""
-    import rosgraph
     import rospy
 
-    master = rosgraph.get_master_uri(argv=argv)
-    if not rosgraph.is_master_online(master):
-        print(f"abs_orient: no ROS master at {master}: start roscore or roslaunch aruco_abs_orient live.launch",
-              file=sys.stderr)
-        return 1
+    from . import exit_without_master
+
+    exit_without_master("abs_orient", "live.launch", argv)
     rospy.init_node("abs_orient", argv=argv)
     try:
         config = NodeConfig.from_params(rospy.get_param)

@@ -31,13 +31,13 @@ import sys
 import time
 from typing import Any, Dict, Tuple
 
-import rosgraph
 import rospy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import String
 
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerStats
+from . import exit_without_master
 
 __all__ = ["config_from_params", "stats_to_json", "main"]
 
@@ -131,11 +131,7 @@ def _diagnostics(stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
 
 
 def main() -> None:
-    master = rosgraph.get_master_uri()
-    if not rosgraph.is_master_online(master):
-        print(f"ms60_driver: no ROS master at {master}: start roscore or roslaunch aruco_abs_orient ms60.launch",
-              file=sys.stderr)
-        sys.exit(1)
+    exit_without_master("ms60_driver", "ms60.launch")
     rospy.init_node("ms60_driver")
     try:
         config, frame_id = config_from_params(rospy.get_param("~", {}))

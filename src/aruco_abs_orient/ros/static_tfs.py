@@ -25,6 +25,9 @@ def main(argv=None) -> int:
     import rospy
     import tf2_ros
 
+    from . import exit_without_master
+
+    exit_without_master("static_tfs", "live.launch", argv)
     from .conversions import matrix_to_transform_stamped
 
     rospy.init_node("static_tfs", argv=argv)

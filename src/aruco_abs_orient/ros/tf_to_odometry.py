@@ -45,6 +45,9 @@ def main(argv=None) -> int:
     from nav_msgs.msg import Odometry
     from tf2_msgs.msg import TFMessage
 
+    from . import exit_without_master
+
+    exit_without_master("tf_to_odometry", "ekf.launch", argv)
     from .conversions import ConversionError
 
     rospy.init_node("tf_to_odometry", argv=argv)
