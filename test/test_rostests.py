@@ -20,6 +20,12 @@ ROSTESTS = sorted(p.name for p in HERE.glob("*.test"))
 def test_rostest(name, tmp_path):
     if shutil.which("rostest") is None or "ROS_PACKAGE_PATH" not in os.environ:
         pytest.fail("rostest or the catkin workspace is missing: run via `make test` (tools/env.sh)")
+    if "ekf" in (HERE / name).read_text() and subprocess.run(["rospack", "find", "robot_localization"],
+                                                             stdout=subprocess.DEVNULL,
+                                                             stderr=subprocess.DEVNULL).returncode != 0:
+        pytest.fail(f"{name} needs the real robot_localization, which is not installed: `make setup` builds it with "
+                    "../shared/tools/build-robot-localization (or $AAO_SHARED/tools/…); on a ROS distro "
+                    "apt install ros-$ROS_DISTRO-robot-localization")
     env = dict(os.environ, ROS_HOSTNAME="localhost", ROS_HOME=str(tmp_path / "ros_home"))
     env.pop("ROS_MASTER_URI", None)
     proc = subprocess.run(

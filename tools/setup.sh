@@ -70,14 +70,22 @@ else
 fi
 
 # --------------------------------------------------------------------------- 3. robot_localization
-RL_TOOL=$ROOT/../shared/tools/build-robot-localization
+# the shared tools next to the repository (../shared), or where $AAO_SHARED says, or this machine's /work/shared
+RL_TOOL=
+for shared in "${AAO_SHARED:-}" "$ROOT/../shared" /work/shared; do
+  if [[ -n $shared && -x $shared/tools/build-robot-localization ]]; then
+    RL_TOOL=$shared/tools/build-robot-localization
+    break
+  fi
+done
 RL_SETUP=
-if [[ -x $RL_TOOL ]]; then
+if [[ -n $RL_TOOL ]]; then
   RL_SETUP=$("$RL_TOOL" "$WS/rl" | tail -n 1)
   log "robot_localization: $RL_SETUP"
 else
-  log "robot_localization: $RL_TOOL not found: skipped (the EKF rostests will be skipped;" \
-    "on a ROS distro install ros-\$ROS_DISTRO-robot-localization)"
+  log "robot_localization: no build-robot-localization in \$AAO_SHARED/tools, $ROOT/../shared/tools or" \
+    "/work/shared/tools: not built (the EKF rostest will fail and make demo skips the EKF; on a ROS distro" \
+    "install ros-\$ROS_DISTRO-robot-localization)"
 fi
 echo "$RL_SETUP" >"$STAMPS/rl_setup"
 
