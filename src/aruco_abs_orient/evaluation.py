@@ -309,15 +309,22 @@ def save_figure(fig, path: str) -> str:
     return path
 
 
+def _time_axis(ax, times) -> float:
+    """Label ``ax``'s x axis as seconds since the earliest of ``times`` (arrays of stamps, s); return it."""
+    t0 = min((float(np.min(t)) for t in times if len(t)), default=0.0)
+    ax.set_xlabel(f"time since {t0:.3f} s [s]")
+    return t0
+
+
 def plot_yaw_errors(path: str, errors: Mapping[str, YawErrors], title: str = "Heading error",
                     size: Tuple[int, int] = (1200, 500)) -> str:
     """Heading error (deg) over time for each labelled ``YawErrors``; PNG of ``size`` pixels."""
     fig = _figure(*size)
     ax = fig.add_subplot(1, 1, 1)
+    t0 = _time_axis(ax, [e.t for e in errors.values()])
     for label, e in errors.items():
-        ax.plot(e.t, np.degrees(e.error), ".", ms=2, label=f"{label} (RMSE {math.degrees(e.stats.rmse):.2f}°)")
+        ax.plot(e.t - t0, np.degrees(e.error), ".", ms=2, label=f"{label} (RMSE {math.degrees(e.stats.rmse):.3f}°)")
     ax.axhline(0.0, color="k", lw=0.5)
-    ax.set_xlabel("time [s]")
     ax.set_ylabel("yaw error [deg]")
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
@@ -333,24 +340,24 @@ def plot_marker_yaws(path: str, series: Mapping[int, Tuple[np.ndarray, np.ndarra
     (deg; figs. 11–12); PNG of ``size`` pixels."""
     fig = _figure(*size)
     ax1 = fig.add_subplot(2, 1, 1)
+    ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
+    t0 = _time_axis(ax2, [t for t, _ in series.values()])
     for mid, (t, yaw) in sorted(series.items()):
-        ax1.plot(t, np.degrees(yaw), ".", ms=2, label=f"marker {mid}")
+        ax1.plot(t - t0, np.degrees(yaw), ".", ms=2, label=f"marker {mid}")
     ax1.set_ylabel("yaw [deg]")
     ax1.set_title("Yaw from each marker alone")
     ax1.grid(True, alpha=0.3)
     if series:
         ax1.legend(loc="upper right", fontsize="small", markerscale=4)
-    ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
     if pairwise is not None:
         for (a, b), (t, d) in sorted(pairwise.pairs.items()):
-            ax2.plot(t, np.degrees(d), ".", ms=2, label=f"{a} − {b}")
+            ax2.plot(t - t0, np.degrees(d), ".", ms=2, label=f"{a} − {b}")
         st = pairwise.stats
-        ax2.set_title(f"Pairwise differences: median {math.degrees(st.median):.2f}°, "
-                      f"mean {math.degrees(st.mean):.2f}°, std {math.degrees(st.std):.2f}°")
+        ax2.set_title(f"Pairwise differences: median {math.degrees(st.median):.3f}°, "
+                      f"mean {math.degrees(st.mean):.3f}°, std {math.degrees(st.std):.3f}°")
         if pairwise.pairs:
             ax2.legend(loc="upper right", fontsize="small", markerscale=4, ncol=3)
     ax2.axhline(0.0, color="k", lw=0.5)
-    ax2.set_xlabel("time [s]")
     ax2.set_ylabel("difference [deg]")
     ax2.grid(True, alpha=0.3)
     fig.tight_layout()
