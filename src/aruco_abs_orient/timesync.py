@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import collections
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Deque, List, NamedTuple, Optional, Sequence, Tuple
 
@@ -649,6 +650,9 @@ class OnlineOffsetEstimator:
     counts fully; each later one shares all but ``update_period`` s of its data with the previous,
     so it enters with its variance × ``horizon / update_period``; the offset may wander as a random
     walk of ``offset_walk`` s/√s (clock drift).
+
+    Thread-safe: the ``add_*`` calls may come from one thread while ``update_in_background`` runs the
+    estimate (0.1–0.5 s of numpy) in another, so a live node's image loop never waits for it.
     """
 
     def __init__(self, horizon: float = 90.0, search=(-1.0, 1.0), update_period: float = 5.0,
@@ -672,21 +676,34 @@ class OnlineOffsetEstimator:
         self.applied: Optional[float] = None
         self.applied_sigma: Optional[float] = None
         self._applied_at: Optional[float] = None
+        self._lock = threading.Lock()
+        self._worker: Optional[threading.Thread] = None
 
     def add_vo(self, t: float, yaw: float) -> None:
         """A VO yaw (rad) of base_link stamped ``t`` (s, camera clock)."""
-        self._vo.append((float(t), float(yaw)))
-        self._trim(self._vo, float(t))
+        with self._lock:
+            self._vo.append((float(t), float(yaw)))
+            self._trim(self._vo, float(t))
 
     def add_track(self, t: float, x: float, y: float) -> None:
         """A prism fix (m, map) stamped ``t`` (s, total-station clock)."""
-        self._track.append((float(t), float(x), float(y)))
-        self._trim(self._track, float(t))
+        with self._lock:
+            self._track.append((float(t), float(x), float(y)))
+            self._trim(self._track, float(t))
 
     def add_marker_yaw(self, t: float, yaw: float) -> None:
         """An absolute yaw (rad) of base_link from a marker, stamped ``t`` (s, camera clock)."""
-        self._marker.append((float(t), float(yaw)))
-        self._trim(self._marker, float(t))
+        with self._lock:
+            self._marker.append((float(t), float(yaw)))
+            self._trim(self._marker, float(t))
+
+    def clear(self) -> None:
+        """Forget the buffered samples (a time jump: a looped bag); the applied offset is kept."""
+        with self._lock:
+            self._vo.clear()
+            self._track.clear()
+            self._marker.clear()
+            self._last_update = None
 
     def _trim(self, buf: Deque, newest: float) -> None:
         while buf and buf[0][0] < newest - self.horizon:
@@ -697,21 +714,52 @@ class OnlineOffsetEstimator:
         """Numbers of buffered (VO, track, marker) samples."""
         return len(self._vo), len(self._track), len(self._marker)
 
+    def _due(self, now: Optional[float], force: bool):
+        """(now, VO, track, marker arrays) to estimate from when an update is due, else None."""
+        with self._lock:
+            if not self._vo and not self._marker:
+                return None
+            if now is None:
+                now = max(self._vo[-1][0] if self._vo else -math.inf,
+                          self._marker[-1][0] if self._marker else -math.inf)
+            if not force and self._last_update is not None and now - self._last_update < self.update_period:
+                return None
+            self._last_update = now
+            return (now, np.array(self._vo, dtype=float).reshape(-1, 2),
+                    np.array(self._track, dtype=float).reshape(-1, 3),
+                    np.array(self._marker, dtype=float).reshape(-1, 2))
+
     def update(self, now: Optional[float] = None, force: bool = False) -> Optional[OffsetEstimate]:
         """Re-estimate if ``update_period`` s (camera clock ``now``, default the newest VO stamp)
         passed since the last attempt, or if ``force``; returns the new estimate or None."""
-        if not self._vo and not self._marker:
+        data = self._due(now, force)
+        return None if data is None else self._estimate_from(*data)
+
+    def update_in_background(self, now: Optional[float] = None) -> bool:
+        """Like ``update`` but in a daemon thread (at most one at a time); True if one was started.
+        ``latest``, ``applied`` and ``last_error`` change when it ends."""
+        if self._worker is not None and self._worker.is_alive():
+            return False
+        data = self._due(now, False)
+        if data is None:
+            return False
+        self._worker = threading.Thread(target=self._estimate_from, args=data, name="time offset", daemon=True)
+        self._worker.start()
+        return True
+
+    def suggestion(self, in_use: float, min_difference: float = 0.02, n_sigma: float = 5.0) -> Optional[float]:
+        """The applied (confident, fused) offset when it contradicts the offset ``in_use`` (s): differs
+        by more than ``n_sigma`` ``applied_sigma`` and ``min_difference`` s (a forgotten or wrong offset);
+        else None (keep ``in_use``: a good offset from ``timesync --markers`` is not replaced by a coarser
+        live one, nor by one whose σ is optimistic)."""
+        applied, sigma = self.applied, self.applied_sigma
+        if applied is None or sigma is None:
             return None
-        if now is None:
-            now = max(self._vo[-1][0] if self._vo else -math.inf, self._marker[-1][0] if self._marker else -math.inf)
-        if not force and self._last_update is not None and now - self._last_update < self.update_period:
-            return None
-        self._last_update = now
+        return applied if abs(applied - in_use) > max(n_sigma * sigma, min_difference) else None
+
+    def _estimate_from(self, now: float, vo: np.ndarray, track: np.ndarray, mk: np.ndarray) -> Optional[OffsetEstimate]:
         try:
-            track = np.array(self._track, dtype=float).reshape(-1, 3)
-            vo = np.array(self._vo, dtype=float).reshape(-1, 2)
-            if len(self._marker) >= 3:
-                mk = np.array(self._marker, dtype=float)
+            if len(mk) >= 3:
                 est = estimate_offset_from_marker_yaws(
                     mk[:, 0], mk[:, 1], track[:, 0], track[:, 1:], t_vo=vo[:, 0] if len(vo) else None,
                     yaw_vo=vo[:, 1] if len(vo) else None, search=self.search, **self.kwargs)
@@ -721,10 +769,11 @@ class OnlineOffsetEstimator:
         except TimeSyncError as e:
             self.last_error = str(e)
             return None
-        self.last_error = None
-        self.latest = est
-        if est.confidence >= self.min_confidence and est.sigma <= self.max_sigma:
-            self._fuse(est, now)
+        with self._lock:
+            self.last_error = None
+            self.latest = est
+            if est.confidence >= self.min_confidence and est.sigma <= self.max_sigma:
+                self._fuse(est, now)
         return est
 
     def _fuse(self, est: OffsetEstimate, now: float) -> None:

@@ -55,6 +55,7 @@ import numpy as np
 from ..calibration import CalibrationError, load_calibration
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
+from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
 
 __all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
@@ -74,6 +75,11 @@ class NodeConfig:
     - ``markers``: marker map YAML path (required).
     - ``image_transport``: 'compressed' (``camera/image/compressed``) or 'raw' (``camera/image``).
     - ``time_offset``: s, camera stamps = true time + offset.
+    - ``estimate_time_offset``: estimate the offset live (``timesync.OnlineOffsetEstimator``: VO yaw and
+      marker yaws against the prism track's heading, in a background thread), shown in diagnostics.
+    - ``apply_estimated_time_offset``: use a confident live estimate when it contradicts the offset in
+      use (by more than 5 σ and 20 ms: a forgotten or wrong offset); a good offset is never replaced by
+      a coarser one.
     - ``calibration``: calibration YAML of ``aruco-abs-orient calibrate`` whose lever arms replace the
       static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static); empty:
       the lever arms come from tf.
@@ -90,6 +96,8 @@ class NodeConfig:
     markers: str = ""
     image_transport: str = "compressed"
     time_offset: float = 0.0
+    estimate_time_offset: bool = True
+    apply_estimated_time_offset: bool = True
     calibration: str = ""
     publish_tf: bool = True
     tf_rate: float = 20.0
@@ -208,6 +216,8 @@ class AbsOrientNode:
         self.marker_map = marker_map
         self.pipeline: Optional[AbsOrientPipeline] = None
         self.time_offset = config.time_offset
+        self.time_offset_source = "parameter"
+        self.offset_estimator: Optional[OnlineOffsetEstimator] = None  # made with the pipeline (lever arm)
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
         self._reconfigured: Dict[str, object] = {}          # the values it last handed over
@@ -306,6 +316,7 @@ class AbsOrientNode:
             return
         if "time_offset" in changes:
             self.time_offset = float(changes.pop("time_offset"))
+            self.time_offset_source = "parameter"
         self._pending_for_pipeline.update(changes)
         if self.pipeline is not None:
             self._update_pipeline_params()
@@ -335,6 +346,8 @@ class AbsOrientNode:
         self.sent_tf_stamps.clear()
         self.last_result = None
         self.initialised = False
+        if self.offset_estimator is not None:
+            self.offset_estimator.clear()
 
     def _ensure_pipeline(self) -> bool:
         if self.pipeline is not None:
@@ -354,6 +367,8 @@ class AbsOrientNode:
                 return False
         try:
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame])
+            if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
+                self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
         except PipelineError as e:
             self._error("no_static_tf", f"unusable lever arms from {source}: {e}")
             return False
@@ -373,6 +388,8 @@ class AbsOrientNode:
             self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
             self.counts["prisms"] += 1
             self.pipeline.add_prism(t, p)
+            if self.offset_estimator is not None:
+                self.offset_estimator.add_track(t, float(p[0]), float(p[1]))
 
     def _odom_T_base(self, stamp) -> Optional[np.ndarray]:
         """odom→base_link at ``stamp``, waiting up to ~tf_timeout (wall clock) for it to arrive."""
@@ -443,9 +460,26 @@ class AbsOrientNode:
             self.counts["unknown_ids"] += unknown
         self._publish(result, stamp, odom_T_base)
         self.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        self._estimate_time_offset(s, odom_T_base, result)
         for stage, ms in result.timings.items():
             self.stage_ms[stage] = self.stage_ms.get(stage, 0.0) + ms
         self.stage_ms["tf wait"] = self.stage_ms.get("tf wait", 0.0) + tf_wait_ms
+
+    def _estimate_time_offset(self, s: float, odom_T_base: np.ndarray, result: FrameResult) -> None:
+        """Feed the live estimator (camera clock ``s``); start an estimate when one is due; switch to a
+        confident estimate that contradicts the offset in use."""
+        est = self.offset_estimator
+        if est is None:
+            return
+        est.add_vo(s, float(yaw_of(odom_T_base[:3, :3])))
+        if result.fused_yaw is not None and any(r.accepted for r in result.observations):
+            est.add_marker_yaw(s, result.fused_yaw)
+        est.update_in_background(s)
+        better = est.suggestion(self.time_offset) if self.config.apply_estimated_time_offset else None
+        if better is not None:
+            self.rospy.logwarn(f"abs_orient: time offset {self.time_offset:.4f} s -> {better:.4f} s "
+                               f"(live estimate ± {1e3 * est.applied_sigma:.1f} ms contradicts the one in use)")
+            self.time_offset, self.time_offset_source = better, "live estimate"
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, result: FrameResult, stamp, odom_T_base: np.ndarray) -> None:
@@ -523,6 +557,7 @@ class AbsOrientNode:
             "latency median [ms]": float(np.median(lat)),
             "latency p95 [ms]": float(np.percentile(lat, 95)),
             "time offset [s]": self.time_offset,
+            "time offset source": self.time_offset_source,
             "prism age [s]": prism_age,
             "frames with marker yaw": self.counts["frames_with_yaw"],
             "unknown marker ids": self.counts["unknown_ids"],
@@ -537,6 +572,13 @@ class AbsOrientNode:
             "map->odom sent": self.counts["tf_published"],
             "last error": self.last_error or "-",
         }
+        est = self.offset_estimator
+        if est is not None:
+            latest = est.latest
+            values["time offset estimate [s]"] = latest.offset if latest is not None else "-"
+            values["time offset estimate sigma [ms]"] = 1e3 * latest.sigma if latest is not None else "-"
+            values["time offset estimate confidence"] = latest.confidence if latest is not None else "-"
+            values["time offset estimate note"] = est.last_error or "-"
         if r is not None and r.map_T_odom is not None:
             values["map->odom yaw [deg]"] = math.degrees(float(yaw_of(r.map_T_odom[:3, :3])))
         n = max(delta.get("processed", 0), 1)
