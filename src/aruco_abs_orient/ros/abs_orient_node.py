@@ -218,6 +218,7 @@ class AbsOrientNode:
         self.time_offset = config.time_offset
         self.time_offset_source = "parameter"
         self.offset_estimator: Optional[OnlineOffsetEstimator] = None  # made with the pipeline (lever arm)
+        self.calibrated_arms = config.calibrated_lever_arms()          # None: the lever arms come from tf
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
         self._reconfigured: Dict[str, object] = {}          # the values it last handed over
@@ -353,7 +354,7 @@ class AbsOrientNode:
         if self.pipeline is not None:
             return True
         c = self.config
-        calibrated = c.calibrated_lever_arms()
+        calibrated = self.calibrated_arms
         source = f"calibration {c.calibration}" if calibrated else "tf"
         arms = {} if calibrated is None else {c.camera_frame: calibrated["camera"], c.prism_frame: calibrated["prism"]}
         for child in (c.camera_frame, c.prism_frame):
