@@ -44,7 +44,8 @@ if aruco-abs-orient calibrate "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml
   --refine-time-offset --every 3 --out "$RUN/calibration.yaml" | tee "$RUN/calibration.txt"; then
   CALFILE=$RUN/calibration.yaml
   CAL=(--calibration "$CALFILE")
-  OFFSET=$(sed -n 's/.*--time-offset \([-0-9.]*\).*/\1/p' "$RUN/calibration.txt")
+  REFINED=$(sed -n 's/.*--time-offset \([-0-9.]*\).*/\1/p' "$RUN/calibration.txt")
+  OFFSET=${REFINED:-$OFFSET}
   python -c "import yaml,sys; b=yaml.safe_load(open(sys.argv[1]))['boresight']['rpy_deg']; \
 print('(the scenario\'s hidden boresight error, roll pitch yaw: %.4f %.4f %.4f deg; hidden time offset %s s)' \
 % (tuple(b) + (sys.argv[2],)))" "$SCEN/hidden.yaml" "$TRUE_OFFSET"
