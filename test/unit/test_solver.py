@@ -29,7 +29,9 @@ seeds = st.integers(0, 2 ** 32 - 1)
 
 
 class Scene:
-    """A base_link pose, lever arms and markers at 1–20 m from the camera (metres, radians)."""
+    """A base_link pose, lever arms and markers at 1–20 m from the camera (metres, radians), each farther
+    than twice the camera–prism lever arm, so it lies outside the lever-arm sphere around the prism
+    where one marker's yaw has no unique solution (tested on its own below)."""
 
     def __init__(self, seed, roll, pitch, yaw, n_markers):
         rng = np.random.default_rng(seed)
@@ -46,7 +48,8 @@ class Scene:
         d = rng.normal(size=(n_markers, 3))
         d[:, 2] *= 0.3                      # markers mostly around the horizon
         d /= np.linalg.norm(d, axis=1)[:, None]
-        self.M = self.C + d * rng.uniform(1.0, 20.0, (n_markers, 1))
+        near = max(1.0, 2.0 * float(np.linalg.norm(self.t_cam - self.t_prism)) + 0.1)
+        self.M = self.C + d * rng.uniform(near, 20.0, (n_markers, 1))
 
     def bearings(self, M=None, sigma=0.0):
         """Camera-frame unit bearings of markers M (default: the scene's), with isotropic noise σ (rad)."""
