@@ -276,7 +276,7 @@ def _make_channel(t, yaw, weights, name: str, window: Optional[float], drift: bo
     if len(w) != len(raw_t):
         raise TimeSyncError(f"{name}: {len(raw_t)} samples but {len(w)} weights")
     t, yaw = sorted_series(raw_t, yaw, name, TimeSyncError)
-    w = w[np.argsort(raw_t, kind="stable")]  # the order _as_series sorted the samples into
+    w = w[np.argsort(raw_t, kind="stable")]  # the order sorted_series sorted the samples into
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise TimeSyncError(f"{name}: weights must be finite and ≥ 0")
     if window is None or len(t) == 0 or window <= 0:
@@ -752,7 +752,8 @@ class OnlineOffsetEstimator:
         by more than ``n_sigma`` ``applied_sigma`` and ``min_difference`` s (a forgotten or wrong offset);
         else None (keep ``in_use``: a good offset from ``timesync --markers`` is not replaced by a coarser
         live one, nor by one whose σ is optimistic)."""
-        applied, sigma = self.applied, self.applied_sigma
+        with self._lock:  # a consistent pair: the worker thread fuses both
+            applied, sigma = self.applied, self.applied_sigma
         if applied is None or sigma is None:
             return None
         return applied if abs(applied - in_use) > max(n_sigma * sigma, min_difference) else None

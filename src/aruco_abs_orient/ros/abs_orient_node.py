@@ -48,6 +48,7 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, fields
+from functools import cached_property
 from typing import Deque, Dict, Optional, Tuple
 
 import numpy as np
@@ -133,7 +134,7 @@ class NodeConfig:
         config = cls(**kw)
         if not config.markers:
             raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
-        config.calibrated_lever_arms()  # a file that does not load: one clear line at start-up
+        config.calibrated_lever_arms()  # read here, once: a file that does not load is one clear line at start-up
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
@@ -143,8 +144,12 @@ class NodeConfig:
         return config
 
     def calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
-        """``{"camera": base_T_camera, "prism": base_T_prism}`` of ``calibration`` (None without one).
-        Raises NodeConfigError naming the file and the key."""
+        """``{"camera": base_T_camera, "prism": base_T_prism}`` of ``calibration`` (None without one),
+        read from the file on the first call only. Raises NodeConfigError naming the file and the key."""
+        return self._calibrated_lever_arms
+
+    @cached_property
+    def _calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
         if not self.calibration:
             return None
         try:
@@ -218,7 +223,6 @@ class AbsOrientNode:
         self.time_offset = config.time_offset
         self.time_offset_source = "parameter"
         self.offset_estimator: Optional[OnlineOffsetEstimator] = None  # made with the pipeline (lever arm)
-        self.calibrated_arms = config.calibrated_lever_arms()          # None: the lever arms come from tf
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
         self._reconfigured: Dict[str, object] = {}          # the values it last handed over
@@ -354,7 +358,7 @@ class AbsOrientNode:
         if self.pipeline is not None:
             return True
         c = self.config
-        calibrated = self.calibrated_arms
+        calibrated = c.calibrated_lever_arms()
         source = f"calibration {c.calibration}" if calibrated else "tf"
         arms = {} if calibrated is None else {c.camera_frame: calibrated["camera"], c.prism_frame: calibrated["prism"]}
         for child in (c.camera_frame, c.prism_frame):
