@@ -23,18 +23,34 @@ Model details:
   has its own random walk (``translation_random_walk`` m/√s) for VO position drift. The odometry
   itself is taken as exact over the short term. ``drift_rate_walk = initial_drift_rate_sigma = 0``
   is the plain random walk of δψ.
-* Start-up: measurements are buffered until a **standstill** of ``standstill_duration`` s is seen
-  (odometry moved less than ``standstill_odom_tolerance`` m / ``standstill_yaw_tolerance`` rad and
-  the means of the first and second half of the prism positions differ by less than
-  ``standstill_prism_tolerance`` m) with at least
-  ``init_min_yaws`` mutually consistent marker yaws in it (:func:`solver.yaw_consensus`; false
-  ids left out). Then δψ is their mean, and the odom origin is tied to the averaged prism. Yaws of
-  one marker over a standstill share its bias, so each marker's mean counts with its own σ (not
-  σ/√n): conservative. With ``require_standstill = False`` the filter may start while moving,
-  from the consistent yaws and the latest prism.
+* Start-up, anywhere: measurements are buffered over the last ``standstill_duration`` s. The filter
+  starts as soon as at least ``init_min_yaws`` of the buffered marker yaws agree with each other
+  (:func:`solver.yaw_consensus`; false ids and outliers left out). While moving they must come from
+  at least ``init_min_markers`` different markers (one false or moved marker cannot start it), and the
+  translation is tied to the latest prism. A **standstill**, when there is one (odometry moved less
+  than ``standstill_odom_tolerance`` m / ``standstill_yaw_tolerance`` rad and the means of the first
+  and second half of the prism positions differ by less than ``standstill_prism_tolerance`` m), makes
+  the start tighter: one marker suffices and the prism is averaged over it. While moving, one marker
+  also suffices when the prism track confirms it: the prism's displacement in map and in odom gives
+  δψ independently of the markers (to about σ_prism / distance over the window). ``require_standstill``
+  restores the old behaviour (start only at a standstill). δψ is the consensus, carried to the start
+  time with the drift rate fitted to the window's yaws (shrunk towards 0 by its prior); yaws of one
+  marker share its bias, so each marker's mean counts with its own σ (not σ/√n): conservative.
+  While the filter waits, ``stats.waiting_reason`` says why (no prism, no marker yaws, too few,
+  too few markers, markers disagree, no standstill).
 * Tracking: EKF updates with χ² innovation gating (``gate_chi2_yaw``, 1 dof; ``gate_chi2_prism``,
   3 dof); rejected measurements are counted (per marker id too) and leave the state untouched.
   Without markers the filter coasts: the covariance grows with the process noise.
+* Honest covariance: an odometry whose yaw wanders more than ``yaw_random_walk`` says so through the
+  yaw innovations. Their normalised squares (NIS, expected 1) scale the yaw random walk's variance:
+  ``log scale += adapt_rate · (min(NIS, 25) − 1)`` per yaw, within [1, ``adapt_max_scale``]
+  (``stats.noise_scale``), so σ grows with a bad odometry instead of the gate shutting markers out.
+* No lock-out: a filter that ran away gates every marker. When the gated yaws of the last
+  ``lockout_window`` s (at least ``lockout_min_yaws`` over half that window, from at least
+  ``init_min_markers`` markers) agree with each other, they are evidence that the filter is wrong,
+  not the markers: δψ and the drift rate are reset to their consensus (the map position is kept),
+  counted in ``stats.lockout_recoveries``. A single marker that disagrees (moved, false id) cannot
+  do this.
 * Re-initialisation: when no yaw has been accepted for ``reinit_after`` s, yaws are collected
   again as at start-up (no standstill needed) and δψ is reset to their consensus while the robot's
   map position (tracked by the prism) is kept. Likewise, when no prism has been accepted for
@@ -52,7 +68,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, NamedTuple, Optional, Tuple
+from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -97,26 +113,35 @@ class FilterParams:
     standstill_odom_tolerance: float = 0.01         # m, odometry displacement within the standstill
     standstill_yaw_tolerance: float = math.radians(0.5)  # rad, odometry yaw change within it
     standstill_prism_tolerance: float = 0.01        # m, prism motion (first vs second half mean) within it
-    require_standstill: bool = True                 # start only at standstill
+    require_standstill: bool = False                # start only at standstill (default: anywhere)
     init_min_yaws: int = 3                          # consistent marker yaws needed to (re)initialise
+    init_min_markers: int = 2                       # different markers among them to start while moving
+    lockout_window: float = 1.0                     # s of consistently gated yaws ⇒ reset to their consensus
+    lockout_min_yaws: int = 3                       # gated yaws that must agree for that
+    adapt_rate: float = 0.005                       # adaptive yaw process noise: log-scale step per yaw (0: off)
+    adapt_max_scale: float = 1000.0                 # largest factor on the yaw random walk's variance
     init_yaw_floor: float = math.radians(0.5)       # rad, consensus tolerance floor
     reinit_after: float = 30.0                      # s without an accepted yaw ⇒ re-initialise
     max_delay: float = 1.0                          # s, oldest late measurement still applied
 
     def validate(self) -> None:
         for name in ("yaw_random_walk", "drift_rate_walk", "initial_drift_rate_sigma", "translation_random_walk",
+                     "adapt_rate",
                      "standstill_odom_tolerance",
                      "standstill_yaw_tolerance", "standstill_prism_tolerance", "init_yaw_floor", "max_delay"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise CorrectionError(f"FilterParams.{name}: expected a non-negative number, got {v!r}")
-        for name in ("gate_chi2_yaw", "gate_chi2_prism", "standstill_duration", "reinit_after"):
+        for name in ("gate_chi2_yaw", "gate_chi2_prism", "standstill_duration", "reinit_after", "lockout_window"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise CorrectionError(f"FilterParams.{name}: expected a positive number, got {v!r}")
-        if not (isinstance(self.init_min_yaws, int) and self.init_min_yaws >= 1):
-            raise CorrectionError(f"FilterParams.init_min_yaws: expected an integer ≥ 1, "
-                                  f"got {self.init_min_yaws!r}")
+        if not (isinstance(self.adapt_max_scale, (int, float)) and self.adapt_max_scale >= 1):
+            raise CorrectionError(f"FilterParams.adapt_max_scale: expected a number ≥ 1, got {self.adapt_max_scale!r}")
+        for name in ("init_min_yaws", "init_min_markers", "lockout_min_yaws"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise CorrectionError(f"FilterParams.{name}: expected an integer ≥ 1, got {v!r}")
 
 
 @dataclass
@@ -124,6 +149,7 @@ class FilterStats:
     """Counters for diagnostics; times in seconds (NaN: never)."""
 
     state: str = "waiting"              # 'waiting' (start-up), 'tracking', 'reinitialising'
+    waiting_reason: str = "no measurements yet"   # why it is not tracking yet ('' once tracking)
     yaw_accepted: int = 0
     yaw_rejected: int = 0
     prism_accepted: int = 0
@@ -131,6 +157,8 @@ class FilterStats:
     too_old: int = 0
     invalid: int = 0
     reinitialisations: int = 0
+    lockout_recoveries: int = 0         # resets to the consensus of consistently gated yaws
+    noise_scale: float = 1.0            # current factor on the yaw random walk's variance (adaptive)
     last_update: float = float("nan")
     last_yaw: float = float("nan")
     last_prism: float = float("nan")
@@ -164,6 +192,7 @@ class _Yaw(NamedTuple):
     sigma: float
     marker_id: Optional[int]
     odom_yaw: float
+    sources: Tuple[int, ...]  # ids of the markers behind it (empty: unknown)
 
 
 class _Prism(NamedTuple):
@@ -206,6 +235,7 @@ class MapOdomFilter:
         self._odom_pos_t = float("-inf")
         self._yaws: List[_Yaw] = []
         self._prisms: List[_Prism] = []
+        self._gated: List[_Yaw] = []        # recent gated yaws (lock-out detection)
 
     def update_params(self, params: FilterParams) -> None:
         """New tuning (dynamic_reconfigure), effective from the next measurement; the state is kept."""
@@ -230,8 +260,7 @@ class MapOdomFilter:
         Raises NotInitialisedError before initialisation.
         """
         if not self.initialised:
-            raise NotInitialisedError("map→odom is not initialised yet (waiting for a standstill with "
-                                      f"{self.params.init_min_yaws} consistent marker yaws)")
+            raise NotInitialisedError(f"map→odom is not initialised yet: {self.stats.waiting_reason}")
         dt = max(0.0, float(t) - self.t)
         F = self._transition(dt, self._odom_pos)
         x = F @ self.x
@@ -281,10 +310,11 @@ class MapOdomFilter:
         return res
 
     def add_yaw(self, t: float, yaw_abs: float, sigma: float, odom_T_base,
-                marker_id: Optional[int] = None) -> UpdateResult:
+                marker_id: Optional[int] = None, sources: Sequence[int] = ()) -> UpdateResult:
         """Absolute yaw of base_link ``yaw_abs`` (rad) with 1-σ ``sigma`` (rad) at time ``t`` (s), e.g.
         from :func:`solver.yaw_from_marker`; ``odom_T_base`` the odometry pose (4×4) at ``t``;
-        ``marker_id`` for the per-marker statistics and the start-up consensus."""
+        ``marker_id`` for the per-marker statistics and the start-up consensus; ``sources``: the ids of
+        the markers behind a yaw fused from several (how many different markers agree)."""
         T = _pose(odom_T_base)
         t, yaw_abs, sigma = float(t), float(yaw_abs), float(sigma)
         if T is None or not (math.isfinite(t) and math.isfinite(yaw_abs) and math.isfinite(sigma)) or sigma <= 0:
@@ -292,7 +322,8 @@ class MapOdomFilter:
             return UpdateResult("invalid", float("nan"), float("nan"))
         self._note_odom(t, T)
         odom_yaw = float(yaw_of(T[:3, :3]))
-        sample = _Yaw(t, float(wrap_angle(yaw_abs - odom_yaw)), sigma, marker_id, odom_yaw)
+        ids = tuple(int(i) for i in sources) or ((int(marker_id),) if marker_id is not None else ())
+        sample = _Yaw(t, float(wrap_angle(yaw_abs - odom_yaw)), sigma, marker_id, odom_yaw, ids)
         if self.stats.state == "tracking" and t - self.stats.last_yaw > self.params.reinit_after:
             self.stats.state = "reinitialising"
             self._yaws = []
@@ -307,7 +338,12 @@ class MapOdomFilter:
         R = np.array([[sigma * sigma]]) + H @ self._process_noise(late, self._odom_pos) @ H.T
         res = self._update(H, nu, R, self.params.gate_chi2_yaw, t)
         res = UpdateResult(res.status, res.chi2, float(nu[0]))
+        self._adapt(res.chi2)
         self._count_yaw(res.accepted, marker_id, t)
+        if res.accepted:
+            self._gated = []
+        elif self._recover_from_lockout(sample):
+            return UpdateResult("initialised", res.chi2, res.innovation)
         return res
 
     # ------------------------------------------------------------------ internals
@@ -342,7 +378,7 @@ class MapOdomFilter:
         G[0, 0] = 1.0
         G[1:4, 0] = -_ez_cross(rot_z(self.x[0]) @ q_odom)
         G[4, 1] = 1.0
-        a2, w2 = self.params.yaw_random_walk ** 2, self.params.drift_rate_walk ** 2
+        a2, w2 = self.params.yaw_random_walk ** 2 * self.stats.noise_scale, self.params.drift_rate_walk ** 2
         Q2 = np.array([[a2 * dt + w2 * dt ** 3 / 3.0, w2 * dt ** 2 / 2.0],
                        [w2 * dt ** 2 / 2.0, w2 * dt]])
         Q = G @ Q2 @ G.T
@@ -384,22 +420,71 @@ class MapOdomFilter:
         self.stats.last_update = t if not math.isfinite(self.stats.last_update) else max(t, self.stats.last_update)
         return UpdateResult("accepted", chi2, innovation)
 
-    def _consensus(self, yaws: List[_Yaw]) -> Optional[Tuple[float, float, List[_Yaw]]]:
-        """(δψ rad, variance rad², members) from buffered yaws, or None if fewer than init_min_yaws agree."""
-        if len(yaws) < self.params.init_min_yaws:
-            return None
+    def _consensus(self, yaws: List[_Yaw], min_yaws: int, min_markers: int = 1
+                   ) -> Tuple[Optional[Tuple[float, float, List[_Yaw]]], str]:
+        """((δψ rad, variance rad², members), '') from buffered yaws, or (None, why not): fewer than
+        ``min_yaws`` agree, or they come from fewer than ``min_markers`` markers."""
+        if not yaws:
+            return None, "no marker yaws (no map marker seen with a prism position)"
+        if len(yaws) < min_yaws:
+            return None, f"{len(yaws)} marker yaw(s), {min_yaws} consistent ones needed"
         off = np.array([y.offset for y in yaws])
         sig = np.array([y.sigma for y in yaws])
         mean, members = yaw_consensus(off, sig, self.params.init_yaw_floor)
-        if int(members.sum()) < self.params.init_min_yaws:
-            return None
+        if int(members.sum()) < min_yaws:
+            spread = math.degrees(float(np.ptp(wrap_angle(off - mean))))
+            return None, (f"marker yaws disagree: {int(members.sum())} of {len(yaws)} consistent "
+                          f"(spread {spread:.2f}°), {min_yaws} needed")
         used = [y for y, m in zip(yaws, members) if m]
+        markers = {i for y in used for i in y.sources}
+        if min_markers > 1 and len(markers) < min_markers:
+            return None, (f"{len(used)} consistent marker yaws but from {len(markers)} marker(s): "
+                          f"{min_markers} different markers needed to start while moving")
         # One marker's yaws share its bias: per marker, its σ (not σ/√n); markers are independent.
         by_marker: Dict[object, List[float]] = {}
         for i, y in enumerate(used):
             by_marker.setdefault(y.marker_id if y.marker_id is not None else ("sample", i), []).append(y.sigma)
         info = sum(1.0 / (float(np.mean(s)) ** 2) for s in by_marker.values())
-        return mean, 1.0 / info, used
+        return (mean, 1.0 / info, used), ""
+
+    def _drift_fit(self, used: List[_Yaw], dpsi: float, t: float) -> Tuple[float, float, float]:
+        """(δψ at ``t``, drift rate ω rad/s, its variance) from consensus yaws: a weighted line through
+        their offsets over time, its slope shrunk towards 0 by the drift-rate prior (a short window says
+        little about the drift); δψ is the line at ``t``."""
+        prior = self.params.initial_drift_rate_sigma ** 2
+        ts = np.array([y.t for y in used])
+        w = 1.0 / np.array([y.sigma for y in used]) ** 2
+        tm = float(np.sum(w * ts) / np.sum(w))
+        r = wrap_angle(np.array([y.offset for y in used]) - dpsi)
+        sxx = float(np.sum(w * (ts - tm) ** 2))
+        if prior <= 0 or sxx <= 0:
+            return float(wrap_angle(dpsi + np.sum(w * r) / np.sum(w))), 0.0, prior
+        slope, var_slope = float(np.sum(w * (ts - tm) * r) / sxx), 1.0 / sxx
+        omega = slope * prior / (prior + var_slope)
+        at_mean = float(np.sum(w * r) / np.sum(w))
+        return float(wrap_angle(dpsi + at_mean + omega * (t - tm))), omega, prior * var_slope / (prior + var_slope)
+
+    def _adapt(self, nis: float) -> None:
+        """Scale the yaw random walk by the innovations: up when they are larger than the covariance
+        says (NIS > 1), down towards 1 when smaller."""
+        p = self.params
+        if p.adapt_rate > 0 and math.isfinite(nis):
+            scale = self.stats.noise_scale * math.exp(p.adapt_rate * (min(nis, 25.0) - 1.0))
+            self.stats.noise_scale = min(max(scale, 1.0), p.adapt_max_scale)
+
+    def _recover_from_lockout(self, sample: _Yaw) -> bool:
+        """Note a gated yaw; when the gated yaws of the last ``lockout_window`` s agree with each other
+        (from ≥ ``init_min_markers`` markers, over half the window at least), reset δψ and ω to them."""
+        p = self.params
+        self._gated = [y for y in self._gated if y.t >= sample.t - p.lockout_window] + [sample]
+        if len(self._gated) < p.lockout_min_yaws or sample.t - self._gated[0].t < 0.5 * p.lockout_window:
+            return False
+        cons, _ = self._consensus(self._gated, p.lockout_min_yaws, p.init_min_markers)
+        if cons is None or cons[2][-1].t - cons[2][0].t < 0.5 * p.lockout_window:
+            return False
+        self._reset_yaw(sample.t, cons)
+        self.stats.lockout_recoveries += 1
+        return True
 
     def _try_initialise(self, t: float) -> UpdateResult:
         p = self.params
@@ -408,30 +493,60 @@ class MapOdomFilter:
         self._prisms = [m for m in self._prisms if m.t >= horizon]
         if self.stats.state == "reinitialising":
             return self._reinitialise(t)
+        buffered = UpdateResult("buffered", float("nan"), float("nan"))
         window_p = [m for m in self._prisms if m.t >= t - p.standstill_duration]
         window_y = [y for y in self._yaws if y.t >= t - p.standstill_duration]
         if not window_p:
-            return UpdateResult("buffered", float("nan"), float("nan"))
+            self.stats.waiting_reason = "no prism position (total station not tracking, or no prism topic)"
+            return buffered
         still = self._is_standstill(window_p, window_y, t)
         if not still and p.require_standstill:
-            return UpdateResult("buffered", float("nan"), float("nan"))
-        cons = self._consensus(window_y)
+            self.stats.waiting_reason = (f"waiting for a standstill of {p.standstill_duration:g} s "
+                                         "(require_standstill is set)")
+            return buffered
+        cons, why = self._consensus(window_y, p.init_min_yaws, 1 if still else p.init_min_markers)
+        if cons is None and not still:
+            cons, why = self._confirmed_by_track(window_y, window_p, why)
         if cons is None:
-            return UpdateResult("buffered", float("nan"), float("nan"))
-        dpsi, var, used = cons
+            self.stats.waiting_reason = why
+            return buffered
+        used = cons[2]
         use_p = window_p if still else window_p[-1:]
-        n = len(use_p)
-        self._anchor(dpsi, var, np.mean([m.p for m in use_p], axis=0), np.mean([m.cov for m in use_p], axis=0) / n,
-                     np.mean([m.q for m in use_p], axis=0))
         self.t = max(t, max(m.t for m in use_p))
+        dpsi, drift, drift_var = self._drift_fit(used, cons[0], self.t)
+        n = len(use_p)
+        self._anchor(dpsi, cons[1], np.mean([m.p for m in use_p], axis=0), np.mean([m.cov for m in use_p], axis=0) / n,
+                     np.mean([m.q for m in use_p], axis=0), drift, drift_var)
         self.stats.state = "tracking"
+        self.stats.waiting_reason = ""
         self.stats.prism_accepted += n
         self.stats.last_prism = max(m.t for m in use_p)
         for y in used:
             self._count_yaw(True, y.marker_id, y.t)
         self.stats.last_update = self.t
-        self._yaws, self._prisms = [], []
+        self._yaws, self._prisms, self._gated = [], [], []
         return UpdateResult("initialised", float("nan"), float("nan"))
+
+    def _confirmed_by_track(self, window_y: List[_Yaw], window_p: List[_Prism], why: str
+                            ) -> Tuple[Optional[Tuple[float, float, List[_Yaw]]], str]:
+        """While moving with one marker in view: its consistent yaws, if the prism track agrees with them.
+        The prism's displacement over the window, in map and in odom, gives δψ independently of any
+        marker (Δp = Rz(δψ)·Δq), to about σ_prism / distance: a false id or a moved marker is degrees off."""
+        cons, _ = self._consensus(window_y, self.params.init_min_yaws)
+        if cons is None:
+            return None, why
+        first, last = window_p[0], window_p[-1]
+        dp, dq = (last.p - first.p)[:2], (last.q - first.q)[:2]
+        dist = float(np.linalg.norm(dq))
+        if dist < 0.5:
+            return None, why + " (or a prism track of 0.5 m to confirm one)"
+        track = math.atan2(dp[1], dp[0]) - math.atan2(dq[1], dq[0])
+        sigma = math.sqrt(float(np.trace(first.cov[:2, :2] + last.cov[:2, :2])) / 2.0) / dist
+        diff = abs(float(wrap_angle(cons[0] - track)))
+        if diff > max(3.0 * math.hypot(sigma, math.sqrt(cons[1])), math.radians(2.0)):
+            return None, (f"the marker yaws disagree with the prism track by {math.degrees(diff):.1f}° "
+                          "(a false id or a moved marker?)")
+        return cons, ""
 
     def _anchor(self, dpsi: float, var: float, p: np.ndarray, C: np.ndarray, q: np.ndarray,
                 drift: float = 0.0, drift_var: Optional[float] = None) -> None:
@@ -483,13 +598,25 @@ class MapOdomFilter:
         return len(oy) == 0 or float(np.abs(wrap_angle(oy - oy[0])).max()) <= p.standstill_yaw_tolerance
 
     def _reinitialise(self, t: float) -> UpdateResult:
-        """Reset δψ to the consensus of recent yaws (and the drift rate to its prior), keeping the robot's
-        map position and its covariance."""
-        cons = self._consensus(self._yaws)
+        """After ``reinit_after`` s without an accepted yaw: reset δψ (and ω) to the consensus of recent
+        yaws, keeping the robot's map position and its covariance."""
+        cons, why = self._consensus(self._yaws, self.params.init_min_yaws)
         if cons is None:
+            self.stats.waiting_reason = why
             return UpdateResult("buffered", float("nan"), float("nan"))
-        dpsi, var, used = cons
+        self._reset_yaw(t, cons)
+        self.stats.reinitialisations += 1
+        for y in cons[2]:
+            self._count_yaw(True, y.marker_id, y.t)
+        self._yaws, self._prisms = [], []
+        return UpdateResult("initialised", float("nan"), float("nan"))
+
+    def _reset_yaw(self, t: float, cons: Tuple[float, float, List[_Yaw]]) -> None:
+        """δψ and ω from a consensus of yaws at time ``t``; the robot's map position (and its
+        covariance) is kept: the translation turns with δψ about the robot."""
+        _, var, used = cons
         self._predict_to(t)
+        dpsi, drift, drift_var = self._drift_fit(used, cons[0], max(t, self.t))
         q = self._odom_pos
         g_old = _ez_cross(rot_z(self.x[0]) @ q)
         A = np.eye(5)
@@ -498,16 +625,13 @@ class MapOdomFilter:
         m = rot_z(self.x[0]) @ q + self.x[1:4]
         Py[[0, 4], :] = Py[:, [0, 4]] = 0.0
         Py[0, 0] = var
-        Py[4, 4] = self.params.initial_drift_rate_sigma ** 2
+        Py[4, 4] = drift_var
         g_new = _ez_cross(rot_z(dpsi) @ q)
         Ainv = np.eye(5)
         Ainv[1:4, 0] = -g_new
-        self.x = np.concatenate([[dpsi], m - rot_z(dpsi) @ q, [0.0]])
+        self.x = np.concatenate([[dpsi], m - rot_z(dpsi) @ q, [drift]])
         self.P = Ainv @ Py @ Ainv.T
         self.stats.state = "tracking"
-        self.stats.reinitialisations += 1
-        for y in used:
-            self._count_yaw(True, y.marker_id, y.t)
+        self.stats.waiting_reason = ""
         self.stats.last_update = max(self.stats.last_update, t)
-        self._yaws, self._prisms = [], []
-        return UpdateResult("initialised", float("nan"), float("nan"))
+        self._gated = []

@@ -242,6 +242,25 @@ class AbsOrientPipeline:
             return
         self.prism.add(float(t), p)
 
+    @property
+    def waiting_reason(self) -> str:
+        """Why there is no pose yet ('' once the filter is initialised): the filter's reason, with what
+        the frames so far showed (markers seen, and why the pipeline kept them from the filter)."""
+        if self.filter.initialised:
+            return ""
+        s = self.stats
+        why = self.filter.stats.waiting_reason
+        if not s.get("frames") and not s.get("observations"):
+            return "no images yet"
+        seen = s.get("observations", 0)
+        if not seen:
+            return f"no marker of the map seen in {s.get('frames', 0)} frame(s)"
+        kept = [f"{s[k]} {what}" for k, what in (("no_prism", "frame(s) without a prism position"),
+                                               ("rejected_elevation", "marker(s) whose elevation disagrees with "
+                                                "the map (wrong id or moved marker)"),
+                                               ("degenerate", "marker(s) in degenerate geometry")) if s.get(k)]
+        return f"{why}; {seen} marker observation(s)" + (f", {', '.join(kept)}" if kept else "")
+
     def map_T_odom(self, t: float) -> Tuple[np.ndarray, np.ndarray]:
         """map_T_odom (4×4) and its covariance (4×4 over yaw, x, y, z) at time ``t``."""
         return self.filter.map_T_odom(t)
@@ -277,7 +296,6 @@ class AbsOrientPipeline:
         res.timings["decode"] = 1e3 * (time.perf_counter() - clock)
 
         prism = self.prism.at(t, self.params.prism_max_gap, self.params.prism_max_extrapolation)
-        roll, pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
         map_T_camera = None
         if self.filter.initialised:
             map_T_odom, _ = self.filter.map_T_odom(t)
@@ -295,11 +313,23 @@ class AbsOrientPipeline:
             return res
         res.timings["detect"] = 1e3 * (time.perf_counter() - clock)
         res.tracking = tracked.stats
-        observations = tracked.observations
         self._count("rejected_unknown", tracked.stats.rejected_unknown)
         self._count("rejected_tracking_gate", tracked.stats.rejected_gate)
+        return self.process_observations(t, tracked.observations, odom_T_base, res, prism)
 
+    def process_observations(self, t: float, observations: List[MarkerObservation], odom_T_base,
+                             res: Optional[FrameResult] = None, prism=None) -> FrameResult:
+        """The frame's marker ``observations`` (already detected, ids of the map) at total-station time
+        ``t`` (s) with the odometry pose ``odom_T_base`` (4×4): yaws, fusion, filter. :meth:`process_image`
+        calls it after detection; tests and other detectors may call it directly (``res`` and the
+        interpolated ``prism`` are then made here)."""
+        if res is None:
+            res = FrameResult(stamp=float(t))
+            odom_T_base = np.asarray(odom_T_base, dtype=float)
+            prism = self.prism.at(t, self.params.prism_max_gap, self.params.prism_max_extrapolation)
+        roll, pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
         clock = time.perf_counter()
+        self._count("observations", len(observations))
         if prism is None:
             self._count("no_prism")
             res.observations = [ObservationResult(o, reason="no prism position")
@@ -361,7 +391,8 @@ class AbsOrientPipeline:
             if not used:
                 r.reason = "disagrees with the other markers of the frame"
                 self._count("rejected_fusion")
-        update = self.filter.add_yaw(t, fused.yaw, fused.sigma, odom_T_base)
+        update = self.filter.add_yaw(t, fused.yaw, fused.sigma, odom_T_base,
+                                     sources=[r.id for (r, _), used in zip(estimates, fused.used) if used])
         res.fused_yaw, res.fused_yaw_sigma = fused.yaw, fused.sigma
         for (r, _), used in zip(estimates, fused.used):
             if used:
