@@ -1,6 +1,8 @@
 """Reading recorded ROS 1 bags without ROS (rosbags): images, odometry tf, lever arms, prism.
 
-A first pass collects everything but the images (small: tf, tf_static, prism) into a
+A recording is one bag or several (``rosbag record --split``, a recording restarted): a list of
+paths is read as one recording, its messages merged in time order (rosbags' AnyReader); gaps between
+the files are gaps like any other. A first pass collects everything but the images (small: tf, tf_static, prism) into a
 :class:`BagData`; images are then streamed one by one (:func:`iter_images`), so memory stays flat
 with the length of the recording. Bad samples (NaN/inf in tf or prism) are skipped and counted;
 a missing topic or frame is reported by name.
@@ -8,10 +10,11 @@ a missing topic or frame is reported by name.
 
 from __future__ import annotations
 
+import glob
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional, Tuple
+from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -19,7 +22,36 @@ from ..transforms import make_T, quat_to_matrix
 from ..tum import Trajectory
 
 __all__ = ["BagError", "BagReadError", "BagTopics", "BagData", "read_bag_data", "iter_images", "open_reader",
-           "salvage_bag"]
+           "salvage_bag", "Bags", "bag_paths", "bag_name", "expand_bags"]
+
+Bags = Union[str, Sequence[str]]   # one bag, or the files of one recording
+
+
+def bag_paths(bags: Bags) -> List[str]:
+    """The file(s) of a recording as a list."""
+    return [str(bags)] if isinstance(bags, (str, Path)) else [str(b) for b in bags]
+
+
+def expand_bags(args: Sequence[str]) -> Bags:
+    """Command-line bag arguments (paths or quoted globs such as ``'run_*.bag'``) → one path, or the sorted
+    files of one recording; a glob that matches nothing is a BagError."""
+    paths: List[str] = []
+    for a in args:
+        if glob.has_magic(a):
+            found = sorted(glob.glob(a))
+            if not found:
+                raise BagError(f"{a}: no bag file matches")
+            paths.extend(found)
+        else:
+            paths.append(a)
+    return paths[0] if len(paths) == 1 else paths
+
+
+def bag_name(bags: Bags) -> str:
+    """How messages name a recording: its path, or the first path and how many files follow."""
+    paths = bag_paths(bags)
+    return paths[0] if len(paths) == 1 else f"{paths[0]} (+ {len(paths) - 1} more bag(s))"
+
 
 
 class BagError(RuntimeError):
@@ -62,19 +94,23 @@ class BagData:
     warnings: List[str] = field(default_factory=list)
 
 
-def open_reader(path):
-    """An opened rosbags AnyReader; a clear BagError for a missing, truncated or foreign file."""
+def open_reader(path: Bags):
+    """An opened rosbags AnyReader over one bag or the files of one recording; a clear BagError naming
+    the missing, truncated or foreign file."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    p = Path(path)
-    if not p.is_file():
-        raise BagError(f"{path}: no such bag file")
-    reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS1_NOETIC))
+    paths = [Path(p) for p in bag_paths(path)]
+    if not paths:
+        raise BagError("no bag file given")
+    for p in paths:
+        if not p.is_file():
+            raise BagError(f"{p}: no such bag file")
+    reader = AnyReader(paths, default_typestore=get_typestore(Stores.ROS1_NOETIC))
     try:
         reader.open()
     except Exception as e:  # rosbags raises its own classes for every kind of broken file
-        raise BagReadError(f"{path}: cannot read the bag ({e}); a truncated bag can be repaired with "
+        raise BagReadError(f"{bag_name(path)}: cannot read the bag ({e}); a truncated bag can be repaired with "
                            "`rosbag reindex`") from None
     return reader
 
@@ -94,7 +130,7 @@ def _stamp(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-def read_bag_data(path: str, topics: Optional[BagTopics] = None) -> BagData:
+def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
     """First pass over a bag: odometry tf, static lever arms, prism positions, image count."""
     topics = topics or BagTopics()
     reader = open_reader(path)
@@ -103,7 +139,7 @@ def read_bag_data(path: str, topics: Optional[BagTopics] = None) -> BagData:
         present = ", ".join(sorted(by_topic)) or "none"
         image_conn = [c for c in reader.connections if c.topic == topics.image]
         if not image_conn:
-            raise BagError(f"{path}: no image topic {topics.image} (topics in the bag: {present})")
+            raise BagError(f"{bag_name(path)}: no image topic {topics.image} (topics in the bag: {present})")
         msgtype = image_conn[0].msgtype
         image_format = "compressed" if msgtype.endswith("CompressedImage") else "raw"
         image_count = sum(c.msgcount for c in image_conn)
@@ -149,28 +185,29 @@ def read_bag_data(path: str, topics: Optional[BagTopics] = None) -> BagData:
         T = statics.get((topics.base_frame, child))
         if T is None:
             have = ", ".join(f"{a}->{b}" for a, b in sorted(statics)) or "none"
-            raise BagError(f"{path}: no static transform {topics.base_frame}->{child} on {topics.tf_static} "
+            raise BagError(f"{bag_name(path)}: no static transform {topics.base_frame}->{child} on {topics.tf_static} "
                            f"(static transforms in the bag: {have})")
         return T
 
     if not odom_t:
-        raise BagError(f"{path}: no {topics.odom_frame}->{topics.base_frame} transforms on {topics.tf}")
+        raise BagError(f"{bag_name(path)}: no {topics.odom_frame}->{topics.base_frame} transforms on {topics.tf}")
     order = np.argsort(odom_t, kind="stable")
     odom = Trajectory.from_transforms(np.asarray(odom_t)[order], np.asarray(odom_T)[order])
     keep = np.concatenate([[True], np.diff(odom.stamps) > 0])  # duplicate stamps: keep the first
     odom = Trajectory(odom.stamps[keep], odom.positions[keep], odom.quats[keep])
     if not prism_t:
-        warnings.append(f"{path}: no prism positions on {topics.prism}: yaw from markers needs the prism")
+        warnings.append(f"{bag_name(path)}: no prism positions on {topics.prism}: yaw from markers needs the prism")
     p_order = np.argsort(prism_t, kind="stable")
     return BagData(
-        path=str(path), odom=odom, base_T_camera=static(topics.camera_frame), base_T_prism=static(topics.prism_frame),
+        path=bag_name(path), odom=odom, base_T_camera=static(topics.camera_frame),
+        base_T_prism=static(topics.prism_frame),
         prism_stamps=np.asarray(prism_t, dtype=float)[p_order],
         prism_positions=np.asarray(prism_p, dtype=float).reshape(-1, 3)[p_order],
         image_count=image_count, image_format=image_format, start=start, end=end, skipped=skipped,
         warnings=warnings)
 
 
-def iter_images(path: str, topics: Optional[BagTopics] = None) -> Iterator[Tuple[float, object]]:
+def iter_images(path: Bags, topics: Optional[BagTopics] = None) -> Iterator[Tuple[float, object]]:
     """Stream ``(stamp s, payload)`` of the image topic in bag order.
 
     The payload is JPEG/PNG ``bytes`` for CompressedImage and a uint8 array (H, W) or (H, W, 3)

@@ -34,7 +34,7 @@ from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
-from .bagio import BagData, BagError, BagTopics, iter_images, read_bag_data
+from .bagio import BagData, BagError, BagTopics, bag_name, bag_paths, iter_images, read_bag_data
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
 
@@ -125,7 +125,8 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
     obs = observations or collect_observations(bag, marker_map, topics, progress)
     d = obs.data
     if len(d.prism_stamps) < 2:
-        raise CalibrationError(f"{bag}: no prism track: the calibration needs the total station's prism positions")
+        raise CalibrationError(f"{bag_name(bag)}: no prism track: the calibration needs the total station's "
+                               "prism positions")
     cal = calibrate(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
                     d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism,
                     estimate_lever_arm=estimate_lever_arm, estimate_time_offset=estimate_time_offset, params=params)
@@ -145,7 +146,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "by least squares over all marker observations of a recording; write the static-tf "
                     "YAML that live.launch/postprocess.launch read, and a launch snippet beside it.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", help="ROS 1 bag with the images, /tf, /tf_static and the prism")
+    p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several "
+                   "bags or a quoted glob ('run_*.bag') are one split recording")
     p.add_argument("--markers", required=True, help="marker map YAML (DESIGN §3)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
                    help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
@@ -196,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
         cal = calibrate_bag(args.bag, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
                             observations=obs, estimate_time_offset=args.refine_time_offset)
     except CalibrationError as e:
-        return _fail(f"{args.bag}: cannot calibrate: {e}", 1)
+        return _fail(f"{bag_name(args.bag)}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
     snippet = launch_snippet(cal, data.base_T_camera, data.base_T_prism, topics.base_frame, topics.camera_frame,
                              topics.prism_frame)
@@ -208,5 +210,6 @@ def run(args: argparse.Namespace) -> int:
         offset = args.time_offset + cal.time_offset_delta
         print(f"time offset refined with the marker bearings: {1e3 * offset:+.1f} ms ± "
               f"{1e3 * cal.time_offset_sigma:.1f} ms (given {1e3 * args.time_offset:+.1f} ms)")
-        print(f"use: aruco-abs-orient process {args.bag} --time-offset {offset:.4f} --calibration {args.out} ...")
+        print(f"use: aruco-abs-orient process {' '.join(bag_paths(args.bag))} --time-offset {offset:.4f} "
+              f"--calibration {args.out} ...")
     return 0

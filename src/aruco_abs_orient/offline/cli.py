@@ -18,7 +18,10 @@ from typing import List, Optional
 
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import PipelineError, PipelineParams
-from .bagio import BagError, BagTopics
+from .bagio import BagError, BagTopics, bag_paths, expand_bags
+
+BAGS_HELP = ("; several bags (a `rosbag record --split` recording, in any order) or a quoted glob such as "
+             "'run_*.bag' are read as one recording in time order")
 
 EXAMPLES = """examples:
   aruco-abs-orient timesync run.bag
@@ -58,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     p = sub.add_parser("process", help="bag → TUM trajectory of base_link in map, observations CSV, summary JSON",
                        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", help="ROS 1 bag with the images, /tf, /tf_static and the prism")
+    p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
     p.add_argument("--markers", required=True, help="marker map YAML (DESIGN §3)")
     p.add_argument("--out", required=True, help="output directory (created; files are replaced atomically)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
@@ -79,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  aruco-abs-orient timesync run.bag --plot results/\n"
                        "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, with --markers)")
+    p.add_argument("bag", nargs="+", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
+                   "with --markers)" + BAGS_HELP)
     p.add_argument("--markers", metavar="YAML", help="marker map: refine the offset with the marker bearings")
     p.add_argument("--every", type=int, default=3, metavar="N",
                    help="with --markers: search every N-th image (default 3)")
@@ -174,7 +178,7 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     if est.confidence < a.min_confidence:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
                      "weak: record longer, with more turns of varying rate, or give --markers)", 1)
-    print(f"use: aruco-abs-orient process {a.bag} --time-offset {est.offset:.4f} ...")
+    print(f"use: aruco-abs-orient process {' '.join(bag_paths(a.bag))} --time-offset {est.offset:.4f} ...")
     return 0
 
 
@@ -217,6 +221,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
+        if getattr(a, "bag", None) is not None:
+            a.bag = expand_bags(a.bag)
         if a.command == "calibrate":
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate}[a.command](a)

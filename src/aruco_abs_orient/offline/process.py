@@ -18,6 +18,7 @@ import json
 import math
 import os
 import queue
+import sys
 import tempfile
 import threading
 import time
@@ -30,7 +31,17 @@ from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineParams
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
-from .bagio import BagData, BagReadError, BagTopics, iter_images, read_bag_data, salvage_bag
+from .bagio import (
+    BagData,
+    BagReadError,
+    Bags,
+    BagTopics,
+    bag_paths,
+    iter_images,
+    open_reader,
+    read_bag_data,
+    salvage_bag,
+)
 
 __all__ = ["ProcessResult", "process_bag", "OBSERVATION_COLUMNS"]
 
@@ -91,11 +102,12 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
         out.put(None)
 
 
-def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: float = 0.0,
+def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: float = 0.0,
                 topics: Optional[BagTopics] = None, params: Optional[PipelineParams] = None,
                 progress: bool = True, data: Optional[BagData] = None, calibration: Optional[Dict] = None,
                 **pipeline_kwargs) -> ProcessResult:
-    """Process ``bag`` into ``out_dir`` (created if needed).
+    """Process ``bag`` (one bag, or the files of one split recording, read as one in time order) into
+    ``out_dir`` (created if needed).
 
     ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the
     timesync tool estimates). ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}``
@@ -106,26 +118,44 @@ def process_bag(bag: str, marker_map: MarkerMap, out_dir: str, time_offset: floa
     params = params or PipelineParams()
     t_start = time.perf_counter()
     os.makedirs(out_dir, exist_ok=True)
-    salvaged = None
+    readable, salvaged, notes = bag_paths(bag), [], []
     if data is None:
         try:
             data = read_bag_data(bag, topics)
-        except BagReadError as e:  # a recording cut short: process its complete chunks
-            salvaged = os.path.join(out_dir, f".salvaged.{os.getpid()}.bag")
-            n, last = salvage_bag(bag, salvaged)
-            data = read_bag_data(salvaged, topics)
-            data.warnings.append(f"{e}: processed the {n} messages of its complete chunks (up to t = {last:.3f} s)")
+        except BagReadError:  # a recording cut short (the last split of a crash): process its complete chunks
+            readable, salvaged, notes = _salvage(bag_paths(bag), out_dir)
+            data = read_bag_data(readable, topics)
+            data.warnings.extend(notes)
     try:
-        return _process(bag, salvaged or bag, data, marker_map, out_dir, time_offset, topics, params, progress,
+        return _process(bag, readable, data, marker_map, out_dir, time_offset, topics, params, progress,
                         calibration, t_start, pipeline_kwargs)
     finally:
-        if salvaged is not None and os.path.exists(salvaged):
-            os.unlink(salvaged)
+        for path in salvaged:
+            if os.path.exists(path):
+                os.unlink(path)
+
+
+def _salvage(paths: List[str], out_dir: str):
+    """(readable paths, temporary files, warnings): each file rosbags cannot open is replaced by its complete
+    chunks, re-indexed into a temporary bag in ``out_dir``."""
+    readable, salvaged, notes = [], [], []
+    for k, path in enumerate(paths):
+        try:
+            open_reader(path).close()
+            readable.append(path)
+            continue
+        except BagReadError as e:
+            fixed = os.path.join(out_dir, f".salvaged.{os.getpid()}.{k}.bag")
+            salvaged.append(fixed)
+            n, last = salvage_bag(path, fixed)
+            readable.append(fixed)
+            notes.append(f"{e}: processed the {n} messages of its complete chunks (up to t = {last:.3f} s)")
+    return readable, salvaged, notes
 
 
 def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, topics, params, progress, calibration,
              t_start, pipeline_kwargs) -> ProcessResult:
-    """process_bag's work on ``readable`` (the bag, or what was salvaged of it); ``bag`` is the user's."""
+    """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
     if calibration is not None:
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
@@ -138,6 +168,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     poses: List[np.ndarray] = []
     errors: Dict[str, int] = {}
     frames = with_pose = 0
+    first_pose = None
     odom_missing = 0
     timing_sum: Dict[str, float] = {}
     modes: Dict[str, int] = {}
@@ -185,6 +216,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                     errors[key] = errors.get(key, 0) + 1
                 writer.writerows(_observation_rows(res))
                 if res.map_T_base is not None:
+                    if not with_pose:
+                        first_pose = res.stamp
                     with_pose += 1
                     stamps.append(res.stamp)
                     poses.append(res.map_T_base)
@@ -204,13 +237,21 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
             bar.close()
     wall = time.perf_counter() - t_start
     duration = max(data.end - data.start, 0.0)
+    reason = pipe.waiting_reason if with_pose == 0 else ""
+    if reason:
+        print(f"warning: no pose in {frames} frame(s): the map→odom filter never started: {reason}",
+              file=sys.stderr)
     summary = {
-        "bag": os.path.abspath(bag),
+        "bag": os.path.abspath(bag) if isinstance(bag, str) else [os.path.abspath(b) for b in bag_paths(bag)],
         "markers": marker_map.source,
         "time_offset_s": time_offset,
         "lever_arms": "calibration file" if calibration is not None else "bag /tf_static",
         "frames": frames,
         "frames_with_pose": with_pose,
+        "no_pose_reason": reason,
+        "filter": {"initialised_at": first_pose, "lockout_recoveries": pipe.filter.stats.lockout_recoveries,
+                   "reinitialisations": pipe.filter.stats.reinitialisations,
+                   "yaw_noise_scale": pipe.filter.stats.noise_scale},
         "frames_without_odometry": odom_missing,
         "prism_samples": int(len(data.prism_stamps)),
         "skipped": {**data.skipped, **errors},

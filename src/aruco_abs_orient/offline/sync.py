@@ -23,7 +23,7 @@ from .. import timesync
 from ..calibration import Calibration, CalibrationError, CalibrationParams
 from ..markers import MarkerMap
 from ..transforms import yaw_of
-from .bagio import BagData, BagTopics, read_bag_data
+from .bagio import BagData, BagTopics, bag_name, read_bag_data
 
 __all__ = ["estimate_bag_offset", "marker_offset_estimate"]
 
@@ -56,7 +56,8 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tu
     """
     data = data or read_bag_data(bag, topics)
     if len(data.prism_stamps) < 2:
-        raise timesync.TimeSyncError(f"{bag}: no prism track: the time offset needs the total station's positions")
+        raise timesync.TimeSyncError(f"{bag_name(bag)}: no prism track: the time offset needs the total "
+                                     "station's positions")
     t_vo, yaw_vo = data.odom.stamps, yaw_of(data.odom.rotations)
     t_tr, xy = data.prism_stamps, data.prism_positions[:, :2]
     est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, prism_in_base=data.base_T_prism[:3, 3])
