@@ -16,6 +16,10 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      after the standstill; the only map->odom publisher is the EKF (/ekf_map);
    - ``--mode loop``: the node resets when the bag loops (diagnostics) and the heading after the reset
      (second pass) meets the same RMSE;
+   - ``--mode chaos``: playback starts ``--start`` s into the bag (while driving: no standstill) and the
+     node is killed (SIGKILL) 3 times at random moments; roslaunch respawns it. Each time a new map->odom
+     from /abs_orient must arrive within 3 s (wall) of the kill, and no map->odom sent from the first
+     pose on may put base_link's heading more than 1° from the truth (5σ of the start-up yaw);
    - ``--mode calibration``: ``calibration:=`` a calibration YAML whose camera is the scenario's TRUE
      mounting turned by +1° about base_link z: the node must take the lever arms from the file, not
      from the bag's /tf_static, so base_link's heading comes out 1° low (mean −1° ± 0.1°), otherwise
@@ -88,6 +92,7 @@ class Recorder:
         self.odom_base = []      # (stamp s, 4x4)
         self.arrival = {"map_odom": [], "odom_base": []}  # arrival numbers of the entries above
         self.map_odom_publishers = set()
+        self.map_odom_wall = []  # arrival (monotonic s) of each map->odom
         self.filtered = []       # (stamp s, 4x4)
         self.received = 0
         self.resets = 0
@@ -103,6 +108,7 @@ class Recorder:
                 edge = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
                 if edge == ("map", "odom"):
                     self.map_odom_publishers.add(who)
+                    self.map_odom_wall.append(time.monotonic())
                     self.map_odom.append((stamp_to_sec(tr.header.stamp), transform_to_matrix(tr.transform)))
                     self.arrival["map_odom"].append(self.received)
                 elif edge == ("odom", "base_link"):
@@ -159,18 +165,22 @@ class BagRun(unittest.TestCase):
         self.rec = Recorder()
         self.t_still = standstill_end(self.truth)
 
-    def launch(self, use_ekf: bool, loop: bool = False, calibration: str = ""):
-        """Run postprocess.launch to the end of the bag (with ``loop``: to the end of its second pass)."""
+    def launch(self, use_ekf: bool, loop: bool = False, calibration: str = "", start: float = 0.0,
+               during=None):
+        """Run postprocess.launch to the end of the bag (with ``loop``: to the end of its second pass);
+        ``during()`` runs in a thread meanwhile."""
         args = ["roslaunch", "aruco_abs_orient", "postprocess.launch", f"bag:={self.dir / 'scenario.bag'}",
                 f"markers:={self.dir / 'markers.yaml'}", f"time_offset:={self.offset}",
                 f"use_ekf:={str(use_ekf).lower()}", f"rate:={ARGS.rate}", f"loop:={str(loop).lower()}",
-                f"calibration:={calibration}"]
+                f"calibration:={calibration}", f"start:={start}"]
         log_path = Path(os.environ.get("ROS_HOME", "/tmp")) / f"postprocess_{ARGS.mode}.log"
         duration = self.truth.stamps[-1] - self.truth.stamps[0]
         end_stamp = self.truth.stamps[-1] + self.offset - 0.5  # camera clock, near the bag's end
         deadline = time.monotonic() + (2 if loop else 1) * duration / ARGS.rate + 60
         with open(str(log_path), "w") as log:
             proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+            if during is not None:
+                threading.Thread(target=during, daemon=True).start()
             try:
                 while proc.poll() is None and time.monotonic() < deadline:
                     time.sleep(0.5)
@@ -249,6 +259,52 @@ class BagRun(unittest.TestCase):
         self.report("heading RMSE about that mean", rmse_deg(e - np.mean(e)), ARGS.max_yaw_rmse_deg, "deg")
         self.assertLessEqual(rmse_deg(e - np.mean(e)), ARGS.max_yaw_rmse_deg)
 
+    def check_chaos(self):
+        import xmlrpc.client
+
+        import rosnode
+
+        rng = np.random.default_rng(int(time.time()))
+        duration = self.truth.stamps[-1] - self.truth.stamps[0]
+        start = float(rng.uniform(self.t_still - self.truth.stamps[0] + 1.0, 0.3 * duration))
+        kills, recoveries = [], []
+
+        def killer():
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 60 and not self.rec.map_odom:   # the first start, while driving
+                time.sleep(0.1)
+            for _ in range(3):
+                time.sleep(float(rng.uniform(2.0, 4.0)) / ARGS.rate)
+                try:
+                    uri = rosnode.get_api_uri(rospy.get_master(), "/abs_orient", skip_cache=True)
+                    _, _, pid = xmlrpc.client.ServerProxy(uri).getPid("/rt_abs_orient_bag")
+                except Exception as e:  # reported as a failure below (fewer than 3 kills)
+                    rospy.logwarn("cannot find the node to kill: %s", e)
+                    return
+                os.kill(int(pid), signal.SIGKILL)
+                t_kill = time.monotonic()
+                kills.append(t_kill)
+                while time.monotonic() - t_kill < 10:   # in flight when it died: arrived within 0.2 s
+                    time.sleep(0.02)
+                    with self.rec.lock:
+                        fresh = [w for w in self.rec.map_odom_wall[-50:] if w > t_kill + 0.2]
+                    if fresh:
+                        recoveries.append(fresh[0] - t_kill)
+                        break
+
+        self.launch(use_ekf=False, start=start, during=killer)
+        self.assertEqual(len(kills), 3, f"killed {len(kills)} times; the node said: {self.rec.last_status}")
+        for k, r in enumerate(recoveries):
+            self.report(f"recovery {k + 1} after SIGKILL (start {start:.1f} s into the bag)", r, 3.0, "s")
+        self.assertEqual(len(recoveries), 3, f"recovered {len(recoveries)} of 3 times: {self.rec.last_status}")
+        self.assertLessEqual(max(recoveries), 3.0)
+        e, n_ok, n = heading_errors_from_tf(self.rec, self.truth, self.offset, self.truth.stamps[0] + start,
+                                            self.truth.stamps[-1])
+        self.assertGreater(n_ok, 0.5 * n, f"map->base_link at only {n_ok} of {n} truth times")
+        worst = math.degrees(float(np.max(np.abs(e))))
+        self.report("largest heading error of any map->odom sent", worst, 1.0, "deg")
+        self.assertLessEqual(worst, 1.0)
+
     def check_loop(self):
         self.launch(use_ekf=False, loop=True)
         self.assertGreaterEqual(self.rec.resets, 1, "the node did not reset when the bag looped")
@@ -268,7 +324,7 @@ class BagRun(unittest.TestCase):
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration"), required=True)
+    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration", "chaos"), required=True)
     ap.add_argument("--preset", default="ci")
     ap.add_argument("--scenario", help="use this generated scenario directory instead of generating --preset")
     ap.add_argument("--rate", type=float, default=1.0, help="playback rate")

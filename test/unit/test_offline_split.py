@@ -28,7 +28,7 @@ def split(scenario_factory, tmp_path_factory):
     d = tmp_path_factory.mktemp("split")
     with rosbag.Bag(scen.bag) as whole:
         t_mid = 0.5 * (whole.get_start_time() + whole.get_end_time())
-        static = [(topic, raw, t) for topic, raw, t in whole.read_messages(topics=["/tf_static"], raw=True)]
+        static = list(whole.read_messages(topics=["/tf_static"], raw=True))
         with rosbag.Bag(str(d / "run_0.bag"), "w") as b0, rosbag.Bag(str(d / "run_1.bag"), "w") as b1:
             for topic, raw, t in static:
                 b1.write(topic, raw, t, raw=True)

@@ -592,6 +592,11 @@ class AbsOrientNode:
         if self.pipeline is not None:
             for k, v in sorted(self.pipeline.stats.items()):
                 values["pipeline " + k] = v
+            fs = self.pipeline.filter.stats
+            values["filter waiting reason"] = self.pipeline.waiting_reason or "-"
+            values["filter lock-out recoveries"] = fs.lockout_recoveries
+            values["filter re-initialisations"] = fs.reinitialisations
+            values["filter yaw noise scale"] = fs.noise_scale
         problems = []
         level = "ok"
         if self.pipeline is None and delta.get("no_static_tf", 0):
@@ -612,7 +617,8 @@ class AbsOrientNode:
             level = "warn"
         if not problems and not self.initialised:
             level = "warn"
-            problems.append("initialising (needs a standstill with the prism and a marker)")
+            why = self.pipeline.waiting_reason if self.pipeline is not None else "waiting for the static tfs"
+            problems.append(f"initialising: {why}")
         message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
         return level, message, values
 
