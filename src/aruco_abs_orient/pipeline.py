@@ -51,7 +51,9 @@ class PipelineParams:
     - ``fusion_gate``: a marker whose yaw disagrees with the frame's other markers by more than
       this many σ is left out of the frame's fused yaw (σ).
     - ``init_search_interval``: before the filter is initialised (no prediction: every search
-      is a full-frame one, 40–90 ms at 3840×1920), search only every n-th image (frames).
+      is a full-frame one), search only every n-th image (frames). 1 (every image) by default:
+      the filter starts from three consistent yaws, and a node (re)started while driving should
+      not throw away the frames that give them (live, the newest image wins anyway).
     - ``jpeg_reduce``: decode JPEGs at 1/1, 1/2, 1/4 or 1/8 resolution (1 = full; accuracy
       falls with resolution, see bench/detection.py).
     """
@@ -64,7 +66,7 @@ class PipelineParams:
     min_range: float = 0.5
     elevation_gate: float = 5.0
     fusion_gate: float = 4.0
-    init_search_interval: int = 3
+    init_search_interval: int = 1
     jpeg_reduce: int = 1
 
     def validate(self) -> None:
