@@ -545,8 +545,8 @@ class Ms60Simulator:
             def change() -> None:
                 if rpc == Rpc.AUS_SetUserLockState:
                     self.user_lock = on
-                    if not on:
-                        self.locked = False
+                    if not on:  # the telescope stops following: the moving prism leaves its view
+                        self.locked = self.adjusted = False
                 else:
                     self.user_atr = on
 
