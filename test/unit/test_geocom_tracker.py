@@ -241,3 +241,18 @@ def test_bad_settings_are_rejected():
         TrackerConfig("loop://", rate_hz=0).validate()
     with pytest.raises(TrackerError, match="prism_constant"):
         TrackerConfig("loop://", prism_constant_m=5.0).validate()
+
+
+def test_a_motorised_call_that_times_out_does_not_pile_up_requests():
+    """AUT_LockIn takes longer than the motion timeout: the driver does not send more requests into the
+    busy instrument; it reopens the link, waits for COM_NullProc behind the running lock-in (whose late
+    reply it discards), finds the prism locked and tracks."""
+    run = Run("pty", SimConfig(lock_in_s=1.5), timeout_s=0.3, motion_timeout_s=0.8)
+    try:
+        run.wait_for_samples(5, timeout=15.0)
+        stats = run.tracker.stats()
+        run.check_stream()
+    finally:
+        run.close()
+    assert stats.timeouts == 1 and stats.reconnects == 1 and stats.stale_replies >= 1, stats
+    assert [s for _, s in run.states].count(TrackerState.SEARCHING) == 1

@@ -19,6 +19,9 @@ def test_defaults_and_full_station():
     assert config.station == (1.0, 2.5, 3.0, 1.6)
     assert config.prism_constant_m == pytest.approx(-0.0344)
     assert config.orientation_rad == pytest.approx(math.pi / 2) and config.min_latency_s == pytest.approx(0.002)
+    assert config.byte_timing is False and config.motion_timeout_s == 30.0   # socket://: no serial byte timing
+    assert config_from_params({})[0].byte_timing is True
+    assert config_from_params({"port": "socket://h:1", "byte_timing": True})[0].byte_timing is True
 
 
 @pytest.mark.parametrize("params, name", [
@@ -28,6 +31,7 @@ def test_defaults_and_full_station():
     ({"frame_id": ""}, "~frame_id"), ({"station": {"x": 1}}, "~station"), ({"station": {"q": 1}}, "~station"),
     ({"station": 3}, "~station"), ({"station": {"x": 1, "y": 2, "z": "a"}}, "~station/z"),
     ({"min_latency_ms": -1}, "~min_latency_ms"), ({"rate": True}, "~rate"),
+    ({"motion_timeout": 1.0}, "~motion_timeout"), ({"byte_timing": "yes"}, "~byte_timing"),
 ])
 def test_bad_parameters_name_themselves(params, name):
     with pytest.raises(TrackerError, match=name.replace("~", "~?")):
