@@ -1,4 +1,5 @@
 """GeoCOM client against the simulator over a real pty and over TCP, and over loop://."""
+import contextlib
 import time
 
 import numpy as np
@@ -184,3 +185,34 @@ def test_byte_timing_follows_the_baud_rate():
                 assert timed.reply_tx_s > 0.1  # ~130 bytes at 9600 baud
     finally:
         sim.close()
+
+
+def test_a_tcp_peer_that_closes_at_once_is_a_link_error_not_a_hang():
+    """An instrument or serial server that accepts and closes the connection (busy with another
+    client): the client fails fast (pyserial 3.4's socket handler spun for ever in open())."""
+    import socket
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+
+    def accept_and_close():
+        with contextlib.suppress(OSError):
+            conn, _ = server.accept()
+            conn.close()
+
+    thread = threading.Thread(target=accept_and_close, daemon=True)
+    thread.start()
+    t0 = time.time()
+    try:
+        url = f"socket://127.0.0.1:{server.getsockname()[1]}"
+        with pytest.raises((GeoComLinkError, GeoComTimeout)), GeoComClient(url, timeout_s=0.3) as client:
+            time.sleep(0.1)   # the peer has closed by now
+            client.null_proc()
+        assert time.time() - t0 < 2.0
+    finally:
+        server.close()
+        thread.join(timeout=2.0)
+    with pytest.raises(GeoComLinkError, match="socket://nohost"):
+        GeoComClient("socket://nohost")

@@ -225,10 +225,10 @@ def test_random_faults_keep_stream_clean_and_count_warnings():
     try:
         run.wait_for_samples(20, timeout=20.0)
         time.sleep(4.0)
-        errors = run.check_stream()
-        stats = run.tracker.stats()
     finally:
         run.close()
+    errors = run.check_stream()
+    stats = run.tracker.stats()   # after the stop: the same samples as run.samples
     assert sum(stats.warnings.values()) >= 3 and set(stats.warnings) <= {1283, 1284}
     n_warn = sum(1 for _, s in run.samples if s.warning)
     assert n_warn == sum(stats.warnings.values())

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import select
+import socket
 import threading
 import time
 from typing import NamedTuple, Optional, Sequence, Tuple
@@ -84,6 +85,43 @@ def wire_time_s(n_bytes: int, baud: int) -> float:
     return 10.0 * n_bytes / float(baud)
 
 
+class _TcpPort:
+    """``socket://host:port`` as the few port methods the client uses. pyserial's own handler is not
+    used: in pyserial 3.4 (Ubuntu 20.04's python3-serial) its open() spins for ever on a connection
+    the peer closes at once (an instrument or serial server refusing a second client), and it
+    leaves Nagle's algorithm on, which delays small requests."""
+
+    def __init__(self, url: str):
+        host, sep, port = url[len("socket://"):].split("?")[0].rpartition(":")
+        if not sep or not host or not port.isdigit():
+            raise ValueError(f"expected socket://host:port, got {url!r}")
+        self._socket = socket.create_connection((host, int(port)), timeout=5.0)
+        self._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._socket.settimeout(1.0)   # writes: a peer that stops reading fails within 1 s
+
+    def fileno(self) -> int:
+        return self._socket.fileno()
+
+    def write(self, data: bytes) -> None:
+        self._socket.sendall(data)
+
+    def flush(self) -> None:
+        """Nothing to flush: TCP_NODELAY sends at once."""
+
+    def read(self, size: int) -> bytes:
+        """What has arrived (b"" if nothing); raises OSError when the peer closed the connection."""
+        ready, _, _ = select.select([self._socket], [], [], 0)
+        if not ready:
+            return b""
+        data = self._socket.recv(size)
+        if not data:
+            raise OSError("the instrument closed the connection")
+        return data
+
+    def close(self) -> None:
+        self._socket.close()
+
+
 def default_byte_timing(url: str) -> bool:
     """Whether replies on ``url`` cross a serial line byte by byte: all ports but ``socket://``."""
     return not url.strip().lower().startswith("socket://")
@@ -107,7 +145,10 @@ class GeoComClient:
         try:
             # non-blocking reads; waiting is done with select() on the port's descriptor so that
             # a reply is taken in one piece the moment it arrives (its reception time matters)
-            self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
+            if url.strip().lower().startswith("socket://"):
+                self._serial = _TcpPort(url.strip())
+            else:
+                self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
         except (serial.SerialException, ValueError, OSError) as e:
             raise GeoComLinkError(f"cannot open GeoCOM port {url!r}: {e}") from None
         try:
