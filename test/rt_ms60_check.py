@@ -1,7 +1,11 @@
 #!/usr/bin/env python3
-"""rostest checker for ms60.test: serves the simulated MS60 on TCP, listens to ms60/prism and
-checks rate (≥ 19 Hz), positions and stamps against the simulator's truth."""
+"""rostest checker for ms60.test: serves two strict simulated MS60s, one on TCP (socket://, no serial
+byte timing) and one on a pty (a serial line), listens to each driver's ms60/prism and checks: ≥ 19 Hz
+of fresh positions, positions equal to the simulator's truth, stamps within 2 ms (p95) of the true
+time of each position's distance, the status (locked, the measurement program), and the re-lock
+within the simulator's lock-in time + 1 s after the prism was hidden."""
 import json
+import os
 import sys
 import threading
 import time
@@ -17,57 +21,101 @@ from std_msgs.msg import String
 from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig
 
 
+class Link:
+    """One simulator and what its driver (in namespace ``ns``) publishes."""
+
+    def __init__(self, ns, sim):
+        self.ns, self.sim = ns, sim
+        self.lock = threading.Lock()
+        self.prisms, self.statuses = [], []
+        rospy.Subscriber(f"/{ns}/ms60/prism", PointStamped, self.on_prism, queue_size=100)
+        rospy.Subscriber(f"/{ns}/ms60/status", String, lambda m: self.statuses.append(json.loads(m.data)))
+
+    def on_prism(self, msg):
+        with self.lock:
+            self.prisms.append((time.time(), msg.header.stamp.to_sec(), msg.header.frame_id, msg.point.x,
+                                msg.point.y, msg.point.z))
+
+    def count(self):
+        with self.lock:
+            return len(self.prisms)
+
+    def first_after(self, t):
+        with self.lock:
+            return next((rx for rx, *_ in self.prisms if rx > t), None)
+
+
 class Ms60DriverCheck(unittest.TestCase):
-    def test_rate_values_stamps(self):
+    def test_rate_values_stamps_relock(self):
         rospy.init_node("rt_ms60_check")
-        port = int(rospy.get_param("~port"))
         seconds = float(rospy.get_param("~seconds", 8.0))
-        sim = Ms60Simulator(SimConfig(), seed=7)
-        sim.serve_tcp(port)
-        lock = threading.Lock()
-        prisms, statuses, diags = [], [], []
-
-        def on_prism(msg):
-            with lock:
-                prisms.append((msg.header.stamp.to_sec(), msg.header.frame_id, msg.point.x, msg.point.y, msg.point.z))
-
-        rospy.Subscriber("ms60/prism", PointStamped, on_prism, queue_size=100)
-        rospy.Subscriber("ms60/status", String, lambda m: statuses.append(json.loads(m.data)))
+        tcp_sim, pty_sim = Ms60Simulator(SimConfig(), seed=7), Ms60Simulator(SimConfig(), seed=8)
+        tcp_sim.serve_tcp(int(rospy.get_param("~tcp_port")))
+        pty_link = rospy.get_param("~pty_link")
+        os.symlink(pty_sim.serve_pty(), pty_link)
+        links = [Link("tcp", tcp_sim), Link("pty", pty_sim)]
+        diags = []
         rospy.Subscriber("/diagnostics", DiagnosticArray, diags.append)
         try:
-            deadline = time.time() + 30.0
-            while not prisms and time.time() < deadline and not rospy.is_shutdown():
+            deadline = time.time() + 40.0
+            while not all(link.count() for link in links) and time.time() < deadline and not rospy.is_shutdown():
                 time.sleep(0.05)
-            self.assertTrue(prisms, "no ms60/prism message within 30 s")
+            self.assertTrue(all(link.count() for link in links),
+                            f"no ms60/prism within 40 s: {[(link.ns, link.count()) for link in links]}")
             time.sleep(1.0)  # steady state
-            with lock:
-                start = len(prisms)
+            starts = [link.count() for link in links]
             t0 = time.time()
             time.sleep(seconds)
-            with lock:
-                window = prisms[start:]
-                received = list(prisms)
-            elapsed = time.time() - t0
+            rates = [(link.count() - n) / (time.time() - t0) for link, n in zip(links, starts)]
+            statuses = [dict(link.statuses[-1]) for link in links]
+            # re-lock: hide the prism until the driver reports the loss, then show it
+            lost = None
+            tcp_sim.set_prism_visible(False)
+            deadline = time.time() + 5.0
+            while time.time() < deadline and lost is None:
+                time.sleep(0.05)
+                lost = next((s for s in links[0].statuses[-3:] if s["state"] == "lost"), None)
+            time.sleep(0.5)
+            t_back = time.time()
+            tcp_sim.set_prism_visible(True)
+            time.sleep(tcp_sim.config.lock_in_s + 2.0)
+            relock_s = links[0].first_after(t_back)
         finally:
-            sim.close()
-        rate = len(window) / elapsed
-        self.assertGreaterEqual(rate, 19.0, f"ms60/prism at {rate:.2f} Hz")
-        stamps = np.array([p[0] for p in received])
-        self.assertTrue(np.all(np.diff(stamps) > 0), "stamps not strictly increasing")
-        self.assertTrue(all(p[1] == "map" for p in received))
-        truth_t = np.array([r.time_s for r in sim.truth if r.rc == 0])
-        truth_p = np.array([r.position for r in sim.truth if r.rc == 0])
-        errors_ms, pos_err = [], []
-        for t, _, x, y, z in received:
-            i = int(np.argmin(np.abs(truth_t - t)))
-            errors_ms.append(abs(truth_t[i] - t) * 1e3)
-            pos_err.append(np.linalg.norm(truth_p[i] - (x, y, z)))
-        errors_ms = np.array(errors_ms)
-        rospy.loginfo(f"rt_ms60_check: {rate:.2f} Hz, stamp error median {np.median(errors_ms):.2f} ms, "
-                      f"max {errors_ms.max():.2f} ms, position error max {max(pos_err) * 1e3:.3f} mm")
-        self.assertLess(float(np.percentile(errors_ms, 95)), 2.0)
-        self.assertLess(max(pos_err), 1e-5)
-        self.assertTrue(statuses and statuses[-1]["state"] == "locked", f"status {statuses[-1:]}")
+            tcp_sim.close()
+            pty_sim.close()
+            os.unlink(pty_link)
+        for link, rate, status in zip(links, rates, statuses):
+            with link.lock:
+                received = list(link.prisms)
+            stamps = np.array([p[1] for p in received])
+            self.assertTrue(np.all(np.diff(stamps) > 0), f"{link.ns}: stamps not strictly increasing")
+            self.assertTrue(all(p[2] == "map" for p in received))
+            truth = {}
+            for r in link.sim.truth:
+                if r.rc == 0:
+                    truth.setdefault(round(r.time_s, 4), r)
+            truth_t = np.array(sorted(truth))
+            errors_ms, pos_err = [], []
+            for _, t, _, x, y, z in received:
+                i = int(np.argmin(np.abs(truth_t - t)))
+                errors_ms.append(abs(truth_t[i] - t) * 1e3)
+                pos_err.append(np.linalg.norm(np.subtract(truth[truth_t[i]].position, (x, y, z))))
+            errors_ms = np.array(errors_ms)
+            rospy.loginfo(f"rt_ms60_check {link.ns}: {rate:.2f} Hz, stamp error median {np.median(errors_ms):.2f} "
+                          f"ms, p95 {np.percentile(errors_ms, 95):.2f} ms, max {errors_ms.max():.2f} ms, "
+                          f"position error max {max(pos_err) * 1e3:.4f} mm")
+            self.assertGreaterEqual(rate, 19.0, f"{link.ns}: ms60/prism at {rate:.2f} Hz")
+            self.assertLess(float(np.percentile(errors_ms, 95)), 2.0, link.ns)
+            self.assertLess(max(pos_err), 2e-6, link.ns)
+            self.assertEqual(status["state"], "locked", f"{link.ns}: status {status}")
+            self.assertEqual(status["program"], "BAP_CONT_REF_SYNCHRO")
+            self.assertEqual(status["error"], "")
+            self.assertEqual(link.sim.internal_errors, [])
+        self.assertIsNotNone(lost, "the driver did not report the lost lock")
+        self.assertIsNotNone(relock_s, "no position after the prism came back")
+        rospy.loginfo(f"rt_ms60_check: re-lock {relock_s - t_back:.2f} s after the prism came back "
+                      f"(lock-in {tcp_sim.config.lock_in_s} s)")
+        self.assertLess(relock_s - t_back, tcp_sim.config.lock_in_s + 1.0)
         self.assertTrue(any(s.name.startswith("ms60_driver") for d in diags for s in d.status))
 
 

@@ -7,15 +7,19 @@ from hypothesis import strategies as st
 
 from aruco_abs_orient.geocom.protocol import (
     RC,
+    Byte,
     GeoComProtocolError,
     RcClass,
     Rpc,
     classify_rc,
+    crc16,
     encode_reply,
     encode_request,
+    format_double,
     parse_coordinate,
     parse_reply,
     parse_request,
+    rc_name,
     split_values,
 )
 
@@ -63,7 +67,7 @@ def test_warning_keeps_the_position_and_no_position_drops_it():
 
 @pytest.mark.parametrize("line", [
     b"", b"garbage\r\n", b"%R1P,0,1\r\n", b"%R1P,x:0\r\n", b"%R1P,0,1:\r\n", b"%R1P,0,1:abc\r\n",
-    b"%R1P,0,1,2:0\r\n", b'%R1P,0:0,"open\r\n', b"%R1P,0:\xff\r\n", b"%R1Q,0:\r\n",
+    b"%R1P,0,1,2,3:0\r\n", b"%R1P,0,1,x:0\r\n", b'%R1P,0:0,"open\r\n', b"%R1P,0:\xff\r\n", b"%R1Q,0:\r\n",
 ])
 def test_malformed_replies_raise(line):
     with pytest.raises(GeoComProtocolError):
@@ -112,3 +116,32 @@ def test_coordinate_reply_round_trip(rc, trid, enh, t_ms):
 def test_split_values_keeps_commas_inside_quotes():
     assert split_values('1,"a,b",2') == ("1", "a,b", "2")
     assert split_values("") == ()
+
+
+def test_crc16_is_crc16_arc_and_geocompys():
+    assert crc16(b"123456789") == 0xBB3D            # the CRC-16/ARC check value
+    assert crc16("") == 0
+    geocompy = pytest.importorskip("geocompy.communication")
+    for text in ("%R1Q,2082,5:0,1", "%R1P,0,0:0", "%R1Q,5004,123:"):
+        assert crc16(text) == geocompy.crc16_bytewise(text) == geocompy.crc16_bitwise(text)
+
+
+def test_checksummed_request_and_reply():
+    line = encode_request(Rpc.TMC_GetCoordinate, (0, 1), trid=5, crc=True)
+    assert line == f"%R1Q,2082,5,{crc16('%R1Q,2082,5:0,1')}:0,1\r\n".encode()
+    assert parse_request(line).crc_ok is True and parse_request(line).params == ("0", "1")
+    assert parse_request(line.replace(b":0,1", b":0,2")).crc_ok is False
+    assert parse_request(b"%R1Q,0,1:\r\n").crc_ok is None
+    reply = encode_reply(0, (1.5,), 0, 7, crc=True)
+    assert parse_reply(reply).crc_ok is True and parse_reply(reply).values == ("1.5",)
+    with pytest.raises(GeoComProtocolError):
+        encode_request(Rpc.COM_NullProc, (), None, crc=True)
+
+
+def test_double_precision_bytes_and_codes():
+    assert format_double(2600012.3456789, 6) == "2600012.345679"
+    assert format_double(1.0, 6) == "1.0" and format_double(-0.25, 15) == "-0.25" and format_double(2.6, 0) == "3"
+    assert encode_reply(0, (2026, Byte(12), Byte(1)), 0, 0) == b"%R1P,0,0:0,2026,'0C','01'\r\n"
+    reply = parse_reply(b"%R1P,3081,4:0\r\n")
+    assert reply.code == 3081 and parse_reply(b"%R1P,0,4:8710\r\n").code == 8710
+    assert rc_name(8714) == "8714 AUT_NOT_ENABLED" and rc_name(4242) == "4242"

@@ -23,6 +23,8 @@ def test_help_has_an_example(capsys):
 @pytest.mark.parametrize("argv, message", [
     ([], "exactly one of --pty"),
     (["--pty", "--tcp", "0"], "exactly one of --pty"),
+    (["--pty", "--profile", "loose"], "invalid choice: 'loose'"),
+    (["--pty", "--model", "TS30"], "invalid choice: 'TS30'"),
 ])
 def test_transport_choice_is_required(argv, message, capsys):
     with pytest.raises(SystemExit) as info:
@@ -55,7 +57,7 @@ def test_runs_on_tcp_with_a_tum_trajectory(tmp_path):
     tum.write_text("0 1 2 3 0 0 0 1\n10 11 2 3 0 0 0 1\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     proc = subprocess.Popen([sys.executable, "-m", "aruco_abs_orient.geocom.sim_cli", "--tcp", "0", "--seed", "1",
-                             "--trajectory", str(tum), "--truth", str(tmp_path / "truth.csv")],
+                             "--profile", "lenient", "--trajectory", str(tum), "--truth", str(tmp_path / "truth.csv")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, universal_newlines=True)
     try:
         url = proc.stdout.readline().strip()
@@ -72,3 +74,20 @@ def test_runs_on_tcp_with_a_tum_trajectory(tmp_path):
     lines = (tmp_path / "truth.csv").read_text().splitlines()
     assert lines[0].startswith("t_s,instrument_ms") and len(lines) == 2
     assert time.time() - float(lines[1].split(",")[0]) < 60
+
+
+def test_strict_is_the_default_profile():
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "aruco_abs_orient.geocom.sim_cli", "--tcp", "0",
+                             "--model", "TPS1200"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                            universal_newlines=True)
+    try:
+        url = proc.stdout.readline().strip()
+        with GeoComClient(url, timeout_s=1.0) as client:
+            assert client.instrument_name() == "TCRP1201+"
+            assert client.lock_in(timeout_s=3.0) == 8714            # strict: LOCK mode is off
+            assert client.power_search_next(timeout_s=3.0) == 5     # the TPS1200 model has no PowerSearch
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+    assert proc.returncode == 0 and "TPS1200 simulator (strict)" in proc.stderr.read()

@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.geocom.client import wire_time_s
-from aruco_abs_orient.geocom.protocol import Rpc, encode_request, parse_coordinate, parse_reply
+from aruco_abs_orient.geocom.protocol import BAP_CONT_REF_SYNCHRO, Rpc, encode_request, parse_coordinate, parse_reply
 from aruco_abs_orient.geocom.simulator import LATE_S, FaultRates, Ms60Simulator, SimConfig
-from aruco_abs_orient.geocom.tracker import Ms60Tracker, TrackerConfig, TrackerError, TrackerState
+from aruco_abs_orient.geocom.tracker import DOUBLE_PRECISION, Ms60Tracker, TrackerConfig, TrackerError, TrackerState
 
 
 class Run:
@@ -55,14 +55,24 @@ class Run:
         truth = {r.instrument_ms: r for r in self.sim.truth}
         errors = []
         for _, s in self.samples:
-            r = truth[s.instrument_ms]
-            assert (s.east, s.north, s.height) == r.position
+            r = truth[s.instrument_ms]   # the distance the sample was measured with
+            assert np.allclose((s.east, s.north, s.height), r.position, atol=0.6e-6)  # 6 decimals on the wire
             errors.append(abs(s.stamp_s - r.time_s))
+        assert len({s.instrument_ms for _, s in self.samples}) == len(self.samples)  # no stale distance twice
+        assert self.sim.internal_errors == []
         return np.array(errors)
+
+    def wait_for_state(self, state, timeout):
+        deadline = time.time() + timeout
+        while time.time() < deadline and self.tracker.state != state:
+            time.sleep(0.02)
+        assert self.tracker.state == state, (self.tracker.state, self.tracker.error, self.states)
 
 
 @pytest.mark.parametrize("transport", ["pty", "tcp"])
 def test_rate_and_stamp_error_without_faults(transport):
+    """≥ 19 Hz of fresh positions from a 20 Hz EDM, stamped with their distance's time to ≤ 2 ms, on a
+    serial link and on TCP (no serial byte timing)."""
     run = Run(transport)
     try:
         run.wait_for_samples(30)
@@ -70,13 +80,16 @@ def test_rate_and_stamp_error_without_faults(transport):
         time.sleep(3.0)
         rate = (len(run.samples) - n0) / (time.time() - t0)
         errors = run.check_stream()
-        assert run.sim.measuring
+        assert run.sim.tracking and run.sim.meas_prg == BAP_CONT_REF_SYNCHRO and run.sim.user_lock
+        assert run.sim.precision == DOUBLE_PRECISION
+        stats = run.tracker.stats()
     finally:
         run.close()
-    assert not run.sim.measuring  # stop() ended the tracking measurement
+    assert not run.sim.tracking  # stop() ended the tracking measurement
     assert rate >= 19.0
     assert np.percentile(errors, 95) < 0.002 and errors.max() < 0.004
-    assert run.tracker.stats().lost_samples <= 2
+    assert stats.lost_samples <= 2 and stats.edm_period_ms == pytest.approx(50.0)
+    assert stats.program == "BAP_CONT_REF_SYNCHRO" and stats.error == "" and stats.instrument.startswith("MS60 #")
 
 
 @settings(max_examples=300, deadline=None)
@@ -86,12 +99,15 @@ def test_simulator_sending_late_measures_again_with_its_latency(late_s, seed):
     host) reports a newer tick whose modelled latency ends within a tick of the actual send, so
     the replies the tracker sees keep the instrument's timing; the truth is that newer tick."""
     sim = Ms60Simulator(SimConfig(), seed=seed)
-    sim.locked = sim.measuring = True
+    sim._byte_timing = True   # as on a pty
+    sim.locked = sim.tracking = True
+    sim._edm_t0_ms = sim._edm_from_ms = sim.instrument_ms_at(sim.t_boot + 1.0)
     t_complete = sim.t_boot + 2.0
     answer = sim._handle(encode_request(Rpc.TMC_GetCoordinate, (0, 1), 7), t_complete)
     first = answer.truth
-    assert first.time_s >= t_complete and answer.send_s == pytest.approx(
-        first.time_s + answer.delay_s + wire_time_s(len(answer.data), 115200), abs=1e-9)
+    assert first.angles_time_s >= t_complete and answer.send_s == pytest.approx(
+        first.angles_time_s + answer.delay_s + wire_time_s(len(answer.data), 115200), abs=1e-9)
+    assert 0 <= first.angles_time_s - first.time_s < 0.051  # the last distance of a 20 Hz EDM
     now = answer.send_s + late_s
     later = sim._remeasured(answer, now)
     if late_s <= LATE_S:
@@ -99,34 +115,89 @@ def test_simulator_sending_late_measures_again_with_its_latency(late_s, seed):
         return
     reading = parse_coordinate(parse_reply(later.data))
     t = later.truth
-    assert reading.time_ms == t.instrument_ms > first.instrument_ms and parse_reply(later.data).trid == 7
-    assert sim.instrument_ms_at(t.time_s) == pytest.approx(t.instrument_ms, abs=1e-3)  # on a tick (1 µs)
-    assert (reading.east, reading.north, reading.height) == t.position == tuple(sim.track(t.time_s - sim.t_boot))
+    assert reading.cont_time_ms == t.angles_ms > first.angles_ms and parse_reply(later.data).trid == 7
+    assert reading.time_ms == t.instrument_ms >= first.instrument_ms
+    assert sim.instrument_ms_at(t.angles_time_s) == pytest.approx(t.angles_ms, abs=1e-3)  # on a tick (1 µs)
+    assert sim.instrument_ms_at(t.time_s) == pytest.approx(t.instrument_ms, abs=1e-3)
+    assert np.allclose((reading.east, reading.north, reading.height), t.position, atol=1e-12)
+    assert np.allclose(t.position, sim.track(t.time_s - sim.t_boot), atol=1e-12)
     assert later.delay_s == answer.delay_s
-    assert later.send_s == pytest.approx(t.time_s + later.delay_s + wire_time_s(len(later.data), 115200), abs=1e-9)
+    assert later.send_s == pytest.approx(t.angles_time_s + later.delay_s + wire_time_s(len(later.data), 115200),
+                                         abs=1e-9)
     # within a tick (1 ms) plus the wire time of a reply whose numbers have a few more digits
     assert now <= later.send_s < now + 0.001 + wire_time_s(12, 115200)
 
 
-def test_lost_lock_recovers_within_1s_and_counts_lost_samples():
-    run = Run("pty")
+@pytest.mark.parametrize("model", ["MS60", "TPS1200"])
+def test_lost_lock_relocks_within_the_lock_in_time_plus_1s(model):
+    """Fine adjust, search (PowerSearch, or AUT_Search on the TPS1200 model), fine adjust, lock-in,
+    tracking: back within the simulator's lock-in time + 1 s of the prism reappearing."""
+    sim_config = SimConfig(model=model)
+    run = Run("pty", sim_config)
     try:
         run.wait_for_samples(25)
         run.sim.set_prism_visible(False)
+        run.wait_for_state(TrackerState.LOST, 1.0)
         time.sleep(0.6)
-        assert run.tracker.state == TrackerState.LOST
-        lost_before = run.tracker.stats().lost_samples
         t_back = time.time()
         run.sim.set_prism_visible(True)
-        time.sleep(1.2)
+        time.sleep(sim_config.lock_in_s + 1.5)
         first = run.first_sample_after(t_back)
         stats = run.tracker.stats()
         run.check_stream()
     finally:
         run.close()
-    assert first is not None and first - t_back < 1.0
+    assert first is not None and first - t_back < sim_config.lock_in_s + 1.0, (first and first - t_back, run.states)
     assert stats.relocks == 1 and stats.no_position.get(1285, 0) >= 1
-    assert lost_before >= 8  # ~0.6 s at 20 Hz without a sample
+    assert stats.lost_samples >= 20  # ≥ 1 s at 20 Hz without a distance
+    assert stats.program == ("BAP_CONT_REF_SYNCHRO" if model == "MS60" else "BAP_CONT_REF_STANDARD")
+    assert stats.search == ("AUT_PS_SearchNext" if model == "MS60" else "AUT_Search")
+
+
+def test_a_refused_step_is_an_error_state_with_its_reason_then_retried():
+    run = Run("tcp", prism_type=99, error_retry_s=0.5)   # no such BAP_PRISMTYPE
+    try:
+        run.wait_for_state(TrackerState.ERROR, 3.0)
+        assert run.tracker.error.startswith("prism type refused: BAP_SetPrismType returned 2 IVPARAM")
+        assert run.tracker.stats().error == run.tracker.error and not run.samples
+        time.sleep(1.2)
+        assert run.tracker.state == TrackerState.ERROR and run.sim.requests > 20  # tried again, refused again
+    finally:
+        run.close()
+
+
+def test_lock_mode_switched_off_on_the_instrument_is_an_error_then_recovers():
+    run = Run("tcp", error_retry_s=0.5)
+    try:
+        run.wait_for_samples(5)
+        with run.sim._state_lock:   # LOCK mode switched off on the instrument's keyboard
+            run.sim._execute(Rpc.AUS_SetUserLockState, [0], time.time())
+        run.wait_for_state(TrackerState.ERROR, 3.0)
+        assert "8714 AUT_NOT_ENABLED" in run.tracker.error and "LOCK mode is off" in run.tracker.error
+        n = len(run.samples)
+        run.wait_for_state(TrackerState.LOCKED, 5.0)   # the session switches LOCK mode on again
+        run.wait_for_samples(n + 5)
+        run.check_stream()
+    finally:
+        run.close()
+
+
+def test_locked_without_new_distances_is_an_error():
+    """Tracking stopped on the instrument (the keyboard): the same distance again and again is not a
+    position; after no_distance_s it is an error naming the measurement program."""
+    run = Run("tcp", no_distance_s=1.0, error_retry_s=60.0)
+    try:
+        run.wait_for_samples(5)
+        run.sim._change(lambda: setattr(run.sim, "tracking", False))
+        t0 = time.time()
+        run.wait_for_state(TrackerState.ERROR, 3.0)
+        n = len(run.samples)
+        stats = run.tracker.stats()
+    finally:
+        run.close()
+    assert time.time() - t0 >= 1.0 and "no new distance" in stats.error and "BAP_CONT_REF_SYNCHRO" in stats.error
+    assert stats.duplicates >= 10 and n == stats.samples
+    run.check_stream()
 
 
 @pytest.mark.parametrize("transport", ["pty", "tcp"])
@@ -150,14 +221,14 @@ def test_link_outage_reconnects_within_1s(transport):
 
 def test_random_faults_keep_stream_clean_and_count_warnings():
     faults = FaultRates(garbage=0.05, drop=0.03, late=0.01, warning=0.1, spike=0.05)
-    run = Run("pty", SimConfig(faults=faults, late_s=0.4), seed=11)
+    run = Run("pty", SimConfig(faults=faults, late_s=0.4), seed=11, motion_timeout_s=5.0)
     try:
-        run.wait_for_samples(20)
+        run.wait_for_samples(20, timeout=20.0)
         time.sleep(4.0)
-        errors = run.check_stream()
-        stats = run.tracker.stats()
     finally:
         run.close()
+    errors = run.check_stream()
+    stats = run.tracker.stats()   # after the stop: the same samples as run.samples
     assert sum(stats.warnings.values()) >= 3 and set(stats.warnings) <= {1283, 1284}
     n_warn = sum(1 for _, s in run.samples if s.warning)
     assert n_warn == sum(stats.warnings.values())
@@ -170,3 +241,18 @@ def test_bad_settings_are_rejected():
         TrackerConfig("loop://", rate_hz=0).validate()
     with pytest.raises(TrackerError, match="prism_constant"):
         TrackerConfig("loop://", prism_constant_m=5.0).validate()
+
+
+def test_a_motorised_call_that_times_out_does_not_pile_up_requests():
+    """AUT_LockIn takes longer than the motion timeout: the driver does not send more requests into the
+    busy instrument; it reopens the link, waits for COM_NullProc behind the running lock-in (whose late
+    reply it discards), finds the prism locked and tracks."""
+    run = Run("pty", SimConfig(lock_in_s=1.5), timeout_s=0.3, motion_timeout_s=0.8)
+    try:
+        run.wait_for_samples(5, timeout=15.0)
+        stats = run.tracker.stats()
+        run.check_stream()
+    finally:
+        run.close()
+    assert stats.timeouts == 1 and stats.reconnects == 1 and stats.stale_replies >= 1, stats
+    assert [s for _, s in run.states].count(TrackerState.SEARCHING) == 1

@@ -19,6 +19,9 @@ def test_defaults_and_full_station():
     assert config.station == (1.0, 2.5, 3.0, 1.6)
     assert config.prism_constant_m == pytest.approx(-0.0344)
     assert config.orientation_rad == pytest.approx(math.pi / 2) and config.min_latency_s == pytest.approx(0.002)
+    assert config.byte_timing is False and config.motion_timeout_s == 30.0   # socket://: no serial byte timing
+    assert config_from_params({})[0].byte_timing is True
+    assert config_from_params({"port": "socket://h:1", "byte_timing": True})[0].byte_timing is True
 
 
 @pytest.mark.parametrize("params, name", [
@@ -28,6 +31,7 @@ def test_defaults_and_full_station():
     ({"frame_id": ""}, "~frame_id"), ({"station": {"x": 1}}, "~station"), ({"station": {"q": 1}}, "~station"),
     ({"station": 3}, "~station"), ({"station": {"x": 1, "y": 2, "z": "a"}}, "~station/z"),
     ({"min_latency_ms": -1}, "~min_latency_ms"), ({"rate": True}, "~rate"),
+    ({"motion_timeout": 1.0}, "~motion_timeout"), ({"byte_timing": "yes"}, "~byte_timing"),
 ])
 def test_bad_parameters_name_themselves(params, name):
     with pytest.raises(TrackerError, match=name.replace("~", "~?")):
@@ -38,3 +42,74 @@ def test_status_json():
     stats = TrackerStats("locked", 10, 2, 19.8, {1284: 1}, {1285: 3}, 1, 0, 0, 0, 1, 5, 1, 1.5, -40e-6, "MS60")
     d = json.loads(stats_to_json(stats))
     assert d["state"] == "locked" and d["warnings"] == {"1284": 1} and d["clock_drift_ppm"] == pytest.approx(-40.0)
+
+
+@pytest.fixture
+def master():
+    """A real ROS master on a free port (rosmaster --core), its URI."""
+    import os
+    import socket
+    import subprocess
+    import time
+
+    import rosgraph
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(["rosmaster", "--core", "-p", str(port)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env=dict(os.environ, ROS_HOSTNAME="localhost"))
+    uri = f"http://localhost:{port}/"
+    try:
+        deadline = time.time() + 20
+        while not rosgraph.Master("/test", master_uri=uri).is_online():
+            assert time.time() < deadline and proc.poll() is None, "rosmaster did not start"
+            time.sleep(0.1)
+        yield uri
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def _start_driver(uri, tmp_path, port):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "ms60_driver"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), ROS_MASTER_URI=uri, ROS_HOSTNAME="localhost",
+               ROS_HOME=str(tmp_path))
+    return subprocess.Popen([sys.executable, str(script), f"_port:={port}"], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.parametrize("sim_time", [True, False])
+def test_sim_time_left_on_the_master_is_refused_in_one_line(master, tmp_path, sim_time):
+    """postprocess.launch can leave /use_sim_time true on a running master: the driver then ends at
+    start-up with one line and status 2 (it used to crash in its thread and stay up, silent). With
+    /use_sim_time false it runs (here against the simulator, publishing its status)."""
+    import subprocess
+
+    import rosgraph
+
+    from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig
+    from aruco_abs_orient.ros.ms60_node import SIM_TIME_MESSAGE
+
+    rosgraph.Master("/test", master_uri=master).setParam("/use_sim_time", sim_time)
+    sim = Ms60Simulator(SimConfig(), seed=1)
+    proc = _start_driver(master, tmp_path, f"socket://127.0.0.1:{sim.serve_tcp(0)}")
+    try:
+        out, err = proc.communicate(timeout=8)
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+    finally:
+        sim.close()
+    if sim_time:
+        assert proc.returncode == 2, err
+        lines = [line for line in (out + err).splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].endswith(SIM_TIME_MESSAGE) and "Traceback" not in err
+    else:
+        assert proc.returncode in (0, -15), err   # ran until terminated
+        assert "Traceback" not in err and sim.requests > 10

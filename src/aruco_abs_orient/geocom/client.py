@@ -1,7 +1,12 @@
 """Thread-safe GeoCOM client over pyserial (``serial.serial_for_url``).
 
 Ports are pyserial URLs: ``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://host:port``,
-``loop://``. Every request carries a transaction id; a reply with another id (a late answer to
+``loop://``. A reply's own bytes take ``10·n/baud`` s on a serial line (and on rfc2217://, a serial
+port at the far end); over ``socket://`` (an instrument on WLAN/Ethernet) a reply arrives as one
+packet and has no such byte timing: ``byte_timing`` says which applies (default: all but
+``socket://``), and the coordinate replies carry that wire time for the clock fit. A reply whose
+communication code is not 0 (3080, 3081, 3101...) fails the call like a return code does. Every
+request carries a transaction id; a reply with another id (a late answer to
 a request that already timed out) is discarded, as is any line that is not a reply (garbage,
 echoes): the reader resynchronises on the next ``%R1P,`` it sees. One call at a time holds the
 port (a lock), so several threads may share a client.
@@ -11,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import select
+import socket
 import threading
 import time
 from typing import NamedTuple, Optional, Sequence, Tuple
@@ -18,7 +24,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 import serial
 
 from .protocol import (
-    EDM_CONT_FAST,
+    AUT_CLOCKWISE,
     TMC_AUTO_INC,
     CoordinateReading,
     GeoComProtocolError,
@@ -28,10 +34,11 @@ from .protocol import (
     encode_request,
     parse_coordinate,
     parse_reply,
+    rc_name,
 )
 
 __all__ = ["GeoComError", "GeoComLinkError", "GeoComTimeout", "GeoComRcError", "TimedCoordinate",
-           "GeoComClient", "wire_time_s"]
+           "GeoComClient", "wire_time_s", "rpc_name", "default_byte_timing"]
 
 _REPLY_START = b"%R1P,"
 _MAX_LINE = 4096
@@ -49,18 +56,24 @@ class GeoComTimeout(GeoComError):
     """No reply with the request's transaction id within the timeout."""
 
 
+def rpc_name(rpc: int) -> str:
+    """``"AUT_LockIn"`` for a known procedure number, the number otherwise."""
+    return Rpc(rpc).name if rpc in Rpc._value2member_map_ else str(int(rpc))
+
+
 class GeoComRcError(GeoComError):
-    """A procedure answered with a return code other than 0."""
+    """A procedure answered with a code other than 0 (its communication code, or else its rc)."""
 
     def __init__(self, rpc: int, rc: int):
-        super().__init__(f"{Rpc(rpc).name if rpc in Rpc._value2member_map_ else rpc} returned rc {rc}")
+        super().__init__(f"{rpc_name(rpc)} returned {rc_name(rc)}")
         self.rpc = rpc
         self.rc = rc
 
 
 class TimedCoordinate(NamedTuple):
     """A coordinate reply with its host reception time ``received_s`` (s, time.time() of the
-    last byte) and the reply's wire time ``reply_tx_s`` (s, 10 bits per byte at the baud)."""
+    last byte) and the reply's wire time ``reply_tx_s`` (s, 10 bits per byte at the baud on a
+    link with byte timing, 0 without)."""
 
     reading: CoordinateReading
     received_s: float
@@ -72,12 +85,56 @@ def wire_time_s(n_bytes: int, baud: int) -> float:
     return 10.0 * n_bytes / float(baud)
 
 
-class GeoComClient:
-    """GeoCOM over one pyserial port. ``timeout_s`` is the default reply timeout (s)."""
+class _TcpPort:
+    """``socket://host:port`` as the few port methods the client uses. pyserial's own handler is not
+    used: in pyserial 3.4 (Ubuntu 20.04's python3-serial) its open() spins for ever on a connection
+    the peer closes at once (an instrument or serial server refusing a second client), and it
+    leaves Nagle's algorithm on, which delays small requests."""
 
-    def __init__(self, url: str, baud: int = 115200, timeout_s: float = 0.5):
+    def __init__(self, url: str):
+        host, sep, port = url[len("socket://"):].split("?")[0].rpartition(":")
+        if not sep or not host or not port.isdigit():
+            raise ValueError(f"expected socket://host:port, got {url!r}")
+        self._socket = socket.create_connection((host, int(port)), timeout=5.0)
+        self._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._socket.settimeout(1.0)   # writes: a peer that stops reading fails within 1 s
+
+    def fileno(self) -> int:
+        return self._socket.fileno()
+
+    def write(self, data: bytes) -> None:
+        self._socket.sendall(data)
+
+    def flush(self) -> None:
+        """Nothing to flush: TCP_NODELAY sends at once."""
+
+    def read(self, size: int) -> bytes:
+        """What has arrived (b"" if nothing); raises OSError when the peer closed the connection."""
+        ready, _, _ = select.select([self._socket], [], [], 0)
+        if not ready:
+            return b""
+        data = self._socket.recv(size)
+        if not data:
+            raise OSError("the instrument closed the connection")
+        return data
+
+    def close(self) -> None:
+        self._socket.close()
+
+
+def default_byte_timing(url: str) -> bool:
+    """Whether replies on ``url`` cross a serial line byte by byte: all ports but ``socket://``."""
+    return not url.strip().lower().startswith("socket://")
+
+
+class GeoComClient:
+    """GeoCOM over one pyserial port. ``timeout_s`` is the default reply timeout (s);
+    ``byte_timing`` None takes :func:`default_byte_timing`."""
+
+    def __init__(self, url: str, baud: int = 115200, timeout_s: float = 0.5, byte_timing: Optional[bool] = None):
         self.url = url
         self.baud = int(baud)
+        self.byte_timing = default_byte_timing(url) if byte_timing is None else bool(byte_timing)
         self.timeout_s = float(timeout_s)
         self._lock = threading.Lock()
         self._buffer = bytearray()
@@ -88,7 +145,10 @@ class GeoComClient:
         try:
             # non-blocking reads; waiting is done with select() on the port's descriptor so that
             # a reply is taken in one piece the moment it arrives (its reception time matters)
-            self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
+            if url.strip().lower().startswith("socket://"):
+                self._serial = _TcpPort(url.strip())
+            else:
+                self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
         except (serial.SerialException, ValueError, OSError) as e:
             raise GeoComLinkError(f"cannot open GeoCOM port {url!r}: {e}") from None
         try:
@@ -171,14 +231,19 @@ class GeoComClient:
 
     def _checked(self, rpc: int, params: Sequence[Param] = (), timeout_s: Optional[float] = None) -> Reply:
         reply = self.call(rpc, params, timeout_s)[0]
-        if reply.rc != 0:
-            raise GeoComRcError(rpc, reply.rc)
+        if reply.code != 0:
+            raise GeoComRcError(rpc, reply.code)
         return reply
+
+    def code(self, rpc: int, params: Sequence[Param] = (), timeout_s: Optional[float] = None) -> int:
+        """Call ``rpc`` and return its code (the communication code when not 0, else the rc),
+        for procedures whose failures the caller tells apart."""
+        return self.call(rpc, params, timeout_s)[0].code
 
     def _values(self, rpc: int, n: int, timeout_s: Optional[float] = None) -> Tuple[str, ...]:
         reply = self._checked(rpc, (), timeout_s)
         if len(reply.values) < n:
-            raise GeoComError(f"{Rpc(rpc).name} replied {len(reply.values)} values, expected {n}")
+            raise GeoComError(f"{rpc_name(rpc)} replied {len(reply.values)} values, expected {n}")
         return reply.values[:n]
 
     # --- procedures ----------------------------------------------------------------------
@@ -195,23 +260,49 @@ class GeoComClient:
         return int(self._values(Rpc.CSV_GetInstrumentNo, 1)[0])
 
     def firmware_version(self) -> str:
-        """CSV_GetSWVersion as ``release.version.subversion``."""
+        """CSV_GetSWVersion (the instrument's system software) as ``release.version.subversion``."""
         return ".".join(str(int(v)) for v in self._values(Rpc.CSV_GetSWVersion, 3))
 
-    def set_edm_mode(self, mode: int = EDM_CONT_FAST) -> None:
-        """TMC_SetEdmMode (EDM_MODE; 9 = EDM_CONT_FAST, tracking)."""
-        self._checked(Rpc.TMC_SetEdmMode, (int(mode),))
+    def geocom_version(self) -> str:
+        """COM_GetSWVersion (the GeoCOM release) as ``release.version.subversion``."""
+        return ".".join(str(int(v)) for v in self._values(Rpc.COM_GetSWVersion, 3))
+
+    def set_double_precision(self, digits: int) -> None:
+        """COM_SetDoublePrecision: decimals of the doubles in the replies."""
+        self._checked(Rpc.COM_SetDoublePrecision, (int(digits),))
+
+    def double_precision(self) -> int:
+        """COM_GetDoublePrecision."""
+        return int(self._values(Rpc.COM_GetDoublePrecision, 1)[0])
 
     def set_meas_prg(self, program: int) -> None:
         """BAP_SetMeasPrg (BAP_USER_MEASPRG)."""
         self._checked(Rpc.BAP_SetMeasPrg, (int(program),))
 
+    def set_target_type(self, target_type: int) -> None:
+        """BAP_SetTargetType (BAP_TARGET_TYPE; 0 = with reflector)."""
+        self._checked(Rpc.BAP_SetTargetType, (int(target_type),))
+
+    def fine_adjust(self, hz_rad: float, v_rad: float, timeout_s: Optional[float] = None) -> int:
+        """AUT_FineAdjust within a search window (rad); returns its code (0: on the prism)."""
+        return self.code(Rpc.AUT_FineAdjust, (float(hz_rad), float(v_rad), 0), timeout_s)
+
+    def search(self, hz_rad: float, v_rad: float, timeout_s: Optional[float] = None) -> int:
+        """AUT_Search over an area (rad); returns its code (0: a prism in the ATR's field)."""
+        return self.code(Rpc.AUT_Search, (float(hz_rad), float(v_rad), 0), timeout_s)
+
+    def power_search_next(self, direction: int = AUT_CLOCKWISE, swing: bool = False,
+                          timeout_s: Optional[float] = None) -> int:
+        """AUT_PS_SearchNext (PowerSearch, 360°); returns its code (0: a prism found)."""
+        return self.code(Rpc.AUT_PS_SearchNext, (int(direction), bool(swing)), timeout_s)
+
     def lock_in(self, timeout_s: Optional[float] = None) -> int:
-        """AUT_LockIn: start tracking the prism. Returns the rc (0 locked, 8710 no target)."""
-        return self.call(Rpc.AUT_LockIn, (), timeout_s)[0].rc
+        """AUT_LockIn: start following the prism. Returns its code (0 locked, 8710 no target,
+        8714 LOCK mode off)."""
+        return self.code(Rpc.AUT_LockIn, (), timeout_s)
 
     def set_user_lock_state(self, on: bool) -> None:
-        """AUS_SetUserLockState: enable (True) or disable the lock-in function."""
+        """AUS_SetUserLockState: LOCK mode on (True) or off."""
         self._checked(Rpc.AUS_SetUserLockState, (bool(on),))
 
     def lock_status(self) -> int:
@@ -231,28 +322,33 @@ class GeoComClient:
         return float(self._values(Rpc.TMC_GetPrismCorr, 1)[0])
 
     def do_measure(self, command: int, inc_mode: int = TMC_AUTO_INC) -> None:
-        """TMC_DoMeasure (TMC_MEASURE_PRG: 2 tracking, 0 stop)."""
+        """TMC_DoMeasure (TMC_MEASURE_PRG: 8 TMC_RTRK_DIST tracking, 3 TMC_CLEAR, 0 TMC_STOP)."""
         self._checked(Rpc.TMC_DoMeasure, (int(command), int(inc_mode)))
 
     def get_coordinate(self, wait_ms: int = 0, inc_mode: int = TMC_AUTO_INC,
                        timeout_s: Optional[float] = None) -> TimedCoordinate:
-        """TMC_GetCoordinate: E, N, H (m) and the instrument time (ms) of the measurement, with
-        the host reception time. The rc is in the reading (warnings keep their position)."""
+        """TMC_GetCoordinate: the position at the last distance with that distance's instrument
+        time (ms), the continuous coordinate with the time of its angles, and the host reception
+        time. The rc is in the reading (warnings keep their position); a communication code
+        other than 0 raises GeoComRcError."""
         reply, received, nbytes = self.call(Rpc.TMC_GetCoordinate, (int(wait_ms), int(inc_mode)), timeout_s)
+        if reply.comrc != 0:
+            raise GeoComRcError(Rpc.TMC_GetCoordinate, reply.comrc)
         try:
             reading = parse_coordinate(reply)
         except GeoComProtocolError as e:
             raise GeoComError(str(e)) from None
-        return TimedCoordinate(reading, received, wire_time_s(nbytes, self.baud))
+        return TimedCoordinate(reading, received, wire_time_s(nbytes, self.baud) if self.byte_timing else 0.0)
 
     def get_simple_coord(self, wait_ms: int = 0, inc_mode: int = TMC_AUTO_INC) -> Tuple[int, float, float, float]:
         """TMC_GetSimpleCoord: ``(rc, E, N, H)`` in metres (no instrument time)."""
         reply = self.call(Rpc.TMC_GetSimpleCoord, (int(wait_ms), int(inc_mode)))[0]
         v = [float(x) for x in reply.values[:3]] if len(reply.values) >= 3 else [float("nan")] * 3
-        return reply.rc, v[0], v[1], v[2]
+        return reply.code, v[0], v[1], v[2]
 
     def set_station(self, east: float, north: float, height: float, instrument_height: float) -> None:
-        """TMC_SetStation: station coordinates E0, N0, H0 and instrument height Hi (m)."""
+        """TMC_SetStation: station coordinates E0, N0, H0 and instrument height Hi (m); the
+        instrument refuses it (1293 TMC_BUSY) while a distance exists: TMC_CLEAR first."""
         self._checked(Rpc.TMC_SetStation, (float(east), float(north), float(height), float(instrument_height)))
 
     def get_station(self) -> Tuple[float, float, float, float]:
@@ -261,5 +357,6 @@ class GeoComClient:
         return e, n, h, hi
 
     def set_orientation(self, hz_rad: float) -> None:
-        """TMC_SetOrientation: the current Hz direction becomes ``hz_rad`` (radians)."""
+        """TMC_SetOrientation: the current Hz direction becomes ``hz_rad`` (radians); refused
+        like TMC_SetStation while a distance exists."""
         self._checked(Rpc.TMC_SetOrientation, (float(hz_rad),))

@@ -1,8 +1,11 @@
 """Instrument millisecond clock → host time (seconds), online, robust to serial latency spikes.
 
-Each coordinate reply gives the instrument time ``T`` (ms) of its measurement and the host time
-``r`` (s) at which the reply's last byte arrived. The reply's own bytes take ``tx`` seconds on
-the wire (10 bits per byte at the baud rate) and the instrument needs at least ``min_latency``
+Each coordinate reply gives the instrument time ``T`` (ms) of its measurement (the angles taken
+when the request arrived: TMC_GetCoordinate's CoordContTime) and the host time ``r`` (s) at which
+the reply's last byte arrived. The reply's own bytes take ``tx`` seconds on a serial wire (10 bits
+per byte at the baud rate; 0 on a TCP link, where the reply arrives as one packet: assuming the
+serial time there would stamp early by the whole reply's wire time) and the instrument needs at
+least ``min_latency``
 seconds between the measurement and the first reply byte, so the measurement happened at host
 time ``≤ r − tx − min_latency``. Writing ``y = r − tx − T/1000`` (s), every sample satisfies
 ``y ≥ offset(T)`` and the samples with the smallest latency touch that line: the offset + drift

@@ -1,46 +1,58 @@
-"""ASCII GeoCOM framing, return codes and typed results (no I/O here).
+"""ASCII GeoCOM framing, return codes, enumerations and typed results (no I/O here).
 
-Framing (Leica GeoCOM reference manual, TPS1200/TS30/TS16/MS60 family, "ASCII protocol"):
+References: Leica "TPS1200+ GeoCOM Reference Manual" (v1.50) and the Captivate "TS/MS GeoCOM
+Reference Manual" (TS16/TS60/MS60), cited below by chapter and function name; the open clients
+geocompy 1.0 (``geocompy.geo``, PyPI) and dabamos/dmpack (``dm_geocom_api.f90``) follow the same
+numbers and parameter orders.
 
-- request ``%R1Q,<rpc>[,<trid>]:<p1>,<p2>,...`` terminated by CR LF;
-- reply ``%R1P,<comrc>[,<trid>]:<rc>[,<v1>,<v2>,...]`` terminated by CR LF.
+Framing (manual, "ASCII protocol"):
 
-``comrc`` is the communication-layer code (0 = the request reached the instrument), ``rc`` the
-return code of the procedure. Strings travel in double quotes. Parameter orders followed here
-(as used across public GeoCOM implementations such as dabamos/dmpack ``dm_geocom_api.f90``
-and the GeoCOM TPS1100 v1.07 / TPS1200 manuals):
+- request ``%R1Q,<rpc>[,<trid>[,<crc>]]:<p1>,<p2>,...`` terminated by CR LF;
+- reply ``%R1P,<comrc>,<trid>[,<crc>]:<rc>[,<v1>,<v2>,...]`` terminated by CR LF; an instrument
+  answers with the request's transaction id, 0 when the request had none.
 
-==========================  =====  ========================================  ==========================
-procedure                   rpc    request parameters                        reply values after rc
-==========================  =====  ========================================  ==========================
-COM_NullProc                0      --                                        --
-COM_GetSWVersion            110    --                                        release, version, subversion
-TMC_DoMeasure               2008   command (TMC_MEASURE_PRG), inc mode       --
-TMC_GetStation              2009   --                                        E0, N0, H0, Hi (m)
-TMC_SetStation              2010   E0, N0, H0, Hi (m)                        --
-TMC_SetEdmMode              2020   EDM_MODE                                  --
-TMC_GetPrismCorr            2023   --                                        prism constant (m)
-TMC_SetPrismCorr            2024   prism constant (m)                        --
-TMC_GetCoordinate           2082   wait time (ms), inc mode                  E, N, H (m), time (ms),
-                                                                             E, N, H (m), time (ms) cont.
-TMC_SetOrientation          2113   Hz orientation (rad)                      --
-TMC_GetSimpleCoord          2116   wait time (ms), inc mode                  E, N, H (m)
-CSV_GetInstrumentNo         5003   --                                        serial number
-CSV_GetInstrumentName       5004   --                                        "name"
-CSV_GetSWVersion            5034   --                                        release, version, subversion
-MOT_ReadLockStatus          6021   --                                        MOT_LOCK_STATUS
-AUT_LockIn                  9013   --                                        --
-BAP_SetPrismType            17008  BAP_PRISMTYPE                             --
-BAP_SetMeasPrg              17019  BAP_USER_MEASPRG                          --
-AUS_SetUserLockState        18007  ON_OFF_TYPE                               --
-==========================  =====  ========================================  ==========================
+``comrc`` is the communication-layer code (0 = the request reached the procedure; 3080
+COM_CANT_DECODE_REQ, 3081 COM_PROC_UNAVAIL, 3094 COM_NOT_GEOCOM and 3101
+COM_SRVR_RX_CHECKSUM_ERROR are answered there, the procedure's ``rc`` is then 0), ``rc`` the
+return code of the procedure. Strings travel in double quotes, bytes as ``'1A'``. The optional
+``<crc>`` is CRC-16/ARC (:func:`crc16`) of the whole line without the ``,<crc>`` field and without
+CR LF (the variant geocompy implements).
 
-Return codes (GeoCOM manual, TMC and AUT subsystems) and the classes the driver uses:
+Procedures (rpc: request parameters -> reply values after rc):
+
+- COM_NullProc 0; COM_SetDoublePrecision 107: digits; COM_GetDoublePrecision 108: -> digits;
+  COM_GetSWVersion 110: -> GeoCOM release, version, subversion;
+- TMC_GetAngle1 2003: inc mode -> Hz, V, angle accuracy, angle time, cross incline, length
+  incline, incline accuracy, incline time, face; TMC_DoMeasure 2008: TMC_MEASURE_PRG, inc mode;
+  TMC_GetStation 2009 / TMC_SetStation 2010: E0, N0, H0, Hi (m); TMC_SetEdmMode 2020 /
+  TMC_GetEdmMode 2021: EDM_MODE; TMC_GetPrismCorr 2023 / TMC_SetPrismCorr 2024: constant (m);
+  TMC_GetCoordinate 2082: wait (ms), inc mode -> E, N, H, CoordTime (ms), E, N, H continuous,
+  CoordContTime (ms); TMC_GetAngle5 2107: inc mode -> Hz, V; TMC_GetSimpleMea 2108: wait (ms), inc
+  mode -> Hz, V, slope distance; TMC_SetOrientation 2113: Hz (rad); TMC_GetSimpleCoord 2116:
+  wait, inc mode -> E, N, H; TMC_GetFullMeas 2167: wait, inc mode -> Hz, V, angle accuracy,
+  cross incline, length incline, incline accuracy, slope distance, distance time;
+- CSV_GetInstrumentNo 5003; CSV_GetInstrumentName 5004; CSV_GetDateTime 5008: -> year, 'MM',
+  'DD', 'hh', 'mm', 'ss'; CSV_GetSWVersion 5034: -> firmware release, version, subversion;
+  CSV_GetDateTimeCentiSec 5117: -> year, month, day, hour, minute, second, centisecond;
+- MOT_ReadLockStatus 6021: -> MOT_LOCK_STATUS;
+- AUT_LockIn 9013; AUT_Search 9029: Hz area, V area (rad), 0; AUT_FineAdjust 9037: Hz, V search
+  window (rad), 0; AUT_PS_SearchNext 9051: direction (1 clockwise, -1 anticlockwise), swing;
+- BAP_SetPrismType 17008 / BAP_GetPrismType 17009: BAP_PRISMTYPE; BAP_GetMeasPrg 17018 /
+  BAP_SetMeasPrg 17019: BAP_USER_MEASPRG; BAP_SetTargetType 17021 / BAP_GetTargetType 17022:
+  BAP_TARGET_TYPE;
+- AUS_SetUserAtrState 18005 / AUS_GetUserAtrState 18006, AUS_SetUserLockState 18007 /
+  AUS_GetUserLockState 18008: on/off.
+
+TMC_GetCoordinate's first coordinate and CoordTime belong to the last *distance* measurement;
+the continuous coordinate combines the angles measured for this request with that distance and
+CoordContTime is the time of those angles. With the EDM running at its own rate (tracking, about
+20 Hz) two polls can return the same distance and CoordTime.
+
+Return codes of a coordinate reply and the classes the driver uses:
 
 - 0 GRC_OK: a position, use it (:attr:`RcClass.OK`);
-- 1283 TMC_NO_FULL_CORRECTION (measurement without full correction) and 1284
-  TMC_ACCURACY_GUARANTEE (accuracy not guaranteed): the reply carries a position; keep it and
-  flag it (:attr:`RcClass.WARNING`);
+- 1283 TMC_NO_FULL_CORRECTION and 1284 TMC_ACCURACY_GUARANTEE: the reply carries a position;
+  keep it and flag it (:attr:`RcClass.WARNING`);
 - 1285 TMC_ANGLE_OK (only angles valid, no distance) ... 1294 TMC_SIGNAL_ERROR, and the lock
   codes 8710 AUT_NO_TARGET / 1799 MOT_NOT_LOCK: no usable position (:attr:`RcClass.NO_POSITION`);
 - anything else: :attr:`RcClass.ERROR`.
@@ -53,10 +65,14 @@ import math
 from typing import NamedTuple, Optional, Sequence, Tuple, Union
 
 __all__ = [
-    "GeoComProtocolError", "RcClass", "Rpc", "RC", "Request", "Reply", "CoordinateReading",
-    "classify_rc", "encode_request", "parse_request", "encode_reply", "parse_reply",
-    "split_values", "parse_coordinate", "EDM_CONT_FAST", "TMC_TRK_DIST", "TMC_STOP", "TMC_AUTO_INC",
-    "BAP_PRISM_360", "MOT_LOCKED_OUT", "MOT_LOCKED_IN", "MOT_PREDICTION",
+    "GeoComProtocolError", "Byte", "RcClass", "Rpc", "RC", "Request", "Reply", "CoordinateReading",
+    "classify_rc", "rc_name", "crc16", "format_double", "encode_request", "parse_request", "encode_reply",
+    "parse_reply", "split_values", "parse_coordinate",
+    "TMC_STOP", "TMC_DEF_DIST", "TMC_TRK_DIST", "TMC_CLEAR", "TMC_SIGNAL", "TMC_DO_MEASURE", "TMC_RTRK_DIST",
+    "TMC_RED_TRK_DIST", "TMC_FREQUENCY", "TMC_MEASURE_PRGS_TPS1200", "TMC_MEA_INC", "TMC_AUTO_INC", "TMC_PLANE_INC",
+    "BAP_CONT_REF_STANDARD", "BAP_CONT_REF_FAST", "BAP_CONT_RLESS_VISIBLE", "BAP_CONT_REF_SYNCHRO",
+    "BAP_CONTINUOUS_PRGS", "BAP_REFL_USE", "BAP_REFL_LESS", "BAP_PRISM_360", "EDM_CONT_FAST", "AUT_CLOCKWISE",
+    "AUT_ANTICLOCKWISE", "MOT_LOCKED_OUT", "MOT_LOCKED_IN", "MOT_PREDICTION", "MAX_DOUBLE_PRECISION",
 ]
 
 Param = Union[int, float, str, bool]
@@ -70,32 +86,53 @@ class Rpc(enum.IntEnum):
     """GeoCOM remote procedure numbers used by the driver and the simulator."""
 
     COM_NullProc = 0
+    COM_SetDoublePrecision = 107
+    COM_GetDoublePrecision = 108
     COM_GetSWVersion = 110
+    TMC_GetAngle1 = 2003
     TMC_DoMeasure = 2008
     TMC_GetStation = 2009
     TMC_SetStation = 2010
     TMC_SetEdmMode = 2020
+    TMC_GetEdmMode = 2021
     TMC_GetPrismCorr = 2023
     TMC_SetPrismCorr = 2024
     TMC_GetCoordinate = 2082
+    TMC_GetAngle5 = 2107
+    TMC_GetSimpleMea = 2108
     TMC_SetOrientation = 2113
     TMC_GetSimpleCoord = 2116
+    TMC_GetFullMeas = 2167
     CSV_GetInstrumentNo = 5003
     CSV_GetInstrumentName = 5004
+    CSV_GetDateTime = 5008
     CSV_GetSWVersion = 5034
+    CSV_GetDateTimeCentiSec = 5117
     MOT_ReadLockStatus = 6021
     AUT_LockIn = 9013
+    AUT_Search = 9029
+    AUT_FineAdjust = 9037
+    AUT_PS_SearchNext = 9051
     BAP_SetPrismType = 17008
+    BAP_GetPrismType = 17009
+    BAP_GetMeasPrg = 17018
     BAP_SetMeasPrg = 17019
+    BAP_SetTargetType = 17021
+    BAP_GetTargetType = 17022
+    AUS_SetUserAtrState = 18005
+    AUS_GetUserAtrState = 18006
     AUS_SetUserLockState = 18007
+    AUS_GetUserLockState = 18008
 
 
 class RC(enum.IntEnum):
-    """GeoCOM return codes the driver distinguishes (GeoCOM manual, GRC_* constants)."""
+    """GeoCOM return codes the driver and the simulator use (manual, "Return codes", GRC_*)."""
 
     OK = 0
+    UNDEFINED = 1
     IVPARAM = 2
     NOT_IMPL = 5
+    NA = 27
     TMC_NO_FULL_CORRECTION = 1283
     TMC_ACCURACY_GUARANTEE = 1284
     TMC_ANGLE_OK = 1285
@@ -109,18 +146,55 @@ class RC(enum.IntEnum):
     MOT_NOT_LOCK = 1799
     COM_CANT_DECODE_REQ = 3080
     COM_PROC_UNAVAIL = 3081
+    COM_NOT_GEOCOM = 3094
+    COM_SRVR_RX_CHECKSUM_ERROR = 3101
+    AUT_TIMEOUT = 8704
+    AUT_MOTOR_ERROR = 8707
     AUT_NO_TARGET = 8710
+    AUT_MULTIPLE_TARGETS = 8711
+    AUT_NOT_ENABLED = 8714
 
 
-# Enumerations of the GeoCOM manual used as parameters.
-EDM_CONT_FAST = 9        # EDM_MODE: continuous fast (tracking)
-TMC_STOP = 0             # TMC_MEASURE_PRG: stop measurement
-TMC_TRK_DIST = 2         # TMC_MEASURE_PRG: tracking distance
-TMC_AUTO_INC = 1         # TMC_INCLINE_PRG: automatic inclination
-BAP_PRISM_360 = 3        # BAP_PRISMTYPE: 360° prism
-MOT_LOCKED_OUT = 0       # MOT_LOCK_STATUS
+def rc_name(rc: int) -> str:
+    """``"8710 AUT_NO_TARGET"`` for a known code, the number alone otherwise."""
+    return f"{int(rc)} {RC(rc).name}" if rc in RC._value2member_map_ else str(int(rc))
+
+
+# Enumerations of the manual used as parameters.
+# TMC_MEASURE_PRG (TMC chapter, TMC_DoMeasure). TMC_TRK_DIST (2) is the TPS1100 tracking program;
+# the TPS1200+ and Captivate references no longer list it and track with TMC_RTRK_DIST (8).
+TMC_STOP = 0
+TMC_DEF_DIST = 1
+TMC_TRK_DIST = 2
+TMC_CLEAR = 3
+TMC_SIGNAL = 4
+TMC_DO_MEASURE = 6
+TMC_RTRK_DIST = 8
+TMC_RED_TRK_DIST = 10
+TMC_FREQUENCY = 11
+TMC_MEASURE_PRGS_TPS1200 = (TMC_STOP, TMC_DEF_DIST, TMC_CLEAR, TMC_SIGNAL, TMC_DO_MEASURE, TMC_RTRK_DIST,
+                            TMC_RED_TRK_DIST, TMC_FREQUENCY)
+# TMC_INCLINE_PRG
+TMC_MEA_INC = 0
+TMC_AUTO_INC = 1
+TMC_PLANE_INC = 2
+# BAP_USER_MEASPRG (BAP chapter, BAP_SetMeasPrg): the continuous (tracking) programs with a reflector
+BAP_CONT_REF_STANDARD = 4   # IR tracking
+BAP_CONT_REF_FAST = 5       # fast IR tracking (not on the TPS1200)
+BAP_CONT_RLESS_VISIBLE = 6  # reflectorless tracking
+BAP_CONT_REF_SYNCHRO = 10   # IR synchro tracking (TPS1200+ and later): angles synchronised with the EDM
+BAP_CONTINUOUS_PRGS = (BAP_CONT_REF_STANDARD, BAP_CONT_REF_FAST, BAP_CONT_RLESS_VISIBLE, BAP_CONT_REF_SYNCHRO)
+# BAP_TARGET_TYPE
+BAP_REFL_USE = 0
+BAP_REFL_LESS = 1
+BAP_PRISM_360 = 3           # BAP_PRISMTYPE: Leica 360° prism
+EDM_CONT_FAST = 9           # EDM_MODE (TMC_SetEdmMode): continuous fast
+AUT_CLOCKWISE = 1           # AUT_PS_SearchNext direction
+AUT_ANTICLOCKWISE = -1
+MOT_LOCKED_OUT = 0          # MOT_LOCK_STATUS
 MOT_LOCKED_IN = 1
 MOT_PREDICTION = 2
+MAX_DOUBLE_PRECISION = 15   # COM_SetDoublePrecision: 0..15 digits after the decimal point
 
 
 class RcClass(enum.Enum):
@@ -144,25 +218,33 @@ def classify_rc(rc: int) -> RcClass:
 
 
 class Request(NamedTuple):
-    """A parsed request: procedure number, transaction id (None when absent), raw parameters."""
+    """A parsed request: procedure number, transaction id (None when absent), raw parameters,
+    and its checksum: None when the request carried none, else whether it matched."""
 
     rpc: int
     trid: Optional[int]
     params: Tuple[str, ...]
+    crc_ok: Optional[bool] = None
 
 
 class Reply(NamedTuple):
     """A parsed reply: communication code, transaction id (None when absent), return code,
-    raw values (strings, quotes removed)."""
+    raw values (strings, quotes removed), and its checksum check (None: no checksum)."""
 
     comrc: int
     trid: Optional[int]
     rc: int
     values: Tuple[str, ...]
+    crc_ok: Optional[bool] = None
 
     @property
     def rc_class(self) -> RcClass:
         return classify_rc(self.rc)
+
+    @property
+    def code(self) -> int:
+        """The code that decides the call: the communication code when it is not 0, else rc."""
+        return self.comrc if self.comrc != 0 else self.rc
 
 
 class CoordinateReading(NamedTuple):
@@ -189,7 +271,36 @@ class CoordinateReading(NamedTuple):
         return self.rc_class in (RcClass.OK, RcClass.WARNING)
 
 
-def _format_param(value: Param) -> str:
+def crc16(text: Union[str, bytes]) -> int:
+    """CRC-16/ARC (reflected polynomial 0xA001, initial value 0) of ``text``: the GeoCOM checksum
+    as geocompy computes it over the line without its ``,<crc>`` field."""
+    data = text.encode("ascii") if isinstance(text, str) else bytes(text)
+    crc = 0
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def format_double(value: float, digits: int) -> str:
+    """A double as an instrument sends it with COM_SetDoublePrecision ``digits``: rounded to that
+    many decimals, trailing zeros dropped (one kept after the point)."""
+    if not math.isfinite(value):
+        raise GeoComProtocolError(f"value {value!r} is not a finite number")
+    if digits <= 0:
+        return str(int(round(value)))
+    text = f"{round(value, digits):.{digits}f}".rstrip("0")
+    return text + "0" if text.endswith(".") else text
+
+
+class Byte(int):
+    """A GeoCOM byte value, sent as two hexadecimal digits in single quotes (``'0C'``)."""
+
+
+def _format_param(value: Param, digits: Optional[int] = None) -> str:
+    if isinstance(value, Byte):
+        return f"'{int(value) & 0xFF:02X}'"
     if isinstance(value, bool):
         return "1" if value else "0"
     if isinstance(value, int):
@@ -197,7 +308,7 @@ def _format_param(value: Param) -> str:
     if isinstance(value, float):
         if not math.isfinite(value):
             raise GeoComProtocolError(f"parameter {value!r} is not a finite number")
-        return repr(float(value))
+        return repr(float(value)) if digits is None else format_double(value, digits)
     if isinstance(value, str):
         if any(c in value for c in '"\r\n'):
             raise GeoComProtocolError(f"string parameter {value!r} contains a quote or a line break")
@@ -205,17 +316,30 @@ def _format_param(value: Param) -> str:
     raise GeoComProtocolError(f"cannot encode parameter {value!r} of type {type(value).__name__}")
 
 
-def encode_request(rpc: int, params: Sequence[Param] = (), trid: Optional[int] = None) -> bytes:
-    """``%R1Q,<rpc>[,<trid>]:<params>\\r\\n`` as ASCII bytes."""
-    head = f"%R1Q,{int(rpc)}" if trid is None else f"%R1Q,{int(rpc)},{int(trid)}"
-    return (head + ":" + ",".join(_format_param(p) for p in params) + "\r\n").encode("ascii")
-
-
-def encode_reply(rc: int, values: Sequence[Param] = (), comrc: int = 0, trid: Optional[int] = None) -> bytes:
-    """``%R1P,<comrc>[,<trid>]:<rc>[,<values>]\\r\\n`` as ASCII bytes (the instrument's side)."""
-    head = f"%R1P,{int(comrc)}" if trid is None else f"%R1P,{int(comrc)},{int(trid)}"
-    body = ",".join([str(int(rc))] + [_format_param(v) for v in values])
+def _with_crc(prefix: str, fields: Sequence[int], body: str, crc: bool) -> bytes:
+    head = prefix + ",".join(str(int(f)) for f in fields)
+    if crc:
+        head += f",{crc16(head + ':' + body)}"
     return (head + ":" + body + "\r\n").encode("ascii")
+
+
+def encode_request(rpc: int, params: Sequence[Param] = (), trid: Optional[int] = None, crc: bool = False) -> bytes:
+    """``%R1Q,<rpc>[,<trid>[,<crc>]]:<params>\\r\\n`` as ASCII bytes (``crc`` needs a trid)."""
+    if crc and trid is None:
+        raise GeoComProtocolError("a checksum needs a transaction id")
+    fields = (rpc,) if trid is None else (rpc, trid)
+    return _with_crc("%R1Q,", fields, ",".join(_format_param(p) for p in params), crc)
+
+
+def encode_reply(rc: int, values: Sequence[Param] = (), comrc: int = 0, trid: Optional[int] = None,
+                 digits: Optional[int] = None, crc: bool = False) -> bytes:
+    """``%R1P,<comrc>[,<trid>[,<crc>]]:<rc>[,<values>]\\r\\n`` as ASCII bytes (the instrument's side);
+    floats with ``digits`` decimals (COM_SetDoublePrecision), or in full when None."""
+    if crc and trid is None:
+        raise GeoComProtocolError("a checksum needs a transaction id")
+    fields = (comrc,) if trid is None else (comrc, trid)
+    body = ",".join([str(int(rc))] + [_format_param(v, digits) for v in values])
+    return _with_crc("%R1P,", fields, body, crc)
 
 
 def split_values(text: str) -> Tuple[str, ...]:
@@ -237,7 +361,8 @@ def split_values(text: str) -> Tuple[str, ...]:
     return tuple(v.strip() for v in values)
 
 
-def _header(line: bytes, prefix: str) -> Tuple[Tuple[int, ...], str]:
+def _header(line: bytes, prefix: str) -> Tuple[Tuple[int, ...], str, Optional[bool]]:
+    """Header integers (at most 3), body text and the checksum check (None without a checksum)."""
     try:
         text = line.decode("ascii").strip()
     except UnicodeDecodeError:
@@ -251,20 +376,24 @@ def _header(line: bytes, prefix: str) -> Tuple[Tuple[int, ...], str]:
         fields = tuple(int(f) for f in head.split(","))
     except ValueError:
         raise GeoComProtocolError(f"header of {text!r} is not integers") from None
-    if len(fields) not in (1, 2):
-        raise GeoComProtocolError(f"header of {text!r} must be <code>[,<trid>]")
-    return fields, body
+    if len(fields) not in (1, 2, 3):
+        raise GeoComProtocolError(f"header of {text!r} must be <code>[,<trid>[,<crc>]]")
+    crc_ok = None
+    if len(fields) == 3:
+        unsigned = prefix + ",".join(head.split(",")[:2]) + ":" + body
+        crc_ok = fields[2] == crc16(unsigned)
+    return fields, body, crc_ok
 
 
 def parse_request(line: bytes) -> Request:
     """Parse a request line (CR LF optional). Raises GeoComProtocolError."""
-    fields, body = _header(line, "%R1Q,")
-    return Request(fields[0], fields[1] if len(fields) == 2 else None, split_values(body))
+    fields, body, crc_ok = _header(line, "%R1Q,")
+    return Request(fields[0], fields[1] if len(fields) >= 2 else None, split_values(body), crc_ok)
 
 
 def parse_reply(line: bytes) -> Reply:
     """Parse a reply line (CR LF optional). Raises GeoComProtocolError."""
-    fields, body = _header(line, "%R1P,")
+    fields, body, crc_ok = _header(line, "%R1P,")
     values = split_values(body)
     if not values:
         raise GeoComProtocolError(f"reply {line!r} has no return code")
@@ -272,7 +401,7 @@ def parse_reply(line: bytes) -> Reply:
         rc = int(values[0])
     except ValueError:
         raise GeoComProtocolError(f"return code {values[0]!r} of {line!r} is not an integer") from None
-    return Reply(fields[0], fields[1] if len(fields) == 2 else None, rc, values[1:])
+    return Reply(fields[0], fields[1] if len(fields) >= 2 else None, rc, values[1:], crc_ok)
 
 
 def parse_coordinate(reply: Reply) -> CoordinateReading:

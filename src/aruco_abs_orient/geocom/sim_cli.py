@@ -8,7 +8,7 @@ import sys
 import threading
 from typing import List, Optional
 
-from .simulator import FaultRates, Ms60Simulator, SimConfig, SimulatorError, builtin_track, tum_track
+from .simulator import MODELS, PROFILES, FaultRates, Ms60Simulator, SimConfig, SimulatorError, builtin_track, tum_track
 
 __all__ = ["main", "parse_faults"]
 
@@ -17,6 +17,13 @@ EPILOG = """examples:
       prints the pty path, e.g. /dev/pts/7; then: rosrun aruco_abs_orient ms60_driver _port:=/dev/pts/7
   aruco-abs-orient-ms60-sim --tcp 5025 --trajectory prism.tum --faults garbage=0.02,drop=0.01,lock_loss=0.05
       the driver connects with _port:=socket://127.0.0.1:5025
+  aruco-abs-orient-ms60-sim --pty --model TPS1200 --profile lenient
+      a forgiving TPS1200 without PowerSearch
+
+profiles: strict (default) checks every parameter and refuses what the TPS1200+/Captivate GeoCOM
+references refuse (TMC_DoMeasure program 2, a station while a distance exists, AUT_LockIn without LOCK
+mode or fine adjustment); its lock-in takes --lock-in-s and its EDM measures at 20 Hz. lenient accepts
+those and gives every poll a fresh distance.
 
 faults (comma-separated name=value): garbage, drop, late, warning, spike (probability per reply);
 lock_loss, link_loss (events per second, each lasting 0.3-1.5 s)."""
@@ -51,6 +58,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--jitter-ms", type=float, default=10.0, help="latency jitter ±, ms (default 10)")
     parser.add_argument("--drift-ppm", type=float, default=40.0, help="instrument clock drift, ppm (default 40)")
     parser.add_argument("--seed", type=int, default=None, help="random seed for jitter and faults")
+    parser.add_argument("--profile", choices=PROFILES, default="strict", help="instrument behaviour (default strict)")
+    parser.add_argument("--model", choices=MODELS, default="MS60",
+                        help="MS60 (PowerSearch, synchro tracking) or TPS1200 (neither); default MS60")
+    parser.add_argument("--lock-in-s", type=float, default=SimConfig().lock_in_s,
+                        help=f"duration of AUT_LockIn, s (default {SimConfig().lock_in_s})")
     parser.add_argument("--truth", metavar="CSV", help="write the truth log here on exit (t_s,instrument_ms,x,y,z,rc)")
     args = parser.parse_args(argv)
     if args.pty == (args.tcp is not None):
@@ -58,7 +70,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     try:
         faults = parse_faults(args.faults)
         config = SimConfig(baud=args.baud, latency_s=args.latency_ms / 1000.0, jitter_s=args.jitter_ms / 1000.0,
-                           clock_drift=args.drift_ppm * 1e-6, faults=faults)
+                           clock_drift=args.drift_ppm * 1e-6, faults=faults, profile=args.profile, model=args.model,
+                           lock_in_s=args.lock_in_s,
+                           name="MS60" if args.model == "MS60" else "TCRP1201+")
         track = tum_track(args.trajectory) if args.trajectory else builtin_track
         sim = Ms60Simulator(config, track, seed=args.seed)
         where = sim.serve_pty() if args.pty else f"socket://127.0.0.1:{sim.serve_tcp(args.tcp)}"
@@ -66,8 +80,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(f"aruco-abs-orient-ms60-sim: {e}", file=sys.stderr)
         return 2
     print(where, flush=True)
-    print(f"MS60 simulator at {args.baud} baud, latency {args.latency_ms}±{args.jitter_ms} ms; Ctrl-C to stop",
-          file=sys.stderr, flush=True)
+    print(f"{args.model} simulator ({args.profile}) at {args.baud} baud, "
+          f"latency {args.latency_ms}±{args.jitter_ms} ms; Ctrl-C to stop", file=sys.stderr, flush=True)
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     try:

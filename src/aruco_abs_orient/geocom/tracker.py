@@ -1,17 +1,49 @@
-"""The MS60 tracking loop: connect, lock on the prism, poll coordinates, survive faults.
+"""The MS60 tracking loop: the documented GeoCOM session for kinematic prism tracking.
 
-States: ``connecting`` (first connection and set-up), ``searching`` (AUT_LockIn until the
-instrument locks), ``locked`` (TMC_GetCoordinate at ``rate_hz``), ``lost`` (the lock dropped:
-AUT_LockIn every cycle until it succeeds), ``reconnecting`` (the link failed: reopen, set up
-again). Every position is stamped with its instrument time mapped to host time
-(:class:`~.clock.InstrumentClock`), never with the reception time. Stamps never go backwards and
-never repeat: a sample whose instrument time or stamp is not newer than the last one is dropped
-and counted. Poll slots without a published sample after the first one are counted as lost.
-The first ``warmup_samples`` positions (2 s at 20 Hz) only feed the clock fit: the lower
-envelope needs a few low-latency replies *received promptly* before its stamps can be trusted.
-On a loaded host the loop thread wakes late for some replies (their reception stamps are late by
-milliseconds); after 1 s the envelope may still rest on such replies (with 8 CPU-bound processes
-on 2 cores the first stamps were up to 3.6 ms late), after 2 s it had a prompt one (p95 < 1.1 ms).
+Session (each step cites the GeoCOM reference it follows: "RM1200" = TPS1200+ GeoCOM Reference
+Manual v1.50, "RMCap" = the Captivate TS/MS GeoCOM Reference Manual; sections by chapter and
+function name):
+
+1. connect and check: COM_NullProc (RM1200/RMCap COM chapter), CSV_GetInstrumentName,
+   CSV_GetInstrumentNo, COM_GetSWVersion (GeoCOM release), CSV_GetSWVersion (firmware) (CSV and
+   COM chapters), COM_SetDoublePrecision (COM chapter: decimals of the doubles in the replies);
+2. TMC_DoMeasure(TMC_CLEAR) (TMC chapter, TMC_DoMeasure: "TMC_STOP and clear data"): stops any
+   running program and clears the distance, which TMC_SetStation and TMC_SetOrientation require
+   (TMC chapter, TMC_SetStation / TMC_SetOrientation: distances must be cleared first);
+3. TMC_SetStation and TMC_SetOrientation when configured (TMC chapter);
+4. target and prism: BAP_SetTargetType(BAP_REFL_USE), BAP_SetPrismType, TMC_SetPrismCorr when
+   configured (BAP and TMC chapters);
+5. measurement program: BAP_SetMeasPrg(BAP_CONT_REF_SYNCHRO), synchro tracking, whose angles are
+   taken with the distance; an instrument that refuses it (IVPARAM: its firmware lacks it) gets
+   BAP_CONT_REF_STANDARD, IR tracking (BAP chapter, BAP_SetMeasPrg / BAP_USER_MEASPRG). The EDM
+   mode follows from the program; TMC_SetEdmMode is the TPS1100 interface and not used;
+6. LOCK mode: AUS_SetUserLockState(ON) (AUS chapter: LOCK mode on does not lock by itself);
+7. acquire: AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field, searching its
+   window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust);
+   without a target AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an
+   instrument without PowerSearch (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust
+   again. Motorised procedures take seconds: they get ``motion_timeout_s``. MOT_ReadLockStatus
+   confirms the lock (MOT chapter);
+8. tracking: TMC_DoMeasure(TMC_RTRK_DIST) (TMC chapter, TMC_MEASURE_PRG: "distance-TRK
+   measurement program"; TMC_TRK_DIST = 2 is TPS1100 only);
+9. poll TMC_GetCoordinate (TMC chapter): the first coordinate and CoordTime belong to the last
+   distance, the continuous coordinate and CoordContTime to this request's angles. The position
+   is stamped with CoordTime mapped to host time; the clock fit uses CoordContTime, the time of
+   a measurement made when the request arrived. A CoordTime not newer than the last one is the
+   same distance again: counted in ``duplicates``, not published.
+
+Polls follow the EDM: once its period is known (from successive CoordTimes), each poll is sent
+so that it reaches the instrument just after the next expected distance; a poll that still gets
+the old distance is repeated at once. Before that, polls run at ``rate_hz``.
+
+States: ``connecting``, ``searching`` (acquiring the prism), ``locked`` (polling), ``lost`` (the
+lock dropped: re-acquiring through step 7 and 8), ``reconnecting`` (the link failed: the session
+again), ``error`` (the instrument refused a step tracking needs, or gives no distance while
+locked: :attr:`Ms60Tracker.error` says which and what to check; the session is retried every
+``error_retry_s``), ``stopped``. Stamps never go backwards and never repeat. The first
+``warmup_samples`` positions only feed the clock fit (its lower envelope needs a few
+low-latency replies received promptly before its stamps can be trusted; on a loaded host the
+loop thread wakes late for some replies).
 """
 
 from __future__ import annotations
@@ -19,19 +51,52 @@ from __future__ import annotations
 import collections
 import contextlib
 import enum
+import statistics
 import threading
 import time
-from typing import Callable, Deque, Dict, List, NamedTuple, Optional, Tuple
+from typing import Callable, Deque, Dict, NamedTuple, Optional, Tuple
 
-from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout
+from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout, rpc_name
 from .clock import InstrumentClock
-from .protocol import BAP_PRISM_360, EDM_CONT_FAST, MOT_LOCKED_OUT, TMC_AUTO_INC, TMC_STOP, TMC_TRK_DIST, RcClass
+from .protocol import (
+    AUT_CLOCKWISE,
+    BAP_CONT_REF_STANDARD,
+    BAP_CONT_REF_SYNCHRO,
+    BAP_PRISM_360,
+    BAP_REFL_USE,
+    MOT_LOCKED_OUT,
+    RC,
+    TMC_AUTO_INC,
+    TMC_CLEAR,
+    TMC_RTRK_DIST,
+    TMC_STOP,
+    RcClass,
+    Rpc,
+    rc_name,
+)
 
-__all__ = ["TrackerError", "TrackerState", "TrackerConfig", "PrismSample", "TrackerStats", "Ms60Tracker"]
+__all__ = ["TrackerError", "TrackerState", "TrackerConfig", "PrismSample", "TrackerStats", "Ms60Tracker",
+           "DOUBLE_PRECISION", "FINE_ADJUST_WINDOW_RAD", "SEARCH_AREA_RAD"]
+
+DOUBLE_PRECISION = 6
+"""COM_SetDoublePrecision: 6 decimals (1 µm, 1 µrad) keep the coordinate replies short."""
+FINE_ADJUST_WINDOW_RAD = 0.05
+"""AUT_FineAdjust search window, Hz and V (rad, about 3°)."""
+SEARCH_AREA_RAD = (0.35, 0.17)
+"""AUT_Search area, Hz and V (rad, about 20° × 10°)."""
+_PROGRAMS = ((BAP_CONT_REF_SYNCHRO, "BAP_CONT_REF_SYNCHRO"), (BAP_CONT_REF_STANDARD, "BAP_CONT_REF_STANDARD"))
+_UNAVAILABLE = (RC.IVPARAM, RC.NOT_IMPL, RC.NA, RC.COM_PROC_UNAVAIL)
+_NO_TARGET = (RC.AUT_TIMEOUT, 8709, RC.AUT_NO_TARGET, RC.AUT_MULTIPLE_TARGETS, 8712, 8713)  # try again
+_MAX_REPOLLS = 3       # polls in a row that may repeat the old distance before one slot is given up
+_POLL_MARGIN_S = 0.003  # a poll reaches the instrument this long after the expected distance
 
 
 class TrackerError(ValueError):
     """Bad tracker settings (names the setting)."""
+
+
+class _SessionError(Exception):
+    """The instrument refused a step tracking needs (the message says which and what to do)."""
 
 
 class TrackerState(enum.Enum):
@@ -40,22 +105,28 @@ class TrackerState(enum.Enum):
     LOCKED = "locked"
     LOST = "lost"
     RECONNECTING = "reconnecting"
+    ERROR = "error"
     STOPPED = "stopped"
 
 
 class TrackerConfig(NamedTuple):
-    """``url`` pyserial URL; ``baud`` bit/s; ``rate_hz`` poll rate (Hz); ``timeout_s`` reply
-    timeout (s); ``max_timeouts`` consecutive timeouts before reconnecting; ``backoff_s`` pause
-    between reconnection attempts (s); ``prism_type`` BAP_PRISMTYPE or None (leave as is);
-    ``prism_constant_m`` additive constant (m) or None; ``station`` (E0, N0, H0, Hi) in metres
-    or None; ``orientation_rad`` Hz orientation (rad) or None; ``min_latency_s`` the
-    instrument's shortest measurement-to-reply time (s) for the clock; ``warmup_samples``
-    positions that only feed the clock before the first one is published."""
+    """``url`` pyserial URL; ``baud`` bit/s; ``rate_hz`` nominal position rate (Hz; polls follow
+    the EDM once its period is known); ``timeout_s`` reply timeout of ordinary calls (s);
+    ``motion_timeout_s`` reply timeout of the motorised ones (s); ``max_timeouts`` consecutive
+    timeouts before reconnecting; ``backoff_s`` pause between reconnection attempts (s);
+    ``prism_type`` BAP_PRISMTYPE or None (leave as is); ``prism_constant_m`` additive constant
+    (m) or None; ``station`` (E0, N0, H0, Hi) in metres or None; ``orientation_rad`` Hz
+    orientation (rad) or None; ``min_latency_s`` the instrument's shortest measurement-to-reply
+    time (s) for the clock; ``warmup_samples`` positions that only feed the clock before the
+    first one is published; ``byte_timing`` whether replies cross a serial line byte by byte
+    (None: all ports but socket://); ``no_distance_s`` how long a lock without a new distance is
+    tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s)."""
 
     url: str
     baud: int = 115200
     rate_hz: float = 20.0
     timeout_s: float = 0.3
+    motion_timeout_s: float = 30.0
     max_timeouts: int = 3
     backoff_s: float = 0.1
     prism_type: Optional[int] = BAP_PRISM_360
@@ -64,14 +135,19 @@ class TrackerConfig(NamedTuple):
     orientation_rad: Optional[float] = None
     min_latency_s: float = 0.0
     warmup_samples: int = 40
+    byte_timing: Optional[bool] = None
+    no_distance_s: float = 2.0
+    error_retry_s: float = 5.0
 
     def validate(self) -> None:
         """Raise TrackerError naming the first bad setting."""
         if not isinstance(self.url, str) or not self.url:
             raise TrackerError("port: an empty pyserial URL")
         checks = [("baud", self.baud > 0), ("rate", 0 < self.rate_hz <= 100), ("timeout", self.timeout_s > 0),
+                  ("motion_timeout", self.motion_timeout_s >= self.timeout_s),
                   ("max_timeouts", self.max_timeouts >= 1), ("backoff", self.backoff_s >= 0),
-                  ("min_latency", self.min_latency_s >= 0), ("warmup_samples", self.warmup_samples >= 0)]
+                  ("min_latency", self.min_latency_s >= 0), ("warmup_samples", self.warmup_samples >= 0),
+                  ("no_distance", self.no_distance_s > 0), ("error_retry", self.error_retry_s >= 0)]
         for name, ok in checks:
             if not ok:
                 raise TrackerError(f"{name}: value out of range")
@@ -80,9 +156,9 @@ class TrackerConfig(NamedTuple):
 
 
 class PrismSample(NamedTuple):
-    """One prism position: ``stamp_s`` host time of the measurement (s), ``east``, ``north``,
-    ``height`` (m, instrument frame = map), ``instrument_ms`` (raw counter, ms), ``rc`` (0 or a
-    warning code 1283/1284)."""
+    """One prism position: ``stamp_s`` host time of its distance measurement (s), ``east``,
+    ``north``, ``height`` (m, instrument frame = map), ``instrument_ms`` (raw counter of the
+    distance, ms), ``rc`` (0 or a warning code 1283/1284)."""
 
     stamp_s: float
     east: float
@@ -98,7 +174,8 @@ class PrismSample(NamedTuple):
 
 class TrackerStats(NamedTuple):
     """Counters and clock figures for status and diagnostics (rate in Hz, offset in s, drift
-    dimensionless)."""
+    dimensionless); ``error`` the message of the error state ("" otherwise), ``notice`` why the
+    prism is not locked ("" otherwise), ``program`` and ``search`` what the instrument accepted."""
 
     state: str
     samples: int
@@ -116,6 +193,11 @@ class TrackerStats(NamedTuple):
     clock_offset_s: float
     clock_drift: float
     instrument: str
+    error: str = ""
+    notice: str = ""
+    program: str = ""
+    search: str = ""
+    edm_period_ms: float = float("nan")
 
 
 class Ms60Tracker:
@@ -137,13 +219,21 @@ class Ms60Tracker:
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._stats_lock = threading.Lock()
-        self._last_ms: Optional[int] = None
+        self._last_ms: Optional[int] = None      # unwrapped instrument ms of the last distance
         self._last_stamp = float("-inf")
+        self._last_fresh_s = 0.0                 # host time of the last new distance
         self._clock_resets = 0
         self._recent: Deque[float] = collections.deque()
+        self._periods: Deque[int] = collections.deque(maxlen=20)
+        self._repolls = 0
         self._timeouts_in_row = 0
+        self._motion_pending = False             # a motorised call timed out: its reply may still come
+        self._retry_at = 0.0
+        self._power_search: Optional[bool] = None
         self.instrument = ""
-        self.setup_warnings: List[str] = []
+        self.error = ""
+        self.notice = ""
+        self.program = ""
         self.samples = self.lost_samples = self.timeouts = self.duplicates = self.out_of_order = 0
         self.reconnects = self.relocks = 0
         self.warnings: Dict[int, int] = {}
@@ -160,7 +250,7 @@ class Ms60Tracker:
         close the port."""
         self._stop.set()
         if self._thread is not None:
-            self._thread.join(timeout=5.0)
+            self._thread.join(timeout=self.config.motion_timeout_s + 5.0)
         if self._client is not None and self.state in (TrackerState.LOCKED, TrackerState.LOST, TrackerState.SEARCHING):
             with contextlib.suppress(GeoComError):  # leave the instrument idle
                 self._client.do_measure(TMC_STOP, TMC_AUTO_INC)
@@ -169,21 +259,9 @@ class Ms60Tracker:
 
     def run(self) -> None:
         """The loop (blocks until :meth:`stop`)."""
-        period = 1.0 / self.config.rate_hz
-        next_tick = time.time()
         while not self._stop.is_set():
-            delivered = self._cycle()
-            next_tick += period
-            now = time.time()
-            slots = 1
-            if now > next_tick:  # overran: skip the missed slots instead of bursting
-                missed = int((now - next_tick) / period)
-                slots += missed
-                next_tick += missed * period
-            if self.samples > 0:
-                with self._stats_lock:
-                    self.lost_samples += max(0, slots - delivered)
-            self._stop.wait(max(0.0, next_tick - time.time()))
+            next_s = self._cycle()
+            self._stop.wait(max(0.0, next_s - time.time()))
 
     def _set_state(self, state: TrackerState) -> None:
         if state != self.state:
@@ -198,30 +276,58 @@ class Ms60Tracker:
             self._client.close()
             self._client = None
 
-    # --- one cycle per poll slot -------------------------------------------------------------
-    def _cycle(self) -> int:
-        """Do the current state's work; returns the number of samples published (0 or 1)."""
+    @property
+    def edm_period_ms(self) -> Optional[float]:
+        """The EDM's period (instrument ms) from recent successive distances, or None."""
+        if len(self._periods) < 3:
+            return None
+        base = min(self._periods)
+        return statistics.median(d / max(1, round(d / base)) for d in self._periods)
+
+    # --- one cycle ---------------------------------------------------------------------------
+    def _cycle(self) -> float:
+        """Do the current state's work; returns the host time of the next cycle (s)."""
+        now = time.time()
+        period = 1.0 / self.config.rate_hz
         try:
-            if self.state in (TrackerState.CONNECTING, TrackerState.RECONNECTING):
+            if self.state == TrackerState.ERROR:
+                if now < self._retry_at:
+                    return self._retry_at
+                self._connect()
+            elif self.state in (TrackerState.CONNECTING, TrackerState.RECONNECTING):
                 self._connect()
             elif self.state in (TrackerState.SEARCHING, TrackerState.LOST):
-                self._lock_in()
+                self._acquire()
+                return max(now + period, time.time())
             elif self.state == TrackerState.LOCKED:
                 return self._poll()
+        except _SessionError as e:
+            self._fail(str(e))
         except GeoComTimeout:
             with self._stats_lock:
                 self.timeouts += 1
             self._timeouts_in_row += 1
-            if self._timeouts_in_row >= self.config.max_timeouts and self.state != TrackerState.CONNECTING:
+            if self._motion_pending or (self._timeouts_in_row >= self.config.max_timeouts
+                                        and self.state not in (TrackerState.CONNECTING, TrackerState.ERROR)):
                 self._reconnect()
         except GeoComLinkError:
-            if self.state != TrackerState.CONNECTING:
+            if self.state not in (TrackerState.CONNECTING, TrackerState.ERROR):
                 self._reconnect()
             else:
-                self._stop.wait(self.config.backoff_s)
+                self._close_client()
+                return time.time() + self.config.backoff_s
         except (GeoComError, ValueError):  # malformed reply content: skip this slot
             pass
-        return 0
+        return max(now + period, time.time()) if self.state == TrackerState.LOCKED else time.time()
+
+    def _fail(self, message: str) -> None:
+        self.error = message
+        self._retry_at = time.time() + self.config.error_retry_s
+        if self._client is not None:
+            with contextlib.suppress(GeoComError):
+                self._client.do_measure(TMC_STOP, TMC_AUTO_INC)
+        self._close_client()
+        self._set_state(TrackerState.ERROR)
 
     def _reconnect(self) -> None:
         self._close_client()
@@ -231,48 +337,161 @@ class Ms60Tracker:
                 self.reconnects += 1
         self._set_state(TrackerState.RECONNECTING)
 
+    def _required(self, step: str, call: Callable[[], object], hint: str) -> None:
+        """Run a session step; a refusal raises _SessionError naming the step, the code and ``hint``."""
+        try:
+            call()
+        except GeoComRcError as e:
+            raise _SessionError(f"{step} refused: {rpc_name(e.rpc)} returned {rc_name(e.rc)}; {hint}") from None
+
     def _connect(self) -> None:
+        """Session steps 1-6 (see the module docstring), then acquisition or tracking."""
         self._close_client()
         c = self.config
         try:
-            client = self._factory(c.url, c.baud, c.timeout_s)
+            client = self._factory(c.url, c.baud, c.timeout_s, c.byte_timing)
         except GeoComLinkError:
             self._stop.wait(c.backoff_s)
             return
         self._client = client
-        client.null_proc(timeout_s=min(c.timeout_s, 0.2))
+        # a motorised call that timed out may still be running: this waits for the instrument to
+        # be free (its late reply is discarded by transaction id) instead of queueing requests
+        client.null_proc(timeout_s=c.motion_timeout_s if self._motion_pending else min(c.timeout_s, 0.2))
+        self._motion_pending = False
         self._timeouts_in_row = 0
         if not self.instrument:
-            self.instrument = f"{client.instrument_name()} #{client.instrument_number()} fw {client.firmware_version()}"
-        optional = [
-            (c.prism_type is not None, lambda: client.set_prism_type(c.prism_type)),
-            (c.prism_constant_m is not None, lambda: client.set_prism_constant(c.prism_constant_m)),
-            (c.station is not None, lambda: client.set_station(*c.station)),
-            (c.orientation_rad is not None, lambda: client.set_orientation(c.orientation_rad)),
-            (True, lambda: client.set_user_lock_state(True)),
-            (True, lambda: client.set_edm_mode(EDM_CONT_FAST)),
-            (True, lambda: client.do_measure(TMC_TRK_DIST, TMC_AUTO_INC)),
-        ]
-        for wanted, call in optional:
-            if wanted:
-                try:
-                    call()
-                except GeoComRcError as e:  # an instrument without this feature: carry on
-                    if str(e) not in self.setup_warnings:
-                        self.setup_warnings.append(str(e))
-        locked = client.lock_status() != MOT_LOCKED_OUT
-        self._set_state(TrackerState.LOCKED if locked else TrackerState.SEARCHING)
+            self.instrument = (f"{client.instrument_name()} #{client.instrument_number()} "
+                               f"fw {client.firmware_version()} GeoCOM {client.geocom_version()}")
+        self._required("double precision", lambda: client.set_double_precision(DOUBLE_PRECISION),
+                       "the instrument does not accept COM_SetDoublePrecision")
+        self._required("clearing the distance", lambda: client.do_measure(TMC_CLEAR, TMC_AUTO_INC),
+                       "the instrument is busy: stop any measurement on its keyboard")
+        if c.station is not None:
+            self._required("station", lambda: client.set_station(*c.station),
+                           "check the station parameters; the instrument refuses a station while a distance exists")
+        if c.orientation_rad is not None:
+            self._required("orientation", lambda: client.set_orientation(c.orientation_rad),
+                           "check station/orientation_deg")
+        self._required("target type", lambda: client.set_target_type(BAP_REFL_USE),
+                       "the instrument cannot measure to a reflector")
+        if c.prism_type is not None:
+            self._required("prism type", lambda: client.set_prism_type(c.prism_type),
+                           "the prism type is unknown to this instrument")
+        if c.prism_constant_m is not None:
+            self._required("prism constant", lambda: client.set_prism_constant(c.prism_constant_m),
+                           "check prism_constant_mm")
+        self._set_program(client)
+        self._required("LOCK mode", lambda: client.set_user_lock_state(True),
+                       "the instrument has no ATR/LOCK (or no GeoCOM robotic licence)")
+        self.error = ""
+        if client.lock_status() != MOT_LOCKED_OUT:   # still locked (a reconnection): track at once
+            self._start_tracking(client)
+        else:
+            self._set_state(TrackerState.SEARCHING)
 
-    def _lock_in(self) -> None:
-        assert self._client is not None
-        if self._client.lock_in() == 0:
-            self._timeouts_in_row = 0
-            if self.state == TrackerState.LOST:
-                with self._stats_lock:
-                    self.relocks += 1
-            self._set_state(TrackerState.LOCKED)
+    def _set_program(self, client: GeoComClient) -> None:
+        """Step 5: the first continuous program the instrument accepts."""
+        refusals = []
+        for program, name in _PROGRAMS:
+            try:
+                client.set_meas_prg(program)
+            except GeoComRcError as e:
+                if e.rc not in _UNAVAILABLE:
+                    raise _SessionError(f"measurement program refused: BAP_SetMeasPrg({name}) returned "
+                                        f"{rc_name(e.rc)}") from None
+                refusals.append(f"{name}: {rc_name(e.rc)}")
+                continue
+            self.program = name
+            return
+        raise _SessionError("no continuous measurement program: BAP_SetMeasPrg refused " + ", ".join(refusals)
+                            + "; the instrument cannot track a prism")
 
-    def _poll(self) -> int:
+    def _acquire(self) -> None:
+        """Step 7 and 8: fine adjust, search if there is no target, lock in, start tracking."""
+        client = self._client
+        assert client is not None
+        rc = self._motion(Rpc.AUT_FineAdjust, lambda t: client.fine_adjust(FINE_ADJUST_WINDOW_RAD,
+                                                                          FINE_ADJUST_WINDOW_RAD, t))
+        if rc in _NO_TARGET:
+            if not self._search(client):
+                return
+            rc = self._motion(Rpc.AUT_FineAdjust, lambda t: client.fine_adjust(FINE_ADJUST_WINDOW_RAD,
+                                                                              FINE_ADJUST_WINDOW_RAD, t))
+        if rc in _NO_TARGET:
+            self.notice = f"prism not found: AUT_FineAdjust returned {rc_name(rc)}"
+            return
+        if rc != 0:
+            raise _SessionError(f"fine adjustment refused: AUT_FineAdjust returned {rc_name(rc)}; the instrument "
+                                "needs motorisation, ATR and the GeoCOM robotic licence")
+        rc = self._motion(Rpc.AUT_LockIn, client.lock_in)
+        if rc == RC.AUT_NOT_ENABLED:
+            raise _SessionError("lock-in refused: AUT_LockIn returned 8714 AUT_NOT_ENABLED; LOCK mode is off "
+                                "(switch it on, or check that nothing switches it off on the instrument)")
+        if rc in _NO_TARGET:
+            self.notice = f"lock-in failed: AUT_LockIn returned {rc_name(rc)}"
+            return
+        if rc != 0:
+            raise _SessionError(f"lock-in refused: AUT_LockIn returned {rc_name(rc)}")
+        if client.lock_status() == MOT_LOCKED_OUT:
+            self.notice = "AUT_LockIn succeeded but MOT_ReadLockStatus says locked out"
+            return
+        if self.state == TrackerState.LOST:
+            with self._stats_lock:
+                self.relocks += 1
+        self._start_tracking(client)
+
+    def _search(self, client: GeoComClient) -> bool:
+        """PowerSearch, or AUT_Search on an instrument without it; True when a prism was found."""
+        if self._power_search is not False:
+            rc = self._motion(Rpc.AUT_PS_SearchNext, lambda t: client.power_search_next(AUT_CLOCKWISE, False, t))
+            if rc in _UNAVAILABLE:
+                self._power_search = False
+            else:
+                self._power_search = True
+                name = "AUT_PS_SearchNext"
+        if self._power_search is False:
+            rc = self._motion(Rpc.AUT_Search, lambda t: client.search(*SEARCH_AREA_RAD, t))
+            name = "AUT_Search"
+        if rc in _NO_TARGET:
+            self.notice = f"prism not found: {name} returned {rc_name(rc)}"
+            return False
+        if rc != 0:
+            raise _SessionError(f"search refused: {name} returned {rc_name(rc)}; the instrument needs "
+                                "motorisation and ATR")
+        return True
+
+    def _motion(self, rpc: int, call: Callable[[float], int]) -> int:
+        """A motorised call with the motion timeout; a timeout marks it pending (see _connect)."""
+        try:
+            return call(self.config.motion_timeout_s)
+        except GeoComTimeout:
+            self._motion_pending = True
+            raise
+
+    def _start_tracking(self, client: GeoComClient) -> None:
+        """Step 8."""
+        self._required("tracking", lambda: client.do_measure(TMC_RTRK_DIST, TMC_AUTO_INC),
+                       f"the instrument does not track with TMC_RTRK_DIST and {self.program}")
+        self.notice = ""
+        self._last_fresh_s = time.time()
+        self._repolls = 0
+        self._set_state(TrackerState.LOCKED)
+
+    # --- polling -------------------------------------------------------------------------------
+    def _next_poll_s(self) -> float:
+        """Host time to send the next poll: just after the next expected distance, or one
+        ``rate_hz`` period from now while the EDM's period is unknown."""
+        period_ms = self.edm_period_ms
+        now = time.time()
+        if period_ms is None or self._last_ms is None or not self.clock.ready:
+            return now + 1.0 / self.config.rate_hz
+        due = self.clock.to_host(self._last_ms + period_ms) + _POLL_MARGIN_S
+        if due < now:  # at least one distance was missed: aim at the next one to come
+            due += period_ms / 1000.0 * (1 + int((now - due) / (period_ms / 1000.0)))
+        return due
+
+    def _poll(self) -> float:
+        """Step 9; returns the host time of the next poll."""
         assert self._client is not None
         timed = self._client.get_coordinate(0, TMC_AUTO_INC)
         self._timeouts_in_row = 0
@@ -281,25 +500,46 @@ class Ms60Tracker:
             with self._stats_lock:
                 self.no_position[r.rc] = self.no_position.get(r.rc, 0) + 1
             if r.rc_class == RcClass.NO_POSITION and self._client.lock_status() == MOT_LOCKED_OUT:
+                self.notice = f"lock lost (TMC_GetCoordinate returned {rc_name(r.rc)})"
                 self._set_state(TrackerState.LOST)
-            return 0
+                return time.time()
+            self._check_distance_age(r.rc)
+            return time.time() + 1.0 / self.config.rate_hz
         with self._stats_lock:
-            t_ms = self.clock.add(r.time_ms, timed.received_s, timed.reply_tx_s)
-            stamp = self.clock.to_host(t_ms)
+            cont_ms = self.clock.add(r.cont_time_ms, timed.received_s, timed.reply_tx_s)
         if self.clock.resets != self._clock_resets:  # instrument restarted: its clock began anew
             self._clock_resets = self.clock.resets
             self._last_ms = None
+            self._periods.clear()
+        t_ms = cont_ms - (r.cont_time_ms - r.time_ms) % self.clock.wrap_ms
         if self._last_ms is not None and t_ms <= self._last_ms:
             with self._stats_lock:
                 self.duplicates += 1
-            return 0
+            self._repolls += 1
+            self._check_distance_age(r.rc)
+            if self._repolls <= _MAX_REPOLLS:
+                return time.time()   # the old distance: the new one is due any moment
+            self._repolls = 0
+            return time.time() + 1.0 / self.config.rate_hz
+        self._repolls = 0
+        self._last_fresh_s = time.time()
+        if self._last_ms is not None:
+            gap = t_ms - self._last_ms
+            period = self.edm_period_ms
+            if period is not None:
+                with self._stats_lock:
+                    self.lost_samples += max(0, round(gap / period) - 1)
+            if gap < 1000:
+                self._periods.append(gap)
         self._last_ms = t_ms
         if len(self.clock) <= self.config.warmup_samples:
-            return 0
+            return self._next_poll_s()
+        with self._stats_lock:
+            stamp = self.clock.to_host(t_ms)
         if stamp <= self._last_stamp:
             with self._stats_lock:
                 self.out_of_order += 1
-            return 0
+            return self._next_poll_s()
         self._last_stamp = stamp
         sample = PrismSample(stamp, r.east, r.north, r.height, r.time_ms, r.rc)
         with self._stats_lock:
@@ -312,7 +552,15 @@ class Ms60Tracker:
                 self._recent.popleft()
         if self.on_sample is not None:
             self.on_sample(sample)
-        return 1
+        return self._next_poll_s()
+
+    def _check_distance_age(self, rc: int) -> None:
+        """Locked, yet no new distance for ``no_distance_s``: the EDM does not track."""
+        age = time.time() - self._last_fresh_s
+        if age > self.config.no_distance_s:
+            raise _SessionError(f"locked on the prism but no new distance for {age:.1f} s (TMC_GetCoordinate "
+                                f"returned {rc_name(rc)}): the EDM does not track; check the target type "
+                                f"(reflector), the prism and the measurement program ({self.program})")
 
     # --- reporting ---------------------------------------------------------------------------
     def stats(self, window_s: float = 5.0) -> TrackerStats:
@@ -327,6 +575,10 @@ class Ms60Tracker:
             stale = self._stale + (client.stale_replies if client else 0)
             offset = self.clock.offset_s if self.clock.ready else float("nan")
             drift = self.clock.drift if self.clock.ready else float("nan")
+            search = {None: "", True: "AUT_PS_SearchNext", False: "AUT_Search"}[self._power_search]
+            period = self.edm_period_ms
             return TrackerStats(self.state.value, self.samples, self.lost_samples, rate, dict(self.warnings),
                                 dict(self.no_position), self.timeouts, self.duplicates, self.out_of_order,
-                                self.reconnects, self.relocks, garbage, stale, offset, drift, self.instrument)
+                                self.reconnects, self.relocks, garbage, stale, offset, drift, self.instrument,
+                                self.error, self.notice, self.program, search,
+                                float("nan") if period is None else float(period))

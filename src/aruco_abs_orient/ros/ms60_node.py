@@ -5,22 +5,28 @@ Publishes
   position (m); the stamp is the instrument's measurement time mapped to ROS time, never the
   reception time;
 - ``ms60/status`` (std_msgs/String, 1 Hz): a JSON object with the tracker's figures: ``state``
-  (connecting/searching/locked/lost/reconnecting), ``samples``, ``lost_samples``, ``rate_hz``,
-  ``warnings`` and ``no_position`` (counts per GeoCOM return code), ``timeouts``,
-  ``duplicates``, ``out_of_order``, ``reconnects``, ``relocks``, ``garbage_bytes``,
-  ``stale_replies``, ``clock_offset_s``, ``clock_drift_ppm``, ``instrument``;
+  (connecting/searching/locked/lost/reconnecting/error), ``error`` (why, in the error state),
+  ``notice`` (why the prism is not locked), ``program`` and ``search`` (what the instrument
+  accepted), ``samples``, ``lost_samples``, ``rate_hz``, ``warnings`` and ``no_position`` (counts
+  per GeoCOM return code), ``timeouts``, ``duplicates``, ``out_of_order``, ``reconnects``,
+  ``relocks``, ``garbage_bytes``, ``stale_replies``, ``clock_offset_s``, ``clock_drift_ppm``,
+  ``edm_period_ms``, ``instrument``;
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): the same figures as key/values;
   level OK when locked at ≥ 90 % of ``~rate``, WARN while searching/lost or slower, ERROR while
-  (re)connecting.
+  (re)connecting or in the error state (the message is the error).
 
 Private parameters (each checked; a bad one ends the node with one line and exit status 2):
 ``~port`` pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``), ``~baud``
-(115200), ``~rate`` (Hz, 20), ``~timeout`` (s, 0.3), ``~frame_id`` (map), ``~prism_constant_mm``
-(optional), ``~min_latency_ms`` (the instrument's shortest measurement-to-reply time, 0),
-``~station/x``, ``~station/y``, ``~station/z``, ``~station/instrument_height`` (m, optional, all
-of x, y, z together) and ``~station/orientation_deg`` (optional).
+(115200), ``~rate`` (Hz, 20), ``~timeout`` (s, 0.3), ``~motion_timeout`` (s, 30),
+``~byte_timing`` (replies cross a serial line byte by byte; default true except for
+``socket://``), ``~frame_id`` (map), ``~prism_constant_mm`` (optional), ``~min_latency_ms`` (the
+instrument's shortest measurement-to-reply time, 0), ``~station/x``, ``~station/y``,
+``~station/z``, ``~station/instrument_height`` (m, optional, all of x, y, z together) and
+``~station/orientation_deg`` (optional).
 
-Without a ROS master the node ends with one line (where it looked for one) and exit status 1.
+Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
+master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
+a live instrument's stamps are wall-clock times.
 """
 
 from __future__ import annotations
@@ -28,7 +34,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-import time
 from typing import Any, Dict, Tuple
 
 import rospy
@@ -36,7 +41,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import String
 
-from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerStats
+from ..geocom.client import default_byte_timing
+from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 from . import exit_without_master
 
 __all__ = ["config_from_params", "stats_to_json", "main"]
@@ -73,6 +79,12 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     timeout = _number(params, "timeout", 0.3)
     if not 0 < timeout <= 10:
         raise TrackerError(f"~timeout: {timeout} s is not in (0, 10]")
+    motion_timeout = _number(params, "motion_timeout", 30.0)
+    if not 5 <= motion_timeout <= 300:
+        raise TrackerError(f"~motion_timeout: {motion_timeout} s is not in [5, 300] (a PowerSearch takes seconds)")
+    byte_timing = params.get("byte_timing", default_byte_timing(port))
+    if not isinstance(byte_timing, bool):
+        raise TrackerError(f"~byte_timing: expected true or false, got {byte_timing!r}")
     prism_mm = _number(params, "prism_constant_mm")
     if prism_mm is not None and not -1000 < prism_mm < 1000:
         raise TrackerError(f"~prism_constant_mm: {prism_mm} mm is not within ±1000 mm")
@@ -95,7 +107,8 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
         station = (xyz[0], xyz[1], xyz[2], hi)
     orientation_deg = _number(station_params, "orientation_deg", prefix="station/")
     config = TrackerConfig(
-        url=port.strip(), baud=baud, rate_hz=rate, timeout_s=timeout,
+        url=port.strip(), baud=baud, rate_hz=rate, timeout_s=timeout, motion_timeout_s=motion_timeout,
+        byte_timing=byte_timing,
         prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
         orientation_rad=None if orientation_deg is None else math.radians(orientation_deg),
         min_latency_s=min_latency_ms / 1000.0)
@@ -109,6 +122,7 @@ def stats_to_json(stats: TrackerStats) -> str:
     d["clock_drift_ppm"] = None if math.isnan(stats.clock_drift) else stats.clock_drift * 1e6
     del d["clock_drift"]
     d["clock_offset_s"] = None if math.isnan(stats.clock_offset_s) else stats.clock_offset_s
+    d["edm_period_ms"] = None if math.isnan(stats.edm_period_ms) else stats.edm_period_ms
     d["warnings"] = {str(k): v for k, v in stats.warnings.items()}
     d["no_position"] = {str(k): v for k, v in stats.no_position.items()}
     return json.dumps(d, sort_keys=True)
@@ -116,10 +130,13 @@ def stats_to_json(stats: TrackerStats) -> str:
 
 def _diagnostics(stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
     status = DiagnosticStatus(name="ms60_driver: prism tracking", hardware_id=stats.instrument or "MS60")
-    if stats.state in ("connecting", "reconnecting", "stopped"):
+    if stats.state == "error":
+        status.level, status.message = DiagnosticStatus.ERROR, stats.error
+    elif stats.state in ("connecting", "reconnecting", "stopped"):
         status.level, status.message = DiagnosticStatus.ERROR, f"no link to the instrument ({stats.state})"
     elif stats.state != "locked":
-        status.level, status.message = DiagnosticStatus.WARN, f"prism not locked ({stats.state})"
+        status.level = DiagnosticStatus.WARN
+        status.message = f"prism not locked ({stats.state})" + (f": {stats.notice}" if stats.notice else "")
     elif stats.rate_hz < 0.9 * rate_hz:
         status.level, status.message = DiagnosticStatus.WARN, f"locked, slow: {stats.rate_hz:.1f} Hz"
     else:
@@ -130,9 +147,17 @@ def _diagnostics(stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
     return status
 
 
+SIM_TIME_MESSAGE = ("ms60_driver: /use_sim_time is true on this master (a bag replay such as postprocess.launch "
+                    "left it set); a live instrument is stamped with wall-clock time: run "
+                    "`rosparam set /use_sim_time false` and start the driver again")
+
+
 def main() -> None:
     exit_without_master("ms60_driver", "ms60.launch")
     rospy.init_node("ms60_driver")
+    if rospy.get_param("/use_sim_time", False):
+        rospy.logfatal(SIM_TIME_MESSAGE)
+        sys.exit(2)
     try:
         config, frame_id = config_from_params(rospy.get_param("~", {}))
     except TrackerError as e:
@@ -144,14 +169,19 @@ def main() -> None:
 
     def on_sample(sample: PrismSample) -> None:
         msg = PointStamped()
-        # instrument time → host wall time (clock fit) → ROS time (equal unless sim time runs)
-        msg.header.stamp = rospy.Time.from_sec(sample.stamp_s + (rospy.get_time() - time.time()))
+        # instrument time → host wall time (clock fit) = ROS time (sim time is refused at start-up)
+        msg.header.stamp = rospy.Time.from_sec(sample.stamp_s)
         msg.header.frame_id = frame_id
         msg.point.x, msg.point.y, msg.point.z = sample.east, sample.north, sample.height
         prism_pub.publish(msg)
 
-    tracker = Ms60Tracker(config, on_sample=on_sample,
-                          on_state=lambda s: rospy.loginfo(f"ms60_driver: {s.value} ({config.url})"))
+    def on_state(state: TrackerState) -> None:
+        if state == TrackerState.ERROR:
+            rospy.logerr(f"ms60_driver: error: {tracker.error}")
+        else:
+            rospy.loginfo(f"ms60_driver: {state.value} ({config.url})")
+
+    tracker = Ms60Tracker(config, on_sample=on_sample, on_state=on_state)
 
     def report(_event) -> None:
         stats = tracker.stats()
