@@ -106,10 +106,17 @@ def test_starts_while_moving_from_two_markers_not_from_one():
     errs = Drive(2, 6.0, still=0.0).run(g)
     assert g.initialised and errs[0][0] <= 0.3
     assert abs(errs[-1][1]) < math.radians(0.1) and errs[-1][2] < 0.01
-    # one marker alone while moving (a moved marker or a false id could be all there is): it waits and says why
+    # one marker alone while moving starts only once the prism track (0.5 m) confirms it...
     f = MapOdomFilter(PRISM_IN_BASE)
-    Drive(2, 6.0, still=0.0).run(f, marker_ids=(3,))
-    assert not f.initialised and "1 marker(s)" in f.stats.waiting_reason
+    errs = Drive(2, 6.0, still=0.0).run(f, marker_ids=(3,))
+    assert f.initialised and 0.4 <= errs[0][0] <= 1.0 and abs(errs[0][1]) < math.radians(0.5)
+    # ...so a false id or a moved marker, 5° off, all there is in view, never starts it, and it says why
+    f = MapOdomFilter(PRISM_IN_BASE)
+    d = Drive(2, 6.0, still=0.0)
+    for k, tk in enumerate(d.t):
+        f.add_prism(tk, d.prism(k), SIGMA_PRISM, d.odom_T_base[k])
+        f.add_yaw(tk, d.yaw(k) + math.radians(5.0), SIGMA_YAW, d.odom_T_base[k], marker_id=3)
+    assert not f.initialised and "prism track" in f.stats.waiting_reason
     f = MapOdomFilter(PRISM_IN_BASE, FilterParams(require_standstill=True))
     Drive(2, 6.0, still=0.0).run(f)
     assert not f.initialised and "standstill" in f.stats.waiting_reason
