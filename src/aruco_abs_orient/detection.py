@@ -51,10 +51,13 @@ __all__ = [
     "marker_angular_size",
     "bearing_sigma",
     "refine_corners",
+    "refine_corners_many",
     "decode_marker",
+    "decode_markers",
     "refine_quad",
     "refine_quads",
     "decode_quad",
+    "decode_quads",
     "dedupe_observations",
     "image_sampler",
     "RESCUE_SHRINK",
@@ -321,20 +324,30 @@ def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: 
     return float(pitch * params.corner_sigma_px * grow * scale / 2.0)
 
 
-def _marker_view(equirect: Equirect, corners) -> Tuple[GnomonicView, np.ndarray]:
-    """A virtual gnomonic view centred on a marker at the equirect's resolution (nothing is
-    rendered) and the marker's corner pixels (4, 2) in it; None pixels if a corner is behind."""
-    c = np.asarray(corners, dtype=float)
-    view = GnomonicView(sphere_centre_bearing(c), (1, 1), 1.0 / equirect.rad_per_px, None)
-    x, y, front = view.bearing_to_pixel(c)
-    return view, (np.stack([x, y], axis=1) if np.all(front) else None)
+def _marker_views(equirect: Equirect, corners) -> Tuple[List[GnomonicView], np.ndarray]:
+    """Virtual gnomonic views (M,) centred on markers (corner bearings (M, 4, 3)) at the
+    equirect's resolution (nothing is rendered) and the markers' corner pixels (M, 4, 2) in
+    them; NaN pixels for a marker with a corner behind its view."""
+    c = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+    views = [GnomonicView(centre, (1, 1), 1.0 / equirect.rad_per_px, None) for centre in sphere_centre_bearing(c)]
+    q = np.full((len(c), 4, 2), np.nan)
+    for k, (view, ck) in enumerate(zip(views, c)):
+        x, y, front = view.bearing_to_pixel(ck)
+        if np.all(front):
+            q[k] = np.stack([x, y], axis=1)
+    return views, q
 
 
-def _sample(grey: np.ndarray, equirect: Equirect, view: GnomonicView, pts: np.ndarray) -> np.ndarray:
-    """Bilinear grey levels of the equirect at view pixels ``pts`` (..., 2)."""
-    u, v = equirect.bearing_to_pixel(view.pixel_to_bearing(pts[..., 0], pts[..., 1]))
-    np.clip(v, 0.0, equirect.height - 1.0, out=v)
-    return _remap_points(grey, u, v, cv2.BORDER_WRAP)
+def _views_sampler(grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView]):
+    """``sample(pts)`` of :func:`refine_quads`/:func:`decode_quads` for points (M, ..., 2) in
+    the pixels of M virtual views (:func:`_marker_views`): bilinear grey levels of the
+    equirect, sampled through camera.py's mappings in one remap."""
+    def sample(pts: np.ndarray) -> np.ndarray:
+        b = np.stack([view.pixel_to_bearing(p[..., 0], p[..., 1]) for view, p in zip(views, pts)])
+        u, v = equirect.bearing_to_pixel(b)
+        np.clip(v, 0.0, equirect.height - 1.0, out=v)
+        return _remap_points(grey, u, v, cv2.BORDER_WRAP)
+    return sample
 
 
 def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
@@ -360,11 +373,23 @@ def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
     (one bilinear interpolation, through camera.py's mappings).
     ``bits``: cells across the marker including its black border (6 for 4×4 dictionaries).
     """
-    view, q = _marker_view(equirect, corners)
-    if q is None:
-        return None
-    q = refine_quad(lambda pts: _sample(grey, equirect, view, pts), q, bits, iterations)
-    return None if q is None else view.pixel_to_bearing(q[:, 0], q[:, 1])
+    r = refine_corners_many(grey, equirect, np.asarray(corners, dtype=float)[None], bits, iterations)[0]
+    return None if np.isnan(r).any() else r
+
+
+def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
+                        iterations: int = 2) -> np.ndarray:
+    """:func:`refine_corners` of M markers (corner bearings (M, 4, 3)) at once, each in its
+    own virtual view, all profiles sampled in one remap: (M, 4, 3), NaN rows for failures."""
+    views, q = _marker_views(equirect, corners)
+    out = np.full((len(q), 4, 3), np.nan)
+    sel = np.flatnonzero(~np.isnan(q).any(axis=(1, 2)))
+    if len(sel):
+        r = refine_quads(_views_sampler(grey, equirect, [views[k] for k in sel]), q[sel], bits, iterations)
+        for k, rk in zip(sel, r):
+            if not np.isnan(rk).any():
+                out[k] = views[k].pixel_to_bearing(rk[:, 0], rk[:, 1])
+    return out
 
 
 def refine_quad(sample, q: np.ndarray, bits: int = 6, iterations: int = 2, **kw) -> Optional[np.ndarray]:
@@ -444,12 +469,25 @@ def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarr
     gnomonic view centred on the quad (exact homography for a planar marker), sampling the
     equirect through camera.py's mappings.
     """
-    view, q = _marker_view(equirect, corners)
-    if q is None:
-        return None
-    hit = decode_quad(lambda pts: _sample(grey, equirect, view, pts), q, codes, min_contrast, min_correlation,
-                      min_lead, min_pattern_correlation)
-    return None if hit is None else (hit[0], view.pixel_to_bearing(hit[1][:, 0], hit[1][:, 1]))
+    return decode_markers(grey, equirect, np.asarray(corners, dtype=float)[None], codes, min_contrast,
+                          min_correlation, min_lead, min_pattern_correlation)[0]
+
+
+def decode_markers(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
+                   min_contrast: float = 40.0, min_correlation: float = 0.75, min_lead: float = 0.15,
+                   min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
+    """:func:`decode_marker` of M candidate quads (corner bearings (M, 4, 3)) at once, all
+    cells sampled in one remap: one ``(id, corner bearings)`` or None per quad."""
+    views, q = _marker_views(equirect, corners)
+    out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(q)
+    sel = np.flatnonzero(~np.isnan(q).any(axis=(1, 2)))
+    if len(sel):
+        hits = decode_quads(_views_sampler(grey, equirect, [views[k] for k in sel]), q[sel], codes, min_contrast,
+                            min_correlation, min_lead, min_pattern_correlation)
+        for k, hit in zip(sel, hits):
+            if hit is not None:
+                out[k] = (hit[0], views[k].pixel_to_bearing(hit[1][:, 0], hit[1][:, 1]))
+    return out
 
 
 def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
@@ -469,9 +507,18 @@ def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 
     correlates ≥ ``min_pattern_correlation`` with the grey levels.
     ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
     """
-    q = np.asarray(q, dtype=float)
-    if _signed_area(q) < 0:
-        q = q[::-1]
+    return decode_quads(lambda pts: sample(pts[0])[None], np.asarray(q, dtype=float)[None], codes, min_contrast,
+                        min_correlation, min_lead, min_pattern_correlation)[0]
+
+
+def decode_quads(sample, quads: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
+                 min_correlation: float = 0.75, min_lead: float = 0.15,
+                 min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
+    """:func:`decode_quad` of M quads (M, 4, 2) at once: ``sample(pts)`` gets the points
+    (M, ..., 2) of all of them in one call; one ``(id, corners)`` or None per quad."""
+    quads = np.asarray(quads, dtype=float).reshape(-1, 4, 2)
+    if not len(quads):
+        return []
     n = codes.shape[1]
     cells = n + 2
     square = np.array([[0.0, 0.0], [cells, 0.0], [cells, cells], [0.0, cells]], dtype=np.float32)
@@ -481,30 +528,34 @@ def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 
     templates = codes.astype(float)
     templates -= templates.mean(axis=(1, 2), keepdims=True)
     templates /= np.maximum(np.linalg.norm(templates, axis=(1, 2), keepdims=True), 1e-12)
-    h = cv2.getPerspectiveTransform(square, q.astype(np.float32))
-    pts = cv2.perspectiveTransform(grid, h).reshape(len(gx), len(gx), 2)
-    m = sample(pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
-    ring = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])  # quiet zone
-    border = np.concatenate([m[1, 1:-1], m[-2, 1:-1], m[2:-2, 1], m[2:-2, -2]])
-    if float(np.min(ring)) - float(np.max(border)) < min_contrast:
-        return None
-    inner = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
-    norm = float(np.linalg.norm(inner))
-    if norm == 0.0:
-        return None
-    # starting the quad at its corner k (np.roll(q, -k)) rotates the cell grid by np.rot90(·, k)
-    scores = np.stack([np.tensordot(templates, np.rot90(inner, k) / norm, axes=([1, 2], [0, 1]))
-                       for k in range(4)])
-    flat = np.sort(scores.reshape(-1))
-    best = np.unravel_index(int(np.argmax(scores)), scores.shape)
-    if flat[-1] < min_correlation or flat[-1] - flat[-2] < min_lead:
-        return None
+    quads = np.array([q[::-1] if _signed_area(q) < 0 else q for q in quads])
+    pts = np.stack([cv2.perspectiveTransform(grid, cv2.getPerspectiveTransform(square, q.astype(np.float32)))
+                    for q in quads]).reshape(len(quads), len(gx), len(gx), 2)
+    cm = sample(pts).reshape(len(quads), cells + 2, 3, cells + 2, 3).mean(axis=(2, 4))
+    ring = np.concatenate([cm[:, 0], cm[:, -1], cm[:, 1:-1, 0], cm[:, 1:-1, -1]], axis=1)  # quiet zone
+    border = np.concatenate([cm[:, 1, 1:-1], cm[:, -2, 1:-1], cm[:, 2:-2, 1], cm[:, 2:-2, -2]], axis=1)
+    contrast = np.min(ring, axis=1) - np.max(border, axis=1) >= min_contrast
     whole = np.ones((cells + 2, cells + 2))  # the whole pattern: quiet zone, border, bits
     whole[1:-1, 1:-1] = 0.0
-    whole[2:-2, 2:-2] = codes[best[1]]
-    if np.corrcoef(np.rot90(m, int(best[0])).reshape(-1), whole.reshape(-1))[0, 1] < min_pattern_correlation:
-        return None
-    return int(best[1]), np.roll(q, -int(best[0]), axis=0)
+    out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(quads)
+    for k in np.flatnonzero(contrast):
+        m, q = cm[k], quads[k]
+        inner = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
+        norm = float(np.linalg.norm(inner))
+        if norm == 0.0:
+            continue
+        # starting the quad at its corner k (np.roll(q, -k)) rotates the cell grid by np.rot90(·, k)
+        scores = np.stack([np.tensordot(templates, np.rot90(inner, r) / norm, axes=([1, 2], [0, 1]))
+                           for r in range(4)])
+        flat = np.sort(scores.reshape(-1))
+        best = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        if flat[-1] < min_correlation or flat[-1] - flat[-2] < min_lead:
+            continue
+        whole[2:-2, 2:-2] = codes[best[1]]
+        if np.corrcoef(np.rot90(m, int(best[0])).reshape(-1), whole.reshape(-1))[0, 1] < min_pattern_correlation:
+            continue
+        out[k] = (int(best[1]), np.roll(q, -int(best[0]), axis=0))
+    return out
 
 
 def _signed_area(q: np.ndarray) -> float:
@@ -514,7 +565,10 @@ def _signed_area(q: np.ndarray) -> float:
 
 def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """Lines n·x = c (unit normals (L, 2), offsets (L,)) through the points p (L, k, 2) where
-    ``ok`` (L, k): total least squares, then again without points beyond 3 robust σ."""
+    ``ok`` (L, k): total least squares, then again without points beyond 3 robust σ — the
+    four lines of a quad (L = 4M) together, unless one of them would keep fewer than 3
+    points (then none of its four is fitted again: a quad's result never depends on the
+    other quads fitted with it)."""
     w = ok.astype(float)
     for _ in range(2):
         sw = w.sum(axis=1)
@@ -529,7 +583,9 @@ def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         ranked = np.sort(np.where(w > 0, r, np.inf), axis=1)
         sigma = 1.4826 * ranked[np.arange(len(r)), (w.sum(axis=1).astype(int) - 1) // 2]
         keep = w * (r <= np.maximum(3.0 * sigma, 1e-3)[:, None])
-        if np.array_equal(keep, w) or np.any(keep.sum(axis=1) < 3):
+        few = np.repeat(np.any((keep.sum(axis=1) < 3).reshape(-1, 4), axis=1), 4)
+        keep[few] = w[few]
+        if np.array_equal(keep, w):
             break
         w = keep
     return normal, np.sum(normal * m, axis=1)
@@ -741,24 +797,28 @@ class MarkerDetector:
         """
         q = self.params
         bits = self.backend.bits
+        codes = self.backend.codes
         ids, corners, rejected = found
         sample = image_sampler(image)
         out = []
-        for i, c in zip(ids, corners):
-            if (expect_id is not None and i != expect_id) or i in skip_ids:
-                continue
-            b = to_bearing(c[:, 0], c[:, 1])
-            r = None
+        wanted = [k for k, i in enumerate(ids) if not ((expect_id is not None and i != expect_id) or i in skip_ids)]
+        if wanted:  # OpenCV's finds, refined (and read again) all at once
+            kept_ids = [ids[k] for k in wanted]
+            c = np.array([corners[k] for k in wanted])
+            b = to_bearing(c[..., 0], c[..., 1])
             if q.edge_refine and perspective:
-                rq = refine_quad(sample, c, bits, q.view_refine_iterations)
-                r = None if rq is None else to_bearing(rq[:, 0], rq[:, 1])
+                rq = refine_quads(sample, c, bits, q.view_refine_iterations)
+                b = np.where(np.isnan(rq).any(axis=(1, 2))[:, None, None], b, to_bearing(rq[..., 0], rq[..., 1]))
             elif q.edge_refine:
-                r = refine_corners(grey, equirect, b, bits)
+                rb = refine_corners_many(grey, equirect, b, bits)
+                b = np.where(np.isnan(rb).any(axis=(1, 2))[:, None, None], b, rb)
             if q.verify_decode and expect_id is None:
-                hit = self._decode(grey, equirect, b if r is None else r)
-                if hit is None or hit[0] != i:
-                    continue  # OpenCV's id is not what the cells say: a misread or a texture
-            out.append(self.observation(equirect, i, b if r is None else r, method))
+                # OpenCV's id must be what the cells say (else a misread or a texture)
+                hits = decode_markers(grey, equirect, b, codes, *self._decode_thresholds())
+                same = [k for k, (i, hit) in enumerate(zip(kept_ids, hits)) if hit is not None and hit[0] == i]
+                kept_ids, b = [kept_ids[k] for k in same], b[same]
+            if kept_ids:
+                out += self.observations(equirect, kept_ids, b, method)
         if not rescue or (expect_id is not None and out):
             return out
         small = q.rescue_max_side_px * 4.0 * scale
@@ -770,35 +830,51 @@ class MarkerDetector:
         perimeters = [np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) for c in rejected]
         tries = [c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for c, p in zip(rejected, perimeters)
                  if p <= small or (perspective and p >= large) for shrink in RESCUE_SHRINK]
-        for r in refine_quads(sample, np.array(tries), bits) if tries else []:
-            if np.isnan(r).any():
-                continue
-            hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
-            if hit is None or (expect_id is not None and hit[0] != expect_id):
-                continue
-            b = to_bearing(hit[1][:, 0], hit[1][:, 1])
-            if not perspective:  # read in the equirect: straighten on the sphere, read again
-                rb = refine_corners(grey, equirect, b, bits)
-                again = self._decode(grey, equirect, rb) if rb is not None else None
-                if again is None or again[0] != hit[0]:
-                    continue
-                b = again[1]
-            out.append(self.observation(equirect, hit[0], b, method))
+        refined = refine_quads(sample, np.array(tries), bits) if tries else np.zeros((0, 4, 2))
+        refined = refined[~np.isnan(refined).any(axis=(1, 2))]
+        hits = [h for h in decode_quads(sample, refined, codes, *self._decode_thresholds())
+                if h is not None and (expect_id is None or h[0] == expect_id)]
+        if hits and perspective:
+            out += self.observations(equirect, [h[0] for h in hits],
+                                     np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits]), method)
+        elif hits:  # read in the equirect: straighten on the sphere, read again
+            b = np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits])
+            out += self._refined_and_read(grey, equirect, b, [h[0] for h in hits], method)
         if not perspective:  # large quads in the equirect: curved edges, refined on the sphere only
-            for c, p in zip(rejected, perimeters):
-                if p < large:
-                    continue
-                for shrink in RESCUE_SHRINK:
-                    quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
-                    b = to_bearing(quad[:, 0], quad[:, 1])
-                    if decode_marker(grey, equirect, b, self.backend.codes, *_LOOSE_DECODE) is None:
-                        continue  # a quick loose reading first: most large quads are texture
-                    rb = refine_corners(grey, equirect, b, bits)
-                    hit = self._decode(grey, equirect, rb) if rb is not None else None
-                    if hit is not None and (expect_id is None or hit[0] == expect_id):
-                        out.append(self.observation(equirect, hit[0], hit[1], method))
-                        break
+            big = [c for c, p in zip(rejected, perimeters) if p >= large]
+            if big:
+                quads = np.array([c.mean(axis=0) + shrink * (c - c.mean(axis=0))
+                                  for c in big for shrink in RESCUE_SHRINK])
+                b = to_bearing(quads[..., 0], quads[..., 1])
+                # a quick loose reading first: most large quads are texture
+                loose = [k for k, h in enumerate(decode_markers(grey, equirect, b, codes, *_LOOSE_DECODE))
+                         if h is not None]
+                got = self._refined_and_read(grey, equirect, b[loose], [expect_id] * len(loose), method,
+                                             keys=[k // len(RESCUE_SHRINK) for k in loose])
+                out += got
         return dedupe_observations(out)
+
+    def _refined_and_read(self, grey: np.ndarray, equirect: Equirect, corners: np.ndarray,
+                          expect: Sequence[Optional[int]], method: str,
+                          keys: Optional[Sequence[int]] = None) -> List[MarkerObservation]:
+        """Observations of candidate quads (corner bearings (M, 4, 3)) of the equirect whose
+        corners refine on the sphere and whose cells then read as the ``expect`` id (None:
+        any id); with ``keys``, only the first success of each key is kept (the shrunk tries
+        of one rejected quad)."""
+        if not len(corners):
+            return []
+        rb = refine_corners_many(grey, equirect, corners, self.backend.bits)
+        good = np.flatnonzero(~np.isnan(rb).any(axis=(1, 2)))
+        hits = decode_markers(grey, equirect, rb[good], self.backend.codes, *self._decode_thresholds())
+        ids, bearings, done = [], [], set()
+        for k, hit in zip(good, hits):
+            key = None if keys is None else keys[k]
+            if hit is None or (expect[k] is not None and hit[0] != expect[k]) or (key is not None and key in done):
+                continue
+            done.add(key)
+            ids.append(hit[0])
+            bearings.append(hit[1])
+        return self.observations(equirect, ids, np.array(bearings), method) if ids else []
 
     def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
                        maps: Optional[Tuple[np.ndarray, np.ndarray]] = None, map_step: int = 1,
