@@ -29,6 +29,7 @@ Python 3.8 compatible; numpy and OpenCV only.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -172,6 +173,7 @@ class DetectorParams:
     seam_strip_deg: float = 25.0
     pole_views: bool = True
     pole_band_deg: float = 55.0
+    pole_overlap_deg: float = 20.0
     max_view_px: int = 1024
 
     edge_refine: bool = True
@@ -324,30 +326,44 @@ def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: 
     return float(pitch * params.corner_sigma_px * grow * scale / 2.0)
 
 
-def _marker_views(equirect: Equirect, corners) -> Tuple[List[GnomonicView], np.ndarray]:
-    """Virtual gnomonic views (M,) centred on markers (corner bearings (M, 4, 3)) at the
-    equirect's resolution (nothing is rendered) and the markers' corner pixels (M, 4, 2) in
-    them; NaN pixels for a marker with a corner behind its view."""
-    c = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
-    views = [GnomonicView(centre, (1, 1), 1.0 / equirect.rad_per_px, None) for centre in sphere_centre_bearing(c)]
-    q = np.full((len(c), 4, 2), np.nan)
-    for k, (view, ck) in enumerate(zip(views, c)):
-        x, y, front = view.bearing_to_pixel(ck)
-        if np.all(front):
-            q[k] = np.stack([x, y], axis=1)
-    return views, q
+class _MarkerViews:
+    """Virtual gnomonic views (M) centred on markers (corner bearings (M, 4, 3)) at the
+    equirect's resolution (nothing is rendered): ``views``, and ``quads`` (M, 4, 2) the
+    markers' corner pixels in them (NaN for a marker with a corner behind its view).
 
+    The views differ only by a rotation, so the pixels of all of them are mapped by the
+    first view's camera.py mapping and turned into each view by ``turn`` (M, 3, 3):
+    ``views[k]`` bearings (rows) = ``views[0]`` bearings @ ``turn[k]``.
+    """
 
-def _views_sampler(grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView]):
-    """``sample(pts)`` of :func:`refine_quads`/:func:`decode_quads` for points (M, ..., 2) in
-    the pixels of M virtual views (:func:`_marker_views`): bilinear grey levels of the
-    equirect, sampled through camera.py's mappings in one remap."""
-    def sample(pts: np.ndarray) -> np.ndarray:
-        b = np.stack([view.pixel_to_bearing(p[..., 0], p[..., 1]) for view, p in zip(views, pts)])
-        u, v = equirect.bearing_to_pixel(b)
-        np.clip(v, 0.0, equirect.height - 1.0, out=v)
-        return _remap_points(grey, u, v, cv2.BORDER_WRAP)
-    return sample
+    def __init__(self, equirect: Equirect, corners):
+        c = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+        self.equirect = equirect
+        self.views = [GnomonicView(centre, (1, 1), 1.0 / equirect.rad_per_px, None)
+                      for centre in sphere_centre_bearing(c)]
+        self.quads = np.full((len(c), 4, 2), np.nan)
+        if not self.views:
+            return
+        r0 = self.views[0].camera_R_view
+        self.turn = np.einsum("ij,mkj->mik", r0, np.array([v.camera_R_view for v in self.views]))
+        x, y, front = self.views[0].bearing_to_pixel(np.matmul(c, np.transpose(self.turn, (0, 2, 1))))
+        ok = np.all(front, axis=1)
+        self.quads[ok] = np.stack([x, y], axis=2)[ok]
+
+    def bearings(self, pts: np.ndarray, sel) -> np.ndarray:
+        """Bearings (M', ..., 3) of pixels (M', ..., 2) of the views ``sel`` (M' indices)."""
+        b = self.views[0].pixel_to_bearing(pts[..., 0], pts[..., 1])
+        return np.matmul(b.reshape(len(b), -1, 3), self.turn[sel]).reshape(b.shape)
+
+    def sampler(self, grey: np.ndarray, sel):
+        """``sample(pts)`` of :func:`refine_quads`/:func:`decode_quads` for points (M', ..., 2)
+        in the pixels of the views ``sel``: bilinear grey levels of the equirect, sampled
+        through camera.py's mappings in one remap."""
+        def sample(pts: np.ndarray) -> np.ndarray:
+            u, v = self.equirect.bearing_to_pixel(self.bearings(pts, sel))
+            np.clip(v, 0.0, self.equirect.height - 1.0, out=v)
+            return _remap_points(grey, u, v, cv2.BORDER_WRAP)
+        return sample
 
 
 def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
@@ -381,14 +397,13 @@ def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int
                         iterations: int = 2) -> np.ndarray:
     """:func:`refine_corners` of M markers (corner bearings (M, 4, 3)) at once, each in its
     own virtual view, all profiles sampled in one remap: (M, 4, 3), NaN rows for failures."""
-    views, q = _marker_views(equirect, corners)
-    out = np.full((len(q), 4, 3), np.nan)
-    sel = np.flatnonzero(~np.isnan(q).any(axis=(1, 2)))
+    mv = _MarkerViews(equirect, corners)
+    out = np.full((len(mv.quads), 4, 3), np.nan)
+    sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
     if len(sel):
-        r = refine_quads(_views_sampler(grey, equirect, [views[k] for k in sel]), q[sel], bits, iterations)
-        for k, rk in zip(sel, r):
-            if not np.isnan(rk).any():
-                out[k] = views[k].pixel_to_bearing(rk[:, 0], rk[:, 1])
+        r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations)
+        good = ~np.isnan(r).any(axis=(1, 2))
+        out[sel[good]] = mv.bearings(r[good], sel[good])
     return out
 
 
@@ -478,15 +493,15 @@ def decode_markers(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndar
                    min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
     """:func:`decode_marker` of M candidate quads (corner bearings (M, 4, 3)) at once, all
     cells sampled in one remap: one ``(id, corner bearings)`` or None per quad."""
-    views, q = _marker_views(equirect, corners)
-    out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(q)
-    sel = np.flatnonzero(~np.isnan(q).any(axis=(1, 2)))
+    mv = _MarkerViews(equirect, corners)
+    out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(mv.quads)
+    sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
     if len(sel):
-        hits = decode_quads(_views_sampler(grey, equirect, [views[k] for k in sel]), q[sel], codes, min_contrast,
-                            min_correlation, min_lead, min_pattern_correlation)
+        hits = decode_quads(mv.sampler(grey, sel), mv.quads[sel], codes, min_contrast, min_correlation, min_lead,
+                            min_pattern_correlation)
         for k, hit in zip(sel, hits):
             if hit is not None:
-                out[k] = (hit[0], views[k].pixel_to_bearing(hit[1][:, 0], hit[1][:, 1]))
+                out[k] = (hit[0], mv.bearings(hit[1][None], [k])[0])
     return out
 
 
@@ -753,6 +768,7 @@ class MarkerDetector:
         self.params.validate()
         self.backend = ArucoBackend(dictionary, self.params, api)
         self._pole_maps: Dict[Tuple[int, int], Tuple[GnomonicView, np.ndarray, np.ndarray]] = {}
+        self._threads: Optional[Tuple[int, ThreadPoolExecutor]] = None
 
     # ---------------------------------------------------------------- building blocks
 
@@ -981,10 +997,12 @@ class MarkerDetector:
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
                        method: str = "full", rescue: bool = True, max_el: float = math.pi / 2,
-                       skip_ids: Sequence[int] = ()) -> List[MarkerObservation]:
+                       skip_ids: Sequence[int] = (), across: Optional[float] = None) -> List[MarkerObservation]:
         """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam),
         rows within ``max_el`` (radians) of the horizon; ``rescue``: also decode the quads
-        OpenCV rejected (small, close markers); ``skip_ids``: ids not wanted."""
+        OpenCV rejected (small, close markers); ``skip_ids``: ids not wanted; ``across``: only
+        OpenCV's finds and rejected quads that reach across this column of the strip (with
+        half their width to spare, for the refinement) are refined and read."""
         w = equirect.width
         u0 = int(u0) % w
         width = int(min(width, w))
@@ -995,6 +1013,11 @@ class MarkerDetector:
         else:
             strip = np.hstack([grey[v0:v1, u0:], grey[v0:v1, :u0 + width - w]])
         found = self.backend.detect(strip, self.params.min_marker_perimeter_px)
+        if across is not None:
+            ids, corners, rejected = found
+            near = [_reaches(c, across) for c in corners]
+            found = ([i for i, ok in zip(ids, near) if ok], [c for c, ok in zip(corners, near) if ok],
+                     [c for c in rejected if _reaches(c, across)])
         return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0,
                             method, strip, False, rescue=rescue, skip_ids=skip_ids)
 
@@ -1011,6 +1034,18 @@ class MarkerDetector:
         size = int(min(max(math.ceil(native * upsample), self.params.roi_min_px), self.params.max_view_px))
         return GnomonicView.around(equirect, centre, fov, size=size)
 
+    def _pool(self) -> Optional[ThreadPoolExecutor]:
+        """Threads for :meth:`detect`'s seam and polar searches, as many as OpenCV's own
+        (``cv2.setNumThreads``), at most 3; None when OpenCV runs single-threaded."""
+        n = min(3, cv2.getNumThreads())
+        if n <= 1:
+            return None
+        if self._threads is None or self._threads[0] != n:
+            if self._threads is not None:
+                self._threads[1].shutdown(wait=False)
+            self._threads = (n, ThreadPoolExecutor(max_workers=n, thread_name_prefix="aruco_detect"))
+        return self._threads[1]
+
     def _pole_views(self, equirect: Equirect):
         key = (equirect.width, equirect.height)
         if key not in self._pole_maps:
@@ -1018,7 +1053,9 @@ class MarkerDetector:
             views = []
             for z in (1.0, -1.0):
                 view = self.view_around(equirect, np.array([0.0, 0.0, z]), fov)
-                views.append((view, view.remap_maps(equirect)))
+                map_x, map_y = view.remap_maps(equirect)
+                # columns brought into [0, W) once: cv2.remap is ~2× slower on columns it must wrap
+                views.append((view, (np.mod(map_x, np.float32(equirect.width)), map_y)))
             self._pole_maps = {key: views}
         return self._pole_maps[key]
 
@@ -1033,19 +1070,31 @@ class MarkerDetector:
         grey = to_grey(image, what)
         eq = Equirect(grey.shape[1], grey.shape[0])
         q = self.params
-        found = self.detect_columns(grey, eq, 0, eq.width, "full")
+        # with the polar views, the equirect is searched up to pole_overlap_deg beyond their band
+        max_el = math.radians(min(q.pole_band_deg + q.pole_overlap_deg, 90.0)) if q.pole_views else math.pi / 2
         half = int(math.ceil(math.radians(q.seam_strip_deg) / eq.rad_per_px))
+        band = math.radians(q.pole_band_deg)
+        extra = []  # searches independent of the full pass, run beside it (OpenCV releases the GIL)
         if half > 0:
-            seam = [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam")
-                    if _straddles_seam(o, eq)]
-            found = dedupe_observations(found + seam)
+            extra.append(lambda: [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam",
+                                                                 max_el=max_el, across=half - 0.5)
+                                  if _straddles_seam(o, eq)])
         if q.pole_views:
-            band = math.radians(q.pole_band_deg)
-            for view, maps in self._pole_views(eq):
-                polar = [o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
-                         if abs(o.elevation) > band]
-                found = dedupe_observations(found + polar)
+            extra += [lambda view=view, maps=maps: [o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
+                                                    if abs(o.elevation) > band]
+                      for view, maps in self._pole_views(eq)]
+        pool = self._pool()
+        pending = [pool.submit(job) for job in extra] if pool is not None else []
+        found = self.detect_columns(grey, eq, 0, eq.width, "full", max_el=max_el)
+        for more in ([p.result() for p in pending] if pool is not None else [job() for job in extra]):
+            found = dedupe_observations(found + more)
         return sorted(found, key=lambda o: o.id)
+
+
+def _reaches(quad: np.ndarray, column: float) -> bool:
+    """True when a quad's columns (4, 2), widened by half their span each way, contain ``column``."""
+    lo, hi = float(quad[:, 0].min()), float(quad[:, 0].max())
+    return lo - 0.5 * (hi - lo) <= column <= hi + 0.5 * (hi - lo)
 
 
 def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
