@@ -328,42 +328,58 @@ def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: 
 
 class _MarkerViews:
     """Virtual gnomonic views (M) centred on markers (corner bearings (M, 4, 3)) at the
-    equirect's resolution (nothing is rendered): ``views``, and ``quads`` (M, 4, 2) the
-    markers' corner pixels in them (NaN for a marker with a corner behind its view).
+    equirect's resolution (nothing is rendered), and ``quads`` (M, 4, 2) the markers' corner
+    pixels in them (NaN for a marker with a corner behind its view).
 
-    The views differ only by a rotation, so the pixels of all of them are mapped by the
-    first view's camera.py mapping and turned into each view by ``turn`` (M, 3, 3):
-    ``views[k]`` bearings (rows) = ``views[0]`` bearings @ ``turn[k]``.
+    One camera.py view ``view`` (centred on the first marker) maps pixels and bearings for
+    all of them: view k is ``view`` turned by the smallest rotation taking its axis onto
+    marker k's centre, ``turn`` (M, 3, 3): view k's bearings (rows) = ``view``'s @ ``turn[k]``.
     """
 
     def __init__(self, equirect: Equirect, corners):
         c = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
         self.equirect = equirect
-        self.views = [GnomonicView(centre, (1, 1), 1.0 / equirect.rad_per_px, None)
-                      for centre in sphere_centre_bearing(c)]
         self.quads = np.full((len(c), 4, 2), np.nan)
-        if not self.views:
+        if not len(c):
             return
-        r0 = self.views[0].camera_R_view
-        self.turn = np.einsum("ij,mkj->mik", r0, np.array([v.camera_R_view for v in self.views]))
-        x, y, front = self.views[0].bearing_to_pixel(np.matmul(c, np.transpose(self.turn, (0, 2, 1))))
+        centres = sphere_centre_bearing(c)
+        self.view = GnomonicView(centres[0], (1, 1), 1.0 / equirect.rad_per_px, None)
+        self.turn = np.transpose(_rotations_onto(centres[0], centres), (0, 2, 1))
+        x, y, front = self.view.bearing_to_pixel(np.matmul(c, np.transpose(self.turn, (0, 2, 1))))
         ok = np.all(front, axis=1)
         self.quads[ok] = np.stack([x, y], axis=2)[ok]
 
     def bearings(self, pts: np.ndarray, sel) -> np.ndarray:
         """Bearings (M', ..., 3) of pixels (M', ..., 2) of the views ``sel`` (M' indices)."""
-        b = self.views[0].pixel_to_bearing(pts[..., 0], pts[..., 1])
+        b = self.view.pixel_to_bearing(pts[..., 0], pts[..., 1])
         return np.matmul(b.reshape(len(b), -1, 3), self.turn[sel]).reshape(b.shape)
 
     def sampler(self, grey: np.ndarray, sel):
-        """``sample(pts)`` of :func:`refine_quads`/:func:`decode_quads` for points (M', ..., 2)
-        in the pixels of the views ``sel``: bilinear grey levels of the equirect, sampled
-        through camera.py's mappings in one remap."""
-        def sample(pts: np.ndarray) -> np.ndarray:
-            u, v = self.equirect.bearing_to_pixel(self.bearings(pts, sel))
+        """``sample(pts, rows=None)`` of :func:`refine_quads`/:func:`decode_quads` for points
+        (M', ..., 2) in the pixels of the views ``sel`` (``sel[rows]`` with rows): bilinear
+        grey levels of the equirect, sampled through camera.py's mappings in one remap."""
+        def sample(pts: np.ndarray, rows=None) -> np.ndarray:
+            u, v = self.equirect.bearing_to_pixel(self.bearings(pts, sel if rows is None else sel[rows]))
             np.clip(v, 0.0, self.equirect.height - 1.0, out=v)
             return _remap_points(grey, u, v, cv2.BORDER_WRAP)
         return sample
+
+
+def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotations (M, 3, 3), R·a = b_k, the smallest ones (about a × b_k), from a unit vector
+    a (3,) onto unit vectors b (M, 3); a half turn about an axis ⟂ a for b_k = −a."""
+    v = np.cross(a, b)
+    c = b @ a
+    vx = np.zeros((len(b), 3, 3))
+    vx[:, 0, 1], vx[:, 0, 2], vx[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    vx -= np.transpose(vx, (0, 2, 1))
+    opposite = c < -1.0 + 1e-9
+    r = np.eye(3) + vx + np.matmul(vx, vx) / np.where(opposite, 1.0, 1.0 + c)[:, None, None]
+    if np.any(opposite):
+        u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        r[opposite] = 2.0 * np.outer(u, u) - np.eye(3)
+    return r
 
 
 def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
@@ -419,7 +435,8 @@ def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, 
     """Refined corners (M, 4, 2) of markers' black squares in a perspective image; NaN rows
     for the quads that fail (too small, too little contrast, diverging).
 
-    ``sample(pts)``: grey levels at image points (..., 2) (pixels); ``quads`` (M, 4, 2):
+    ``sample(pts, rows)``: grey levels at image points (R, ..., 2) (pixels) of the quads
+    ``rows`` (R indices into ``quads``; :func:`image_sampler`); ``quads`` (M, 4, 2):
     approximate corners. Along each edge (``along`` profiles) the intensity profile across
     it is sampled, the edge is located at the centroid of the black→white gradient within
     ±max(``half_bits`` bit, ``min_half_px`` pixels) of the current line (``samples`` steps),
@@ -432,46 +449,52 @@ def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, 
     s = np.linspace(0.15, 0.85, along)
     unit_offs = np.linspace(-1.0, 1.0, samples + 1)
     for _ in range(max(1, iterations)):
-        d = np.roll(q, -1, axis=1) - q  # (M, 4, 2) sides
+        rows = np.flatnonzero(alive)  # each iteration works on the quads still alive only
+        if not len(rows):
+            break
+        qa = q[rows]
+        d = np.roll(qa, -1, axis=1) - qa  # (M, 4, 2) sides
         length = np.linalg.norm(d, axis=2)
-        alive &= np.all(length >= 2.0, axis=1)
+        live = np.all(length >= 2.0, axis=1)
         t = d / np.maximum(length, 1e-9)[..., None]
         n = np.stack([t[..., 1], -t[..., 0]], axis=2)
-        out = np.sum(n * (q + 0.5 * d - q.mean(axis=1, keepdims=True)), axis=2)
+        out = np.sum(n * (qa + 0.5 * d - qa.mean(axis=1, keepdims=True)), axis=2)
         n *= np.where(out < 0, -1.0, 1.0)[..., None]  # outward normals
         half = np.maximum(half_bits * length.mean(axis=1) / bits, min_half_px)  # (M,)
         offs = half[:, None] * unit_offs[None, :]  # (M, m)
-        base = q[:, :, None, :] + s[None, None, :, None] * d[:, :, None, :]  # (M, 4, k, 2)
+        base = qa[:, :, None, :] + s[None, None, :, None] * d[:, :, None, :]  # (M, 4, k, 2)
         pts = base[:, :, :, None, :] + offs[:, None, None, :, None] * n[:, :, None, None, :]
-        prof = sample(pts)  # (M, 4, k, m)
+        prof = sample(pts, rows)  # (M, 4, k, m)
         grad = np.clip(np.diff(prof, axis=3), 0.0, None)
         total = grad.sum(axis=3)
         mids = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (M, m-1)
         edge = (grad * mids[:, None, None, :]).sum(axis=3) / np.maximum(total, 1e-9)
-        ok = (total >= min_contrast) & alive[:, None, None]
-        alive &= np.all(np.count_nonzero(ok, axis=2) >= 3, axis=1)
-        ok &= alive[:, None, None]
-        ok[~alive] = True  # dead quads: fit anything, discarded below
+        ok = (total >= min_contrast) & live[:, None, None]
+        live &= np.all(np.count_nonzero(ok, axis=2) >= 3, axis=1)
+        ok &= live[:, None, None]
+        ok[~live] = True  # dead quads: fit anything, discarded below
         normal, offset = _fit_lines((base + edge[..., None] * n[:, :, None, :]).reshape(-1, along, 2),
                                     ok.reshape(-1, along))
         normal = normal.reshape(-1, 4, 2)
         offset = offset.reshape(-1, 4)
         a = np.stack([np.roll(normal, 1, axis=1), normal], axis=2)  # corner i: sides i−1 and i
         det = np.linalg.det(a)
-        alive &= np.all(np.abs(det) >= 1e-6, axis=1)
-        a[~alive] = np.eye(2)
+        live &= np.all(np.abs(det) >= 1e-6, axis=1)
+        a[~live] = np.eye(2)
         rhs = np.stack([np.roll(offset, 1, axis=1), offset], axis=2)[..., None]
         newq = np.linalg.solve(a, rhs)[..., 0]
-        alive &= np.all(np.isfinite(newq), axis=(1, 2))
-        alive &= np.max(np.linalg.norm(newq - q, axis=2), axis=1) <= 0.5 * length.mean(axis=1)
-        q = np.where(alive[:, None, None], newq, q)
+        live &= np.all(np.isfinite(newq), axis=(1, 2))
+        live &= np.max(np.linalg.norm(newq - qa, axis=2), axis=1) <= 0.5 * length.mean(axis=1)
+        q[rows] = np.where(live[:, None, None], newq, qa)
+        alive[rows] = live
     q[~alive] = np.nan
     return q
 
 
 def image_sampler(img: np.ndarray):
-    """``sample(pts)`` of :func:`refine_quad` for a grey image: bilinear, border replicated."""
-    def sample(pts: np.ndarray) -> np.ndarray:
+    """``sample(pts, rows=None)`` of :func:`refine_quads` and :func:`decode_quads` for a grey
+    image: bilinear, border replicated (``rows`` does not matter: one image for all quads)."""
+    def sample(pts: np.ndarray, rows=None) -> np.ndarray:
         return _remap_points(img, pts[..., 0], pts[..., 1], cv2.BORDER_REPLICATE)
     return sample
 
