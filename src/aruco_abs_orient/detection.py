@@ -866,10 +866,12 @@ class MarkerDetector:
         # (RESCUE_SHRINK): all refined and read at once in the image, then (equirect) again on
         # the sphere; a large one may be a close marker whose curved equirect image OpenCV
         # could not read: in a view read at once, in the equirect on the sphere only.
-        perimeters = [np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) for c in rejected]
-        tries = [c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for c, p in zip(rejected, perimeters)
-                 if p <= small or (perspective and p >= large) for shrink in RESCUE_SHRINK]
-        refined = refine_quads(sample, np.array(tries), bits) if tries else np.zeros((0, 4, 2))
+        rejected = np.array(rejected, dtype=float).reshape(-1, 4, 2)
+        perimeters = np.sum(np.linalg.norm(rejected - np.roll(rejected, -1, axis=1), axis=2), axis=1)
+        mid = rejected.mean(axis=1, keepdims=True)
+        shrunk = mid[:, None] + np.asarray(RESCUE_SHRINK)[None, :, None, None] * (rejected - mid)[:, None]
+        tries = shrunk[(perimeters <= small) | (perspective & (perimeters >= large))].reshape(-1, 4, 2)
+        refined = refine_quads(sample, tries, bits)
         refined = refined[~np.isnan(refined).any(axis=(1, 2))]
         hits = [h for h in decode_quads(sample, refined, codes, *self._decode_thresholds())
                 if h is not None and (expect_id is None or h[0] == expect_id)]
@@ -880,10 +882,9 @@ class MarkerDetector:
             b = np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits])
             out += self._refined_and_read(grey, equirect, b, [h[0] for h in hits], method)
         if not perspective:  # large quads in the equirect: curved edges, refined on the sphere only
-            big = [c for c, p in zip(rejected, perimeters) if p >= large]
-            if big:
-                quads = np.array([c.mean(axis=0) + shrink * (c - c.mean(axis=0))
-                                  for c in big for shrink in RESCUE_SHRINK])
+            big = perimeters >= large
+            if np.any(big):
+                quads = shrunk[big].reshape(-1, 4, 2)
                 b = to_bearing(quads[..., 0], quads[..., 1])
                 # a quick loose reading first: most large quads are texture
                 loose = [k for k, h in enumerate(decode_markers(grey, equirect, b, codes, *_LOOSE_DECODE))
@@ -898,21 +899,28 @@ class MarkerDetector:
                           keys: Optional[Sequence[int]] = None) -> List[MarkerObservation]:
         """Observations of candidate quads (corner bearings (M, 4, 3)) of the equirect whose
         corners refine on the sphere and whose cells then read as the ``expect`` id (None:
-        any id); with ``keys``, only the first success of each key is kept (the shrunk tries
-        of one rejected quad)."""
-        if not len(corners):
-            return []
-        rb = refine_corners_many(grey, equirect, corners, self.backend.bits)
-        good = np.flatnonzero(~np.isnan(rb).any(axis=(1, 2)))
-        hits = decode_markers(grey, equirect, rb[good], self.backend.codes, *self._decode_thresholds())
-        ids, bearings, done = [], [], set()
-        for k, hit in zip(good, hits):
-            key = None if keys is None else keys[k]
-            if hit is None or (expect[k] is not None and hit[0] != expect[k]) or (key is not None and key in done):
-                continue
-            done.add(key)
-            ids.append(hit[0])
-            bearings.append(hit[1])
+        any id). With ``keys`` (the shrunk tries of one rejected quad share a key), a key's
+        tries are taken in order, the next one only when the previous failed."""
+        keys = list(range(len(corners))) if keys is None else list(keys)
+        ids, bearings = [], []
+        todo = list(range(len(corners)))
+        while todo:
+            batch, seen = [], set()
+            for k in todo:  # the first untried try of each key
+                if keys[k] not in seen:
+                    seen.add(keys[k])
+                    batch.append(k)
+            rb = refine_corners_many(grey, equirect, corners[batch], self.backend.bits)
+            good = np.flatnonzero(~np.isnan(rb).any(axis=(1, 2)))
+            hits = decode_markers(grey, equirect, rb[good], self.backend.codes, *self._decode_thresholds())
+            done = set()
+            for j, hit in zip(good, hits):
+                k = batch[j]
+                if hit is not None and (expect[k] is None or hit[0] == expect[k]):
+                    done.add(keys[k])
+                    ids.append(hit[0])
+                    bearings.append(hit[1])
+            todo = [k for k in todo if k not in batch and keys[k] not in done]
         return self.observations(equirect, ids, np.array(bearings), method) if ids else []
 
     def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
