@@ -1,14 +1,17 @@
 """ArUco markers in 360° equirectangular frames (DESIGN §4 steps 1–2).
 
 Full-frame detection (:meth:`MarkerDetector.detect`): cv2.aruco tuned for small far
-markers on the whole frame; a strip around the ±180° seam searched again with its halves
-swapped (the image rolled by W/2 there), for markers straddling the seam; two gnomonic
-(perspective) views of the polar bands, where equirect shapes are too distorted for
-OpenCV. Then this module's own steps: every marker's corners are refined by fitting
-straight lines to its four edges in a gnomonic view (never in the equirect, where they
-are curved), every id OpenCV read is checked by reading the cells again, and the quads
-OpenCV rejected — small far markers whose 1–2 px cells it cannot threshold, close
-markers too curved for it — are refined and read here (:func:`decode_quad`).
+markers on the whole frame (up to ``pole_overlap_deg`` beyond the polar band); a strip
+around the ±180° seam searched again with its halves swapped (the image rolled by W/2
+there), for markers straddling the seam (only what reaches across the seam is refined and
+read there); two gnomonic (perspective) views of the polar bands, where equirect shapes
+are too distorted for OpenCV. The seam and polar searches run in threads beside the full
+pass when OpenCV has threads (``cv2.setNumThreads``); the results do not depend on it.
+Then this module's own steps: every marker's corners are refined by fitting straight lines
+to its four edges in a gnomonic view (never in the equirect, where they are curved), every
+id OpenCV read is checked by reading the cells again, and the quads OpenCV rejected —
+small far markers whose 1–2 px cells it cannot threshold, close markers too curved for it
+— are refined and read here (:func:`decode_quad`).
 
 Each marker becomes a :class:`MarkerObservation` whose centre is the intersection of the
 diagonals **on the sphere** (great circles through opposite corners), not in pixel space:
@@ -103,6 +106,9 @@ class DetectorParams:
       the ±180° seam (a marker on the seam must fit in it: 0.19 m at ≥ 0.45 m).
     - ``pole_views``: search two gnomonic views (zenith, nadir) for markers in the polar
       bands ``|el| > pole_band_deg`` (degrees), where equirect shapes are too distorted.
+    - ``pole_overlap_deg``: with ``pole_views``, the whole frame and the seam strip are
+      searched only up to ``pole_band_deg`` + this (degrees) from the horizon: enough for a
+      marker centred on the band's edge at 0.45 m; the polar views see the rest.
     - ``max_view_px``: cap on a view's side (pixels); larger views lower their resolution.
 
     Corners and ids (this module's own steps after OpenCV's):
@@ -419,7 +425,8 @@ def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int
     if len(sel):
         r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations)
         good = ~np.isnan(r).any(axis=(1, 2))
-        out[sel[good]] = mv.bearings(r[good], sel[good])
+        if np.any(good):
+            out[sel[good]] = mv.bearings(r[good], sel[good])
     return out
 
 
