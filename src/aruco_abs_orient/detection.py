@@ -372,19 +372,24 @@ class _MarkerViews:
 
 
 def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotations (M, 3, 3), R·a = b_k, the smallest ones (about a × b_k), from a unit vector
-    a (3,) onto unit vectors b (M, 3); a half turn about an axis ⟂ a for b_k = −a."""
-    v = np.cross(a, b)
-    c = b @ a
-    vx = np.zeros((len(b), 3, 3))
-    vx[:, 0, 1], vx[:, 0, 2], vx[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    vx -= np.transpose(vx, (0, 2, 1))
-    opposite = c < -1.0 + 1e-9
-    r = np.eye(3) + vx + np.matmul(vx, vx) / np.where(opposite, 1.0, 1.0 + c)[:, None, None]
+    """Rotations (M, 3, 3), R·a = b_k, from a unit vector a (3,) onto unit vectors b (M, 3):
+    the smallest ones (about a × b_k); for b_k nearly −a, a half turn about an axis ⟂ a
+    followed by the smallest rotation from −a onto b_k."""
+    def smallest(a, b):
+        v = np.cross(a, b)
+        vx = np.zeros((len(b), 3, 3))
+        vx[:, 0, 1], vx[:, 0, 2], vx[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+        vx -= np.transpose(vx, (0, 2, 1))
+        return np.eye(3) + vx + np.matmul(vx, vx) / (1.0 + b @ a)[:, None, None]
+
+    b = np.asarray(b, dtype=float).reshape(-1, 3)
+    opposite = b @ a < -0.5
+    r = np.empty((len(b), 3, 3))
+    r[~opposite] = smallest(a, b[~opposite])
     if np.any(opposite):
         u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
         u /= np.linalg.norm(u)
-        r[opposite] = 2.0 * np.outer(u, u) - np.eye(3)
+        r[opposite] = np.matmul(smallest(-a, b[opposite]), 2.0 * np.outer(u, u) - np.eye(3))
     return r
 
 
