@@ -142,8 +142,9 @@ class MarkerTracker:
         ``map_T_camera``: predicted 4×4 camera pose in the map, or None (unknown: the whole
         frame is searched and every id in the map accepted). After ``lost_after_frames``
         frames in a row with predictions but no accepted marker, the whole frame is searched
-        and every map id accepted without the prediction gate (``stats.recovery``). Raises DetectionError (or
-        TrackingError) for an unusable image or pose; the state is unchanged then.
+        and every map id accepted without the prediction gate (``stats.recovery``). Raises
+        DetectionError (or TrackingError) for an unusable image or pose; the state is
+        unchanged then.
         """
         t0 = time.perf_counter()
         grey = to_grey(image, what)
