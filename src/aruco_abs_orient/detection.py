@@ -1078,9 +1078,9 @@ class MarkerDetector:
         return GnomonicView.around(equirect, centre, fov, size=size)
 
     def _pool(self) -> Optional[ThreadPoolExecutor]:
-        """Threads for :meth:`detect`'s seam and polar searches, as many as OpenCV's own
-        (``cv2.setNumThreads``), at most 3; None when OpenCV runs single-threaded."""
-        n = min(3, cv2.getNumThreads())
+        """Threads for :meth:`detect`'s seam and polar searches (one each) when OpenCV has
+        threads (``cv2.setNumThreads``); None when it runs single-threaded."""
+        n = min(2, cv2.getNumThreads())
         if n <= 1:
             return None
         if self._threads is None or self._threads[0] != n:
@@ -1122,15 +1122,17 @@ class MarkerDetector:
             extra.append(lambda: [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam",
                                                                  max_el=max_el, across=half - 0.5)
                                   if _straddles_seam(o, eq)])
-        if q.pole_views:
-            extra += [lambda view=view, maps=maps: [o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
-                                                    if abs(o.elevation) > band]
-                      for view, maps in self._pole_views(eq)]
+        if q.pole_views:  # one job: the two views share one OpenCV detector (their rate is the same)
+            extra.append(lambda: [[o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
+                                   if abs(o.elevation) > band] for view, maps in self._pole_views(eq)])
         pool = self._pool()
         pending = [pool.submit(job) for job in extra] if pool is not None else []
         found = self.detect_columns(grey, eq, 0, eq.width, "full", max_el=max_el)
-        for more in ([p.result() for p in pending] if pool is not None else [job() for job in extra]):
-            found = dedupe_observations(found + more)
+        results = [p.result() for p in pending] if pool is not None else [job() for job in extra]
+        if half > 0:
+            found = dedupe_observations(found + results.pop(0))
+        for polar in (results[0] if results else []):
+            found = dedupe_observations(found + polar)
         return sorted(found, key=lambda o: o.id)
 
 
