@@ -891,8 +891,9 @@ class MarkerDetector:
             out += self.observations(equirect, [h[0] for h in hits],
                                      np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits]), method)
         elif hits:  # read in the equirect: straighten on the sphere, read again
+            # the shrunk tries of one marker read as the same square: one (the next only if it fails)
             b = np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits])
-            out += self._refined_and_read(grey, equirect, b, [h[0] for h in hits], method)
+            out += self._refined_and_read(grey, equirect, b, [h[0] for h in hits], method, keys=_same_squares(hits))
         if not perspective:  # large quads in the equirect: curved edges, refined on the sphere only
             big = perimeters >= large
             if np.any(big):
@@ -1134,6 +1135,19 @@ class MarkerDetector:
         for polar in (results[0] if results else []):
             found = dedupe_observations(found + polar)
         return sorted(found, key=lambda o: o.id)
+
+
+def _same_squares(hits: Sequence[Tuple[int, np.ndarray]]) -> List[int]:
+    """A key per decoded quad ``(id, corners (4, 2))``: the same key for quads of the same id
+    whose centres are within a quarter of a side of each other (one marker read twice)."""
+    keys: List[int] = []
+    for k, (marker_id, q) in enumerate(hits):
+        centre = q.mean(axis=0)
+        side = float(np.mean(np.linalg.norm(q - np.roll(q, -1, axis=0), axis=1)))
+        same = [keys[j] for j in range(k) if hits[j][0] == marker_id
+                and float(np.hypot(*(hits[j][1].mean(axis=0) - centre))) < 0.25 * side]
+        keys.append(same[0] if same else k)
+    return keys
 
 
 def _reaches(quad: np.ndarray, column: float) -> bool:
