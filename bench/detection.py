@@ -11,6 +11,8 @@ textured background), full size (3840×1920 by default). Prints one table per se
   fp        false detections over textured frames without markers
   speed     a moving-camera sequence: ms/frame of plain full-frame OpenCV detection vs the
             map-guided tracker, their ratio, and what each finds
+  fullframe the whole-frame search (MarkerDetector.detect: seam, poles, rescue) vs one plain
+            cv2.aruco call on the same frame (near, far, seam, pole): ms, ratio, ids found
 
 Usage: bench/detection.py [--frames 60] [--width 3840] [--fp-frames 500] [--only speed,range]
 """
@@ -294,8 +296,66 @@ def section_speed(args, det):
           f"finds; plus {sum(extra.values())} it misses: {extra}")
 
 
+def fullframe_scenes(width):
+    """Rendered frames of the fullframe section: (name, image, markers)."""
+    rng = np.random.default_rng(31)
+    scenes = [
+        ("near 1-3 m", [facing_marker(i, SIZE, d * azel_to_bearing(-3.0 + 0.75 * i, rng.uniform(-0.6, 0.6)),
+                                      roll=rng.uniform(-0.7, 0.7))
+                        for i, d in enumerate([1.0, 1.5, 2.0, 2.5, 3.0] * 2)]),
+        ("mid 2-12 m", [facing_marker(i, SIZE, d * azel_to_bearing(-3.0 + 0.55 * i, rng.uniform(-0.3, 0.3)),
+                                      roll=rng.uniform(-0.7, 0.7)) for i, d in enumerate(range(2, 13))]),
+        ("far 10-12 m", [facing_marker(i, SIZE, d * azel_to_bearing(-3.0 + 0.6 * i, rng.uniform(-0.3, 0.3)),
+                                       roll=rng.uniform(-0.7, 0.7)) for i, d in enumerate([10, 11, 12] * 3 + [12])]),
+        ("seam 0.6-8 m", [facing_marker(i, SIZE, d * azel_to_bearing(math.pi + rng.uniform(-0.4, 0.4) * SIZE / d,
+                                                                     el * DEG), roll=rng.uniform(-0.7, 0.7))
+                          for i, (d, el) in enumerate([(0.6, -38), (1.0, -12), (2.0, 8), (4.0, 22), (8.0, 36)])]),
+        ("pole ±60-75 deg", [facing_marker(i, SIZE, d * azel_to_bearing(-3.0 + 0.6 * i, (1 if i % 2 else -1)
+                                                                        * rng.uniform(60, 75) * DEG),
+                                           roll=rng.uniform(-0.7, 0.7))
+                             for i, d in enumerate([1.0, 1.5, 2.0, 3.0] * 2)]),
+        ("textured, no marker", []),
+    ]
+    return [(name, render_equirect(width, ms, seed=40 + k), ms) for k, (name, ms) in enumerate(scenes)]
+
+
+def section_fullframe(args, det):
+    import cv2
+
+    rows, ratios, cpu_ratios = [], [], []
+    for name, img, ms in fullframe_scenes(args.width):
+        truth = {m.id: unit(m.center) for m in ms}
+        runs = {"plain": ([], []), "ours": ([], [])}  # wall ms, CPU ms (all threads)
+        for _ in range(args.repeat):  # interleaved: both see the same machine load
+            for key, fn in (("plain", lambda im=img: det.backend.detect(im, det.params.min_marker_perimeter_px)),
+                            ("ours", lambda im=img: det.detect(im))):
+                t, c = time.perf_counter(), time.process_time()
+                out = fn()
+                runs[key][0].append((time.perf_counter() - t) * 1000.0)
+                runs[key][1].append((time.process_time() - c) * 1000.0)
+                if key == "plain":
+                    ids = out[0]
+                else:
+                    found = out
+        (pw, pc), (ow, oc) = [[float(np.median(x)) for x in runs[k]] for k in ("plain", "ours")]
+        ratios.append(ow / pw)
+        cpu_ratios.append(oc / pc)
+        right = [o for o in found if o.id in truth and float(angle_between(o.centre, truth[o.id])) < 0.5 * DEG]
+        errs = [float(angle_between(o.centre, truth[o.id])) / DEG for o in right]
+        rows.append((name, f"{pw:.1f}", f"{ow:.1f}", f"{ow / pw:.2f}", f"{pc:.1f}", f"{oc:.1f}", f"{oc / pc:.2f}",
+                     f"{len({i for i in ids if i in truth})}/{len(truth)}", f"{len(right)}/{len(truth)}",
+                     len(found) - len(right), f"{np.median(errs):.4f}" if errs else "-"))
+    table(f"Whole-frame search (MarkerDetector.detect) vs plain cv2.aruco (one detectMarkers call, same dictionary "
+          f"and OpenCV settings, whole grey frame), {args.width} px, medians of {args.repeat} interleaved runs, "
+          f"{cv2.getNumThreads()} OpenCV threads, {os.getloadavg()[0]:.1f} load; median ratio wall "
+          f"{np.median(ratios):.2f}, CPU {np.median(cpu_ratios):.2f}",
+          ["frame", "plain ms", "ours ms", "ratio", "plain CPU ms", "ours CPU ms", "CPU ratio", "plain ids",
+           "ours ids", "ours extra", "median err deg"], rows)
+
+
 SECTIONS = {"jpeg": section_jpeg, "accuracy": section_accuracy, "bias": section_bias, "range": section_range,
-            "seam_pole": section_seam_pole, "fp": section_fp, "speed": section_speed}
+            "seam_pole": section_seam_pole, "fp": section_fp, "speed": section_speed,
+            "fullframe": section_fullframe}
 
 
 def main(argv=None):

@@ -1,14 +1,17 @@
 """ArUco markers in 360° equirectangular frames (DESIGN §4 steps 1–2).
 
 Full-frame detection (:meth:`MarkerDetector.detect`): cv2.aruco tuned for small far
-markers on the whole frame; a strip around the ±180° seam searched again with its halves
-swapped (the image rolled by W/2 there), for markers straddling the seam; two gnomonic
-(perspective) views of the polar bands, where equirect shapes are too distorted for
-OpenCV. Then this module's own steps: every marker's corners are refined by fitting
-straight lines to its four edges in a gnomonic view (never in the equirect, where they
-are curved), every id OpenCV read is checked by reading the cells again, and the quads
-OpenCV rejected — small far markers whose 1–2 px cells it cannot threshold, close
-markers too curved for it — are refined and read here (:func:`decode_quad`).
+markers on the whole frame (up to ``pole_overlap_deg`` beyond the polar band); a strip
+around the ±180° seam searched again with its halves swapped (the image rolled by W/2
+there), for markers straddling the seam (only what reaches across the seam is refined and
+read there); two gnomonic (perspective) views of the polar bands, where equirect shapes
+are too distorted for OpenCV. The seam and polar searches run in threads beside the full
+pass when OpenCV has threads (``cv2.setNumThreads``); the results do not depend on it.
+Then this module's own steps: every marker's corners are refined by fitting straight lines
+to its four edges in a gnomonic view (never in the equirect, where they are curved), every
+id OpenCV read is checked by reading the cells again, and the quads OpenCV rejected —
+small far markers whose 1–2 px cells it cannot threshold, close markers too curved for it
+— are refined and read here (:func:`decode_quad`).
 
 Each marker becomes a :class:`MarkerObservation` whose centre is the intersection of the
 diagonals **on the sphere** (great circles through opposite corners), not in pixel space:
@@ -29,6 +32,7 @@ Python 3.8 compatible; numpy and OpenCV only.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -51,10 +55,13 @@ __all__ = [
     "marker_angular_size",
     "bearing_sigma",
     "refine_corners",
+    "refine_corners_many",
     "decode_marker",
+    "decode_markers",
     "refine_quad",
     "refine_quads",
     "decode_quad",
+    "decode_quads",
     "dedupe_observations",
     "image_sampler",
     "RESCUE_SHRINK",
@@ -99,6 +106,9 @@ class DetectorParams:
       the ±180° seam (a marker on the seam must fit in it: 0.19 m at ≥ 0.45 m).
     - ``pole_views``: search two gnomonic views (zenith, nadir) for markers in the polar
       bands ``|el| > pole_band_deg`` (degrees), where equirect shapes are too distorted.
+    - ``pole_overlap_deg``: with ``pole_views``, the whole frame and the seam strip are
+      searched only up to ``pole_band_deg`` + this (degrees) from the horizon: enough for a
+      marker centred on the band's edge at 0.45 m; the polar views see the rest.
     - ``max_view_px``: cap on a view's side (pixels); larger views lower their resolution.
 
     Corners and ids (this module's own steps after OpenCV's):
@@ -169,6 +179,7 @@ class DetectorParams:
     seam_strip_deg: float = 25.0
     pole_views: bool = True
     pole_band_deg: float = 55.0
+    pole_overlap_deg: float = 20.0
     max_view_px: int = 1024
 
     edge_refine: bool = True
@@ -321,20 +332,65 @@ def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: 
     return float(pitch * params.corner_sigma_px * grow * scale / 2.0)
 
 
-def _marker_view(equirect: Equirect, corners) -> Tuple[GnomonicView, np.ndarray]:
-    """A virtual gnomonic view centred on a marker at the equirect's resolution (nothing is
-    rendered) and the marker's corner pixels (4, 2) in it; None pixels if a corner is behind."""
-    c = np.asarray(corners, dtype=float)
-    view = GnomonicView(sphere_centre_bearing(c), (1, 1), 1.0 / equirect.rad_per_px, None)
-    x, y, front = view.bearing_to_pixel(c)
-    return view, (np.stack([x, y], axis=1) if np.all(front) else None)
+class _MarkerViews:
+    """Virtual gnomonic views (M) centred on markers (corner bearings (M, 4, 3)) at the
+    equirect's resolution (nothing is rendered), and ``quads`` (M, 4, 2) the markers' corner
+    pixels in them (NaN for a marker with a corner behind its view).
+
+    One camera.py view ``view`` (centred on the first marker) maps pixels and bearings for
+    all of them: view k is ``view`` turned by the smallest rotation taking its axis onto
+    marker k's centre, ``turn`` (M, 3, 3): view k's bearings (rows) = ``view``'s @ ``turn[k]``.
+    """
+
+    def __init__(self, equirect: Equirect, corners):
+        c = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+        self.equirect = equirect
+        self.quads = np.full((len(c), 4, 2), np.nan)
+        if not len(c):
+            return
+        centres = sphere_centre_bearing(c)
+        self.view = GnomonicView(centres[0], (1, 1), 1.0 / equirect.rad_per_px, None)
+        self.turn = np.transpose(_rotations_onto(centres[0], centres), (0, 2, 1))
+        x, y, front = self.view.bearing_to_pixel(np.matmul(c, np.transpose(self.turn, (0, 2, 1))))
+        ok = np.all(front, axis=1)
+        self.quads[ok] = np.stack([x, y], axis=2)[ok]
+
+    def bearings(self, pts: np.ndarray, sel) -> np.ndarray:
+        """Bearings (M', ..., 3) of pixels (M', ..., 2) of the views ``sel`` (M' indices)."""
+        b = self.view.pixel_to_bearing(pts[..., 0], pts[..., 1])
+        return np.matmul(b.reshape(len(b), -1, 3), self.turn[sel]).reshape(b.shape)
+
+    def sampler(self, grey: np.ndarray, sel):
+        """``sample(pts, rows=None)`` of :func:`refine_quads`/:func:`decode_quads` for points
+        (M', ..., 2) in the pixels of the views ``sel`` (``sel[rows]`` with rows): bilinear
+        grey levels of the equirect, sampled through camera.py's mappings in one remap."""
+        def sample(pts: np.ndarray, rows=None) -> np.ndarray:
+            u, v = self.equirect.bearing_to_pixel(self.bearings(pts, sel if rows is None else sel[rows]))
+            np.clip(v, 0.0, self.equirect.height - 1.0, out=v)
+            return _remap_points(grey, u, v, cv2.BORDER_WRAP)
+        return sample
 
 
-def _sample(grey: np.ndarray, equirect: Equirect, view: GnomonicView, pts: np.ndarray) -> np.ndarray:
-    """Bilinear grey levels of the equirect at view pixels ``pts`` (..., 2)."""
-    u, v = equirect.bearing_to_pixel(view.pixel_to_bearing(pts[..., 0], pts[..., 1]))
-    np.clip(v, 0.0, equirect.height - 1.0, out=v)
-    return _remap_points(grey, u, v, cv2.BORDER_WRAP)
+def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotations (M, 3, 3), R·a = b_k, from a unit vector a (3,) onto unit vectors b (M, 3):
+    the smallest ones (about a × b_k); for b_k nearly −a, a half turn about an axis ⟂ a
+    followed by the smallest rotation from −a onto b_k."""
+    def smallest(a, b):
+        v = np.cross(a, b)
+        vx = np.zeros((len(b), 3, 3))
+        vx[:, 0, 1], vx[:, 0, 2], vx[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+        vx -= np.transpose(vx, (0, 2, 1))
+        return np.eye(3) + vx + np.matmul(vx, vx) / (1.0 + b @ a)[:, None, None]
+
+    b = np.asarray(b, dtype=float).reshape(-1, 3)
+    opposite = b @ a < -0.5
+    r = np.empty((len(b), 3, 3))
+    r[~opposite] = smallest(a, b[~opposite])
+    if np.any(opposite):
+        u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        r[opposite] = np.matmul(smallest(-a, b[opposite]), 2.0 * np.outer(u, u) - np.eye(3))
+    return r
 
 
 def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
@@ -360,11 +416,23 @@ def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
     (one bilinear interpolation, through camera.py's mappings).
     ``bits``: cells across the marker including its black border (6 for 4×4 dictionaries).
     """
-    view, q = _marker_view(equirect, corners)
-    if q is None:
-        return None
-    q = refine_quad(lambda pts: _sample(grey, equirect, view, pts), q, bits, iterations)
-    return None if q is None else view.pixel_to_bearing(q[:, 0], q[:, 1])
+    r = refine_corners_many(grey, equirect, np.asarray(corners, dtype=float)[None], bits, iterations)[0]
+    return None if np.isnan(r).any() else r
+
+
+def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
+                        iterations: int = 2) -> np.ndarray:
+    """:func:`refine_corners` of M markers (corner bearings (M, 4, 3)) at once, each in its
+    own virtual view, all profiles sampled in one remap: (M, 4, 3), NaN rows for failures."""
+    mv = _MarkerViews(equirect, corners)
+    out = np.full((len(mv.quads), 4, 3), np.nan)
+    sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
+    if len(sel):
+        r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations)
+        good = ~np.isnan(r).any(axis=(1, 2))
+        if np.any(good):
+            out[sel[good]] = mv.bearings(r[good], sel[good])
+    return out
 
 
 def refine_quad(sample, q: np.ndarray, bits: int = 6, iterations: int = 2, **kw) -> Optional[np.ndarray]:
@@ -379,7 +447,8 @@ def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, 
     """Refined corners (M, 4, 2) of markers' black squares in a perspective image; NaN rows
     for the quads that fail (too small, too little contrast, diverging).
 
-    ``sample(pts)``: grey levels at image points (..., 2) (pixels); ``quads`` (M, 4, 2):
+    ``sample(pts, rows)``: grey levels at image points (R, ..., 2) (pixels) of the quads
+    ``rows`` (R indices into ``quads``; :func:`image_sampler`); ``quads`` (M, 4, 2):
     approximate corners. Along each edge (``along`` profiles) the intensity profile across
     it is sampled, the edge is located at the centroid of the black→white gradient within
     ±max(``half_bits`` bit, ``min_half_px`` pixels) of the current line (``samples`` steps),
@@ -392,46 +461,52 @@ def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, 
     s = np.linspace(0.15, 0.85, along)
     unit_offs = np.linspace(-1.0, 1.0, samples + 1)
     for _ in range(max(1, iterations)):
-        d = np.roll(q, -1, axis=1) - q  # (M, 4, 2) sides
+        rows = np.flatnonzero(alive)  # each iteration works on the quads still alive only
+        if not len(rows):
+            break
+        qa = q[rows]
+        d = np.roll(qa, -1, axis=1) - qa  # (M, 4, 2) sides
         length = np.linalg.norm(d, axis=2)
-        alive &= np.all(length >= 2.0, axis=1)
+        live = np.all(length >= 2.0, axis=1)
         t = d / np.maximum(length, 1e-9)[..., None]
         n = np.stack([t[..., 1], -t[..., 0]], axis=2)
-        out = np.sum(n * (q + 0.5 * d - q.mean(axis=1, keepdims=True)), axis=2)
+        out = np.sum(n * (qa + 0.5 * d - qa.mean(axis=1, keepdims=True)), axis=2)
         n *= np.where(out < 0, -1.0, 1.0)[..., None]  # outward normals
         half = np.maximum(half_bits * length.mean(axis=1) / bits, min_half_px)  # (M,)
         offs = half[:, None] * unit_offs[None, :]  # (M, m)
-        base = q[:, :, None, :] + s[None, None, :, None] * d[:, :, None, :]  # (M, 4, k, 2)
+        base = qa[:, :, None, :] + s[None, None, :, None] * d[:, :, None, :]  # (M, 4, k, 2)
         pts = base[:, :, :, None, :] + offs[:, None, None, :, None] * n[:, :, None, None, :]
-        prof = sample(pts)  # (M, 4, k, m)
+        prof = sample(pts, rows)  # (M, 4, k, m)
         grad = np.clip(np.diff(prof, axis=3), 0.0, None)
         total = grad.sum(axis=3)
         mids = 0.5 * (offs[:, 1:] + offs[:, :-1])  # (M, m-1)
         edge = (grad * mids[:, None, None, :]).sum(axis=3) / np.maximum(total, 1e-9)
-        ok = (total >= min_contrast) & alive[:, None, None]
-        alive &= np.all(np.count_nonzero(ok, axis=2) >= 3, axis=1)
-        ok &= alive[:, None, None]
-        ok[~alive] = True  # dead quads: fit anything, discarded below
+        ok = (total >= min_contrast) & live[:, None, None]
+        live &= np.all(np.count_nonzero(ok, axis=2) >= 3, axis=1)
+        ok &= live[:, None, None]
+        ok[~live] = True  # dead quads: fit anything, discarded below
         normal, offset = _fit_lines((base + edge[..., None] * n[:, :, None, :]).reshape(-1, along, 2),
                                     ok.reshape(-1, along))
         normal = normal.reshape(-1, 4, 2)
         offset = offset.reshape(-1, 4)
         a = np.stack([np.roll(normal, 1, axis=1), normal], axis=2)  # corner i: sides i−1 and i
         det = np.linalg.det(a)
-        alive &= np.all(np.abs(det) >= 1e-6, axis=1)
-        a[~alive] = np.eye(2)
+        live &= np.all(np.abs(det) >= 1e-6, axis=1)
+        a[~live] = np.eye(2)
         rhs = np.stack([np.roll(offset, 1, axis=1), offset], axis=2)[..., None]
         newq = np.linalg.solve(a, rhs)[..., 0]
-        alive &= np.all(np.isfinite(newq), axis=(1, 2))
-        alive &= np.max(np.linalg.norm(newq - q, axis=2), axis=1) <= 0.5 * length.mean(axis=1)
-        q = np.where(alive[:, None, None], newq, q)
+        live &= np.all(np.isfinite(newq), axis=(1, 2))
+        live &= np.max(np.linalg.norm(newq - qa, axis=2), axis=1) <= 0.5 * length.mean(axis=1)
+        q[rows] = np.where(live[:, None, None], newq, qa)
+        alive[rows] = live
     q[~alive] = np.nan
     return q
 
 
 def image_sampler(img: np.ndarray):
-    """``sample(pts)`` of :func:`refine_quad` for a grey image: bilinear, border replicated."""
-    def sample(pts: np.ndarray) -> np.ndarray:
+    """``sample(pts, rows=None)`` of :func:`refine_quads` and :func:`decode_quads` for a grey
+    image: bilinear, border replicated (``rows`` does not matter: one image for all quads)."""
+    def sample(pts: np.ndarray, rows=None) -> np.ndarray:
         return _remap_points(img, pts[..., 0], pts[..., 1], cv2.BORDER_REPLICATE)
     return sample
 
@@ -444,12 +519,25 @@ def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarr
     gnomonic view centred on the quad (exact homography for a planar marker), sampling the
     equirect through camera.py's mappings.
     """
-    view, q = _marker_view(equirect, corners)
-    if q is None:
-        return None
-    hit = decode_quad(lambda pts: _sample(grey, equirect, view, pts), q, codes, min_contrast, min_correlation,
-                      min_lead, min_pattern_correlation)
-    return None if hit is None else (hit[0], view.pixel_to_bearing(hit[1][:, 0], hit[1][:, 1]))
+    return decode_markers(grey, equirect, np.asarray(corners, dtype=float)[None], codes, min_contrast,
+                          min_correlation, min_lead, min_pattern_correlation)[0]
+
+
+def decode_markers(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
+                   min_contrast: float = 40.0, min_correlation: float = 0.75, min_lead: float = 0.15,
+                   min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
+    """:func:`decode_marker` of M candidate quads (corner bearings (M, 4, 3)) at once, all
+    cells sampled in one remap: one ``(id, corner bearings)`` or None per quad."""
+    mv = _MarkerViews(equirect, corners)
+    out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(mv.quads)
+    sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
+    if len(sel):
+        hits = decode_quads(mv.sampler(grey, sel), mv.quads[sel], codes, min_contrast, min_correlation, min_lead,
+                            min_pattern_correlation)
+        for k, hit in zip(sel, hits):
+            if hit is not None:
+                out[k] = (hit[0], mv.bearings(hit[1][None], [k])[0])
+    return out
 
 
 def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
@@ -469,9 +557,18 @@ def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 
     correlates ≥ ``min_pattern_correlation`` with the grey levels.
     ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
     """
-    q = np.asarray(q, dtype=float)
-    if _signed_area(q) < 0:
-        q = q[::-1]
+    return decode_quads(lambda pts: sample(pts[0])[None], np.asarray(q, dtype=float)[None], codes, min_contrast,
+                        min_correlation, min_lead, min_pattern_correlation)[0]
+
+
+def decode_quads(sample, quads: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
+                 min_correlation: float = 0.75, min_lead: float = 0.15,
+                 min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
+    """:func:`decode_quad` of M quads (M, 4, 2) at once: ``sample(pts)`` gets the points
+    (M, ..., 2) of all of them in one call; one ``(id, corners)`` or None per quad."""
+    quads = np.asarray(quads, dtype=float).reshape(-1, 4, 2)
+    if not len(quads):
+        return []
     n = codes.shape[1]
     cells = n + 2
     square = np.array([[0.0, 0.0], [cells, 0.0], [cells, cells], [0.0, cells]], dtype=np.float32)
@@ -481,30 +578,34 @@ def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 
     templates = codes.astype(float)
     templates -= templates.mean(axis=(1, 2), keepdims=True)
     templates /= np.maximum(np.linalg.norm(templates, axis=(1, 2), keepdims=True), 1e-12)
-    h = cv2.getPerspectiveTransform(square, q.astype(np.float32))
-    pts = cv2.perspectiveTransform(grid, h).reshape(len(gx), len(gx), 2)
-    m = sample(pts).reshape(cells + 2, 3, cells + 2, 3).mean(axis=(1, 3))
-    ring = np.concatenate([m[0], m[-1], m[1:-1, 0], m[1:-1, -1]])  # quiet zone
-    border = np.concatenate([m[1, 1:-1], m[-2, 1:-1], m[2:-2, 1], m[2:-2, -2]])
-    if float(np.min(ring)) - float(np.max(border)) < min_contrast:
-        return None
-    inner = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
-    norm = float(np.linalg.norm(inner))
-    if norm == 0.0:
-        return None
-    # starting the quad at its corner k (np.roll(q, -k)) rotates the cell grid by np.rot90(·, k)
-    scores = np.stack([np.tensordot(templates, np.rot90(inner, k) / norm, axes=([1, 2], [0, 1]))
-                       for k in range(4)])
-    flat = np.sort(scores.reshape(-1))
-    best = np.unravel_index(int(np.argmax(scores)), scores.shape)
-    if flat[-1] < min_correlation or flat[-1] - flat[-2] < min_lead:
-        return None
+    quads = np.array([q[::-1] if _signed_area(q) < 0 else q for q in quads])
+    pts = np.stack([cv2.perspectiveTransform(grid, cv2.getPerspectiveTransform(square, q.astype(np.float32)))
+                    for q in quads]).reshape(len(quads), len(gx), len(gx), 2)
+    cm = sample(pts).reshape(len(quads), cells + 2, 3, cells + 2, 3).mean(axis=(2, 4))
+    ring = np.concatenate([cm[:, 0], cm[:, -1], cm[:, 1:-1, 0], cm[:, 1:-1, -1]], axis=1)  # quiet zone
+    border = np.concatenate([cm[:, 1, 1:-1], cm[:, -2, 1:-1], cm[:, 2:-2, 1], cm[:, 2:-2, -2]], axis=1)
+    contrast = np.min(ring, axis=1) - np.max(border, axis=1) >= min_contrast
     whole = np.ones((cells + 2, cells + 2))  # the whole pattern: quiet zone, border, bits
     whole[1:-1, 1:-1] = 0.0
-    whole[2:-2, 2:-2] = codes[best[1]]
-    if np.corrcoef(np.rot90(m, int(best[0])).reshape(-1), whole.reshape(-1))[0, 1] < min_pattern_correlation:
-        return None
-    return int(best[1]), np.roll(q, -int(best[0]), axis=0)
+    out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(quads)
+    for k in np.flatnonzero(contrast):
+        m, q = cm[k], quads[k]
+        inner = m[2:-2, 2:-2] - m[2:-2, 2:-2].mean()
+        norm = float(np.linalg.norm(inner))
+        if norm == 0.0:
+            continue
+        # starting the quad at its corner k (np.roll(q, -k)) rotates the cell grid by np.rot90(·, k)
+        scores = np.stack([np.tensordot(templates, np.rot90(inner, r) / norm, axes=([1, 2], [0, 1]))
+                           for r in range(4)])
+        flat = np.sort(scores.reshape(-1))
+        best = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        if flat[-1] < min_correlation or flat[-1] - flat[-2] < min_lead:
+            continue
+        whole[2:-2, 2:-2] = codes[best[1]]
+        if np.corrcoef(np.rot90(m, int(best[0])).reshape(-1), whole.reshape(-1))[0, 1] < min_pattern_correlation:
+            continue
+        out[k] = (int(best[1]), np.roll(q, -int(best[0]), axis=0))
+    return out
 
 
 def _signed_area(q: np.ndarray) -> float:
@@ -514,7 +615,10 @@ def _signed_area(q: np.ndarray) -> float:
 
 def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
     """Lines n·x = c (unit normals (L, 2), offsets (L,)) through the points p (L, k, 2) where
-    ``ok`` (L, k): total least squares, then again without points beyond 3 robust σ."""
+    ``ok`` (L, k): total least squares, then again without points beyond 3 robust σ — the
+    four lines of a quad (L = 4M) together, unless one of them would keep fewer than 3
+    points (then none of its four is fitted again: a quad's result never depends on the
+    other quads fitted with it)."""
     w = ok.astype(float)
     for _ in range(2):
         sw = w.sum(axis=1)
@@ -529,7 +633,9 @@ def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         ranked = np.sort(np.where(w > 0, r, np.inf), axis=1)
         sigma = 1.4826 * ranked[np.arange(len(r)), (w.sum(axis=1).astype(int) - 1) // 2]
         keep = w * (r <= np.maximum(3.0 * sigma, 1e-3)[:, None])
-        if np.array_equal(keep, w) or np.any(keep.sum(axis=1) < 3):
+        few = np.repeat(np.any((keep.sum(axis=1) < 3).reshape(-1, 4), axis=1), 4)
+        keep[few] = w[few]
+        if np.array_equal(keep, w):
             break
         w = keep
     return normal, np.sum(normal * m, axis=1)
@@ -697,6 +803,7 @@ class MarkerDetector:
         self.params.validate()
         self.backend = ArucoBackend(dictionary, self.params, api)
         self._pole_maps: Dict[Tuple[int, int], Tuple[GnomonicView, np.ndarray, np.ndarray]] = {}
+        self._threads: Optional[Tuple[int, ThreadPoolExecutor]] = None
 
     # ---------------------------------------------------------------- building blocks
 
@@ -741,24 +848,28 @@ class MarkerDetector:
         """
         q = self.params
         bits = self.backend.bits
+        codes = self.backend.codes
         ids, corners, rejected = found
         sample = image_sampler(image)
         out = []
-        for i, c in zip(ids, corners):
-            if (expect_id is not None and i != expect_id) or i in skip_ids:
-                continue
-            b = to_bearing(c[:, 0], c[:, 1])
-            r = None
+        wanted = [k for k, i in enumerate(ids) if not ((expect_id is not None and i != expect_id) or i in skip_ids)]
+        if wanted:  # OpenCV's finds, refined (and read again) all at once
+            kept_ids = [ids[k] for k in wanted]
+            c = np.array([corners[k] for k in wanted])
+            b = to_bearing(c[..., 0], c[..., 1])
             if q.edge_refine and perspective:
-                rq = refine_quad(sample, c, bits, q.view_refine_iterations)
-                r = None if rq is None else to_bearing(rq[:, 0], rq[:, 1])
+                rq = refine_quads(sample, c, bits, q.view_refine_iterations)
+                b = np.where(np.isnan(rq).any(axis=(1, 2))[:, None, None], b, to_bearing(rq[..., 0], rq[..., 1]))
             elif q.edge_refine:
-                r = refine_corners(grey, equirect, b, bits)
+                rb = refine_corners_many(grey, equirect, b, bits)
+                b = np.where(np.isnan(rb).any(axis=(1, 2))[:, None, None], b, rb)
             if q.verify_decode and expect_id is None:
-                hit = self._decode(grey, equirect, b if r is None else r)
-                if hit is None or hit[0] != i:
-                    continue  # OpenCV's id is not what the cells say: a misread or a texture
-            out.append(self.observation(equirect, i, b if r is None else r, method))
+                # OpenCV's id must be what the cells say (else a misread or a texture)
+                hits = decode_markers(grey, equirect, b, codes, *self._decode_thresholds())
+                same = [k for k, (i, hit) in enumerate(zip(kept_ids, hits)) if hit is not None and hit[0] == i]
+                kept_ids, b = [kept_ids[k] for k in same], b[same]
+            if kept_ids:
+                out += self.observations(equirect, kept_ids, b, method)
         if not rescue or (expect_id is not None and out):
             return out
         small = q.rescue_max_side_px * 4.0 * scale
@@ -767,38 +878,63 @@ class MarkerDetector:
         # (RESCUE_SHRINK): all refined and read at once in the image, then (equirect) again on
         # the sphere; a large one may be a close marker whose curved equirect image OpenCV
         # could not read: in a view read at once, in the equirect on the sphere only.
-        perimeters = [np.sum(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)) for c in rejected]
-        tries = [c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for c, p in zip(rejected, perimeters)
-                 if p <= small or (perspective and p >= large) for shrink in RESCUE_SHRINK]
-        for r in refine_quads(sample, np.array(tries), bits) if tries else []:
-            if np.isnan(r).any():
-                continue
-            hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
-            if hit is None or (expect_id is not None and hit[0] != expect_id):
-                continue
-            b = to_bearing(hit[1][:, 0], hit[1][:, 1])
-            if not perspective:  # read in the equirect: straighten on the sphere, read again
-                rb = refine_corners(grey, equirect, b, bits)
-                again = self._decode(grey, equirect, rb) if rb is not None else None
-                if again is None or again[0] != hit[0]:
-                    continue
-                b = again[1]
-            out.append(self.observation(equirect, hit[0], b, method))
+        rejected = np.array(rejected, dtype=float).reshape(-1, 4, 2)
+        perimeters = np.sum(np.linalg.norm(rejected - np.roll(rejected, -1, axis=1), axis=2), axis=1)
+        mid = rejected.mean(axis=1, keepdims=True)
+        shrunk = mid[:, None] + np.asarray(RESCUE_SHRINK)[None, :, None, None] * (rejected - mid)[:, None]
+        tries = shrunk[(perimeters <= small) | (perspective & (perimeters >= large))].reshape(-1, 4, 2)
+        refined = refine_quads(sample, tries, bits)
+        refined = refined[~np.isnan(refined).any(axis=(1, 2))]
+        hits = [h for h in decode_quads(sample, refined, codes, *self._decode_thresholds())
+                if h is not None and (expect_id is None or h[0] == expect_id)]
+        if hits and perspective:
+            out += self.observations(equirect, [h[0] for h in hits],
+                                     np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits]), method)
+        elif hits:  # read in the equirect: straighten on the sphere, read again
+            # the shrunk tries of one marker read as the same square: one (the next only if it fails)
+            b = np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits])
+            out += self._refined_and_read(grey, equirect, b, [h[0] for h in hits], method, keys=_same_squares(hits))
         if not perspective:  # large quads in the equirect: curved edges, refined on the sphere only
-            for c, p in zip(rejected, perimeters):
-                if p < large:
-                    continue
-                for shrink in RESCUE_SHRINK:
-                    quad = c.mean(axis=0) + shrink * (c - c.mean(axis=0))
-                    b = to_bearing(quad[:, 0], quad[:, 1])
-                    if decode_marker(grey, equirect, b, self.backend.codes, *_LOOSE_DECODE) is None:
-                        continue  # a quick loose reading first: most large quads are texture
-                    rb = refine_corners(grey, equirect, b, bits)
-                    hit = self._decode(grey, equirect, rb) if rb is not None else None
-                    if hit is not None and (expect_id is None or hit[0] == expect_id):
-                        out.append(self.observation(equirect, hit[0], hit[1], method))
-                        break
+            big = perimeters >= large
+            if np.any(big):
+                quads = shrunk[big].reshape(-1, 4, 2)
+                b = to_bearing(quads[..., 0], quads[..., 1])
+                # a quick loose reading first: most large quads are texture
+                loose = [k for k, h in enumerate(decode_markers(grey, equirect, b, codes, *_LOOSE_DECODE))
+                         if h is not None]
+                got = self._refined_and_read(grey, equirect, b[loose], [expect_id] * len(loose), method,
+                                             keys=[k // len(RESCUE_SHRINK) for k in loose])
+                out += got
         return dedupe_observations(out)
+
+    def _refined_and_read(self, grey: np.ndarray, equirect: Equirect, corners: np.ndarray,
+                          expect: Sequence[Optional[int]], method: str,
+                          keys: Optional[Sequence[int]] = None) -> List[MarkerObservation]:
+        """Observations of candidate quads (corner bearings (M, 4, 3)) of the equirect whose
+        corners refine on the sphere and whose cells then read as the ``expect`` id (None:
+        any id). With ``keys`` (the shrunk tries of one rejected quad share a key), a key's
+        tries are taken in order, the next one only when the previous failed."""
+        keys = list(range(len(corners))) if keys is None else list(keys)
+        ids, bearings = [], []
+        todo = list(range(len(corners)))
+        while todo:
+            batch, seen = [], set()
+            for k in todo:  # the first untried try of each key
+                if keys[k] not in seen:
+                    seen.add(keys[k])
+                    batch.append(k)
+            rb = refine_corners_many(grey, equirect, corners[batch], self.backend.bits)
+            good = np.flatnonzero(~np.isnan(rb).any(axis=(1, 2)))
+            hits = decode_markers(grey, equirect, rb[good], self.backend.codes, *self._decode_thresholds())
+            done = set()
+            for j, hit in zip(good, hits):
+                k = batch[j]
+                if hit is not None and (expect[k] is None or hit[0] == expect[k]):
+                    done.add(keys[k])
+                    ids.append(hit[0])
+                    bearings.append(hit[1])
+            todo = [k for k in todo if k not in batch and keys[k] not in done]
+        return self.observations(equirect, ids, np.array(bearings), method) if ids else []
 
     def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
                        maps: Optional[Tuple[np.ndarray, np.ndarray]] = None, map_step: int = 1,
@@ -905,10 +1041,12 @@ class MarkerDetector:
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
                        method: str = "full", rescue: bool = True, max_el: float = math.pi / 2,
-                       skip_ids: Sequence[int] = ()) -> List[MarkerObservation]:
+                       skip_ids: Sequence[int] = (), across: Optional[float] = None) -> List[MarkerObservation]:
         """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam),
         rows within ``max_el`` (radians) of the horizon; ``rescue``: also decode the quads
-        OpenCV rejected (small, close markers); ``skip_ids``: ids not wanted."""
+        OpenCV rejected (small, close markers); ``skip_ids``: ids not wanted; ``across``: only
+        OpenCV's finds and rejected quads that reach across this column of the strip (with
+        half their width to spare, for the refinement) are refined and read."""
         w = equirect.width
         u0 = int(u0) % w
         width = int(min(width, w))
@@ -919,6 +1057,11 @@ class MarkerDetector:
         else:
             strip = np.hstack([grey[v0:v1, u0:], grey[v0:v1, :u0 + width - w]])
         found = self.backend.detect(strip, self.params.min_marker_perimeter_px)
+        if across is not None:
+            ids, corners, rejected = found
+            near = [_reaches(c, across) for c in corners]
+            found = ([i for i, ok in zip(ids, near) if ok], [c for c, ok in zip(corners, near) if ok],
+                     [c for c in rejected if _reaches(c, across)])
         return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0,
                             method, strip, False, rescue=rescue, skip_ids=skip_ids)
 
@@ -935,6 +1078,18 @@ class MarkerDetector:
         size = int(min(max(math.ceil(native * upsample), self.params.roi_min_px), self.params.max_view_px))
         return GnomonicView.around(equirect, centre, fov, size=size)
 
+    def _pool(self) -> Optional[ThreadPoolExecutor]:
+        """Threads for :meth:`detect`'s seam and polar searches (one each) when OpenCV has
+        threads (``cv2.setNumThreads``); None when it runs single-threaded."""
+        n = min(2, cv2.getNumThreads())
+        if n <= 1:
+            return None
+        if self._threads is None or self._threads[0] != n:
+            if self._threads is not None:
+                self._threads[1].shutdown(wait=False)
+            self._threads = (n, ThreadPoolExecutor(max_workers=n, thread_name_prefix="aruco_detect"))
+        return self._threads[1]
+
     def _pole_views(self, equirect: Equirect):
         key = (equirect.width, equirect.height)
         if key not in self._pole_maps:
@@ -942,7 +1097,9 @@ class MarkerDetector:
             views = []
             for z in (1.0, -1.0):
                 view = self.view_around(equirect, np.array([0.0, 0.0, z]), fov)
-                views.append((view, view.remap_maps(equirect)))
+                map_x, map_y = view.remap_maps(equirect)
+                # columns brought into [0, W) once: cv2.remap is ~2× slower on columns it must wrap
+                views.append((view, (np.mod(map_x, np.float32(equirect.width)), map_y)))
             self._pole_maps = {key: views}
         return self._pole_maps[key]
 
@@ -957,19 +1114,46 @@ class MarkerDetector:
         grey = to_grey(image, what)
         eq = Equirect(grey.shape[1], grey.shape[0])
         q = self.params
-        found = self.detect_columns(grey, eq, 0, eq.width, "full")
+        # with the polar views, the equirect is searched up to pole_overlap_deg beyond their band
+        max_el = math.radians(min(q.pole_band_deg + q.pole_overlap_deg, 90.0)) if q.pole_views else math.pi / 2
         half = int(math.ceil(math.radians(q.seam_strip_deg) / eq.rad_per_px))
+        band = math.radians(q.pole_band_deg)
+        extra = []  # searches independent of the full pass, run beside it (OpenCV releases the GIL)
         if half > 0:
-            seam = [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam")
-                    if _straddles_seam(o, eq)]
-            found = dedupe_observations(found + seam)
-        if q.pole_views:
-            band = math.radians(q.pole_band_deg)
-            for view, maps in self._pole_views(eq):
-                polar = [o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
-                         if abs(o.elevation) > band]
-                found = dedupe_observations(found + polar)
+            extra.append(lambda: [o for o in self.detect_columns(grey, eq, eq.width - half, 2 * half, "seam",
+                                                                 max_el=max_el, across=half - 0.5)
+                                  if _straddles_seam(o, eq)])
+        if q.pole_views:  # one job: the two views share one OpenCV detector (their rate is the same)
+            extra.append(lambda: [[o for o in self.detect_in_view(grey, eq, view, "gnomonic", maps)
+                                   if abs(o.elevation) > band] for view, maps in self._pole_views(eq)])
+        pool = self._pool()
+        pending = [pool.submit(job) for job in extra] if pool is not None else []
+        found = self.detect_columns(grey, eq, 0, eq.width, "full", max_el=max_el)
+        results = [p.result() for p in pending] if pool is not None else [job() for job in extra]
+        if half > 0:
+            found = dedupe_observations(found + results.pop(0))
+        for polar in (results[0] if results else []):
+            found = dedupe_observations(found + polar)
         return sorted(found, key=lambda o: o.id)
+
+
+def _same_squares(hits: Sequence[Tuple[int, np.ndarray]]) -> List[int]:
+    """A key per decoded quad ``(id, corners (4, 2))``: the same key for quads of the same id
+    whose centres are within a quarter of a side of each other (one marker read twice)."""
+    keys: List[int] = []
+    for k, (marker_id, q) in enumerate(hits):
+        centre = q.mean(axis=0)
+        side = float(np.mean(np.linalg.norm(q - np.roll(q, -1, axis=0), axis=1)))
+        same = [keys[j] for j in range(k) if hits[j][0] == marker_id
+                and float(np.hypot(*(hits[j][1].mean(axis=0) - centre))) < 0.25 * side]
+        keys.append(same[0] if same else k)
+    return keys
+
+
+def _reaches(quad: np.ndarray, column: float) -> bool:
+    """True when a quad's columns (4, 2), widened by half their span each way, contain ``column``."""
+    lo, hi = float(quad[:, 0].min()), float(quad[:, 0].max())
+    return lo - 0.5 * (hi - lo) <= column <= hi + 0.5 * (hi - lo)
 
 
 def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:

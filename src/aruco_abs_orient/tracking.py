@@ -11,7 +11,10 @@ tracking, a vertical strip of the equirect sweeps around the panorama (one
 ``sweep_tile_deg`` tile every ``sweep_every_frames`` frames, once around in
 ``sweep_period_frames`` frames) so
 markers the prediction misses are still found. Ids not in the map are rejected, and so is
-any observation farther than ``gate_deg`` from its prediction.
+any observation farther than ``gate_deg`` from its prediction — except in the full-frame
+search after a loss (``lost_after_frames`` frames with predictions and no accepted marker,
+gated ones included): the prediction is then what is suspect (a filter that ran away), so
+every map id is accepted, as without a pose, for the caller's own gates to judge.
 
 Units: metres for positions, radians for angles inside the code (``*_deg`` parameters are
 degrees), milliseconds for the reported times. Python 3.8 compatible; numpy and OpenCV only.
@@ -51,11 +54,12 @@ class MarkerPrediction:
 
 @dataclass
 class TrackingStats:
-    """What one frame cost and found: ``mode`` 'full' or 'tracked'; ``predicted`` markers
-    looked for in ROI views; ``found`` accepted observations by method; ``rejected_unknown``
-    detections of ids not in the map; ``rejected_gate`` detections too far from their
-    prediction; ``sweep_u0`` first column of the sweeping tile (−1 when none); ``time_ms``
-    wall time of :meth:`MarkerTracker.process` (milliseconds)."""
+    """What one frame cost and found: ``mode`` 'full' or 'tracked'; ``recovery`` True for a
+    full-frame search after a loss (map ids accepted without the prediction gate);
+    ``predicted`` markers looked for in ROI views; ``found`` accepted observations by
+    method; ``rejected_unknown`` detections of ids not in the map; ``rejected_gate``
+    detections too far from their prediction; ``sweep_u0`` first column of the sweeping tile
+    (−1 when none); ``time_ms`` wall time of :meth:`MarkerTracker.process` (milliseconds)."""
 
     mode: str
     predicted: int = 0
@@ -64,6 +68,7 @@ class TrackingStats:
     rejected_gate: int = 0
     sweep_u0: int = -1
     time_ms: float = 0.0
+    recovery: bool = False
 
 
 @dataclass
@@ -135,8 +140,11 @@ class MarkerTracker:
         """Observations of map markers in one equirect frame (grey or BGR uint8, 2:1).
 
         ``map_T_camera``: predicted 4×4 camera pose in the map, or None (unknown: the whole
-        frame is searched and every id in the map accepted). Raises DetectionError (or
-        TrackingError) for an unusable image or pose; the state is unchanged then.
+        frame is searched and every id in the map accepted). After ``lost_after_frames``
+        frames in a row with predictions but no accepted marker, the whole frame is searched
+        and every map id accepted without the prediction gate (``stats.recovery``). Raises
+        DetectionError (or TrackingError) for an unusable image or pose; the state is
+        unchanged then.
         """
         t0 = time.perf_counter()
         grey = to_grey(image, what)
@@ -144,9 +152,10 @@ class MarkerTracker:
         q = self.params
         preds = self.predict(map_T_camera, eq) if map_T_camera is not None else []
         by_id = {m.id: m for m in preds}
-        full = (map_T_camera is None or self._since_full is None or self._misses >= q.lost_after_frames
+        recovery = map_T_camera is not None and self._misses >= q.lost_after_frames
+        full = (map_T_camera is None or self._since_full is None or recovery
                 or (q.max_full_interval > 0 and self._since_full >= q.max_full_interval))
-        stats = TrackingStats(mode="full" if full else "tracked")
+        stats = TrackingStats(mode="full" if full else "tracked", recovery=recovery)
         if full:
             candidates = self.detector.detect(grey, what)
             self._since_full = 0
@@ -180,7 +189,7 @@ class MarkerTracker:
         for o in candidates:
             if o.id not in self.map:
                 stats.rejected_unknown += 1
-            elif map_T_camera is not None and (
+            elif map_T_camera is not None and not recovery and (
                     o.id not in by_id
                     or float(angle_between(o.centre, by_id[o.id].bearing)) > math.radians(q.gate_deg)):
                 stats.rejected_gate += 1
@@ -189,7 +198,10 @@ class MarkerTracker:
         accepted = sorted(dedupe_observations(accepted), key=lambda o: o.id)
         for o in accepted:
             stats.found[o.method] = stats.found.get(o.method, 0) + 1
-        self._misses = self._misses + 1 if (stats.predicted and not accepted) else 0
+        # a miss: markers were predicted (in ROI views) or detected but none accepted; a
+        # frame that neither predicted nor saw anything says nothing about the prediction
+        missed = not accepted and (stats.predicted > 0 or stats.rejected_gate > 0)
+        self._misses = self._misses + 1 if missed else 0
         self.frame += 1
         stats.time_ms = (time.perf_counter() - t0) * 1000.0
         return TrackingResult(accepted, stats)

@@ -21,9 +21,15 @@ from aruco_abs_orient.detection import (
     DetectionError,
     DetectorParams,
     MarkerDetector,
+    _rotations_onto,
+    _straddles_seam,
     decode_jpeg,
+    decode_marker,
+    decode_markers,
     marker_angular_size,
     pixel_centre_bearing,
+    refine_corners,
+    refine_corners_many,
     sphere_centre_bearing,
     to_grey,
 )
@@ -322,3 +328,97 @@ def test_no_markers_in_textured_background():
     # no marker anywhere: every detection would be false (the bench runs 500 frames at 3840)
     for seed in range(12):
         assert detector().detect(render_equirect(1920, [], seed=1000 + seed)) == []
+
+
+# --------------------------------------------------------------------------- the fast whole-frame search
+
+def test_batched_refinement_and_reading_match_one_marker_at_a_time():
+    # refine_corners_many / decode_markers treat each marker exactly as refine_corners /
+    # decode_marker alone would (no marker's result depends on the others in its batch)
+    ms = [facing_marker(i, 0.19, d * azel_to_bearing(-2.5 + 0.9 * i, 0.3 * math.sin(i)), roll=0.3 * i)
+          for i, d in enumerate([0.8, 1.5, 2.5, 4.0, 6.0])]
+    img = render_equirect(1920, ms, seed=21)
+    eq = Equirect(1920, 960)
+    det = detector()
+    ids, corners, rejected = det.backend.detect(img, det.params.min_marker_perimeter_px)
+    quads = [eq.pixel_to_bearing(c[:, 0], c[:, 1]) for c in list(corners) + list(rejected)]
+    assert len(ids) >= 3 and len(rejected) >= 3
+    many = refine_corners_many(img, eq, np.array(quads), det.backend.bits)
+    for q, r in zip(quads, many):
+        one = refine_corners(img, eq, q, det.backend.bits)
+        assert (one is None) == bool(np.isnan(r).any())
+        if one is not None:
+            assert np.allclose(one, r, rtol=0.0, atol=1e-12)
+    read = decode_markers(img, eq, np.array(quads), det.backend.codes)
+    for q, hit in zip(quads, read):
+        one = decode_marker(img, eq, q, det.backend.codes)
+        assert (one is None) == (hit is None)
+        if one is not None:
+            assert one[0] == hit[0] and np.allclose(one[1], hit[1], rtol=0.0, atol=1e-12)
+    assert sorted(h[0] for h in read if h is not None) == sorted(ids)  # OpenCV's reads confirmed, no more
+
+
+@settings(max_examples=100, deadline=None)
+@given(a=st.tuples(*[st.floats(-1, 1)] * 3), b=st.lists(st.tuples(*[st.floats(-1, 1)] * 3), min_size=1, max_size=5),
+       flip=st.booleans())
+def test_marker_views_turn_onto_each_marker(a, b, flip):
+    a, b = np.array(a), np.array(b)
+    if np.linalg.norm(a) < 1e-3 or np.any(np.linalg.norm(b, axis=1) < 1e-3):
+        return
+    a, b = unit(a), unit(b)
+    if flip:  # the half turn, exact and nearly
+        b = np.vstack([-a, unit(-a + 1e-7 * b[0]), b])
+    r = _rotations_onto(a, b)
+    assert np.allclose(np.einsum("mij,j->mi", r, a), b, atol=1e-9)
+    assert np.allclose(np.matmul(r, np.transpose(r, (0, 2, 1))), np.eye(3), atol=1e-9)
+    assert np.allclose(np.linalg.det(r), 1.0, atol=1e-9)
+
+
+def test_polar_band_edge_and_seam_shortcuts_lose_nothing():
+    # the whole frame and the seam strip are searched only up to pole_band_deg +
+    # pole_overlap_deg, and the seam strip refines only what reaches across the seam: the
+    # same markers as a search of everything, at the same bearings. Markers straddle the
+    # band's edge (0.45-1 m at 52-62°: partly beyond the polar views' edge) or sit in the
+    # overlap (2-3 m at 63-74°), some on the seam, two near it.
+    spots = [(0.45, 57.0, 1.0), (0.6, -56.0, -1.2), (1.0, 60.0, 2.2), (1.0, -62.0, 0.2), (2.0, 66.0, -2.2),
+             (3.0, -72.0, 2.8), (0.8, 52.0, math.pi), (1.5, -58.0, math.pi - 0.01), (3.0, 20.0, math.pi + 0.005),
+             (2.0, 5.0, math.pi - 0.2), (1.2, -30.0, math.pi + 0.25)]
+    ms = [facing_marker(i, 0.19, d * azel_to_bearing(az, el * DEG), roll=0.4 * i)
+          for i, (d, el, az) in enumerate(spots)]
+    img = render_equirect(1920, ms, seed=8)
+    fast = by_id(detector().detect(img))
+    everything = MarkerDetector("DICT_4X4_50", DetectorParams(pole_overlap_deg=90.0 - DetectorParams().pole_band_deg))
+    slow = by_id(everything.detect(img))
+    assert sorted(fast) == sorted(slow) == list(range(len(ms)))
+    for i, o in fast.items():
+        assert float(angle_between(o.centre, slow[i].centre)) / DEG < 0.005
+        assert err_deg(o, ms[i]) < 0.06
+    # the seam strip alone: refining only what reaches across the seam changes nothing
+    eq = Equirect(1920, 960)
+    half = int(math.ceil(math.radians(detector().params.seam_strip_deg) / eq.rad_per_px))
+    strip = detector().detect_columns(img, eq, eq.width - half, 2 * half, "seam")
+    crossing = detector().detect_columns(img, eq, eq.width - half, 2 * half, "seam", across=half - 0.5)
+    straddling = [o for o in strip if _straddles_seam(o, eq)]
+    assert len(straddling) >= 2 and len(crossing) < len(strip)
+    assert {o.id: tuple(o.centre) for o in straddling} == {o.id: tuple(o.centre) for o in crossing
+                                                           if _straddles_seam(o, eq)}
+
+
+def test_the_whole_frame_search_does_not_depend_on_threads():
+    ms = [facing_marker(i, 0.19, d * azel_to_bearing(-2.5 + 1.2 * i, (-1) ** i * 0.2 * i), roll=0.2 * i)
+          for i, d in enumerate([1.0, 2.0, 4.0, 1.5, 3.0, 2.0])]
+    ms.append(facing_marker(9, 0.19, 1.5 * azel_to_bearing(0.3, 70 * DEG)))
+    ms.append(facing_marker(8, 0.19, 1.0 * azel_to_bearing(math.pi, 0.1)))
+    img = render_equirect(1920, ms, seed=9)
+    threads = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        serial = detector().detect(img)
+        cv2.setNumThreads(3)
+        parallel = detector().detect(img)
+    finally:
+        cv2.setNumThreads(threads)
+    assert [o.id for o in serial] == [o.id for o in parallel] == sorted(m.id for m in ms)
+    assert {o.method for o in serial} >= {"full", "seam", "gnomonic"}
+    for a, b in zip(serial, parallel):
+        assert np.array_equal(a.centre, b.centre) and a.method == b.method

@@ -1,7 +1,7 @@
 """tracking.py on rendered sequences with a known camera path and marker map: ROI tracking
 finds what a full-frame search finds, at the right bearings; unknown ids and observations
-far from the prediction are rejected; full search at start and after a loss; the sweeping
-tile finds markers the prediction skips."""
+far from the prediction are rejected; full search at start and after a loss (ungated: a wrong
+prediction cannot lock the tracker out); the sweeping tile finds markers the prediction skips."""
 import math
 
 import numpy as np
@@ -67,20 +67,53 @@ def test_unknown_pose_searches_the_whole_frame_and_accepts_only_map_ids():
         assert res.stats.rejected_unknown == 2  # ids 3 and 4 are in the image, not in the map
 
 
-def test_wrong_pose_is_gated_and_a_loss_triggers_full_search():
+def test_wrong_pose_is_gated_and_a_loss_triggers_an_ungated_full_search():
     params = DetectorParams(gate_deg=1.0, lost_after_frames=2)
     tracker = MarkerTracker(MAP, params)
     modes = []
     for k in range(5):
-        img, _ = frame(k)
+        img, pc = frame(k)
         wrong = pose(k) @ make_T(rot_z(5.0 * DEG), np.zeros(3))  # the prediction is 5° off in yaw
         res = tracker.process(img, wrong)
-        modes.append(res.stats.mode)
-        assert res.observations == []
-        if res.stats.mode == "full":
+        modes.append((res.stats.mode, res.stats.recovery))
+        if res.stats.recovery:
+            # the prediction is suspect: every map marker is accepted, at its true bearing
+            assert sorted(o.id for o in res.observations) == list(range(len(POSITIONS)))
+            assert res.stats.rejected_gate == 0
+            assert max(float(angle_between(o.centre, pc[o.id])) for o in res.observations) < 0.1 * DEG
+        else:
+            assert res.observations == []
+        if res.stats.mode == "full" and not res.stats.recovery:
             assert res.stats.rejected_gate == len(POSITIONS)
-    # start-up search, two tracked frames finding nothing, search again
-    assert modes == ["full", "tracked", "tracked", "full", "tracked"]
+    # start-up search (gated: a miss), one tracked miss, the recovery search, tracked misses
+    assert modes == [("full", False), ("tracked", False), ("full", True), ("tracked", False), ("tracked", False)]
+
+
+@pytest.mark.parametrize("turn_deg", [2.0, -2.0])
+def test_a_prediction_off_by_2_deg_cannot_lock_the_tracker_out(turn_deg):
+    # issue 21: a filter that ran away 1–2.5° in yaw; the ROIs and the gate miss the markers,
+    # the tracker must fall back to a search that lets them through again
+    params = DetectorParams()
+    tracker = MarkerTracker(MAP, params)
+    img, pc = frame(0)
+    assert sorted(o.id for o in tracker.process(img, pose(0)).observations) == list(range(len(POSITIONS)))
+    off = pose(0) @ make_T(rot_z(turn_deg * DEG), np.zeros(3))
+    history = []
+    for _ in range(params.lost_after_frames + 1):
+        res = tracker.process(img, off)
+        history.append(res.stats)
+        if res.observations:
+            break
+        assert res.stats.mode == "tracked" and not res.stats.recovery  # the wrong ROIs miss
+        assert res.stats.predicted == len(POSITIONS)
+    last = history[-1]
+    assert len(history) == params.lost_after_frames + 1
+    assert last.mode == "full" and last.recovery and last.rejected_gate == 0
+    assert sorted(o.id for o in res.observations) == list(range(len(POSITIONS)))
+    for o in res.observations:  # the true bearings, not the predicted ones
+        assert float(angle_between(o.centre, pc[o.id])) / DEG < 0.06
+    # the next frame is tracked again with the same prediction, and misses again
+    assert tracker.process(img, off).stats.mode == "tracked"
 
 
 def test_sweeping_tile_finds_markers_the_prediction_skips():
