@@ -134,7 +134,8 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
     filter started), ``accepted`` (bool), and optionally ``yaw`` and ``odom_yaw`` (rad: the marker's yaw of
     base_link and the odometry's at that time; then the time offset and tilt are fitted to their
     difference, the map→odom yaw, independent of what the filter accepted); the prism track; the marker
-    map's positions {id: [x, y, z]}; the filtered poses' stamps and yaws (rad); the pipeline's counters and the number of frames;
+    map's positions {id: [x, y, z]}; the filtered poses' stamps and yaws (rad); the pipeline's counters
+    and the number of frames;
     ``time_offset`` (s) in use; ``commands``: the command lines that fix things ({"timesync": ...,
     "calibrate": ...}), quoted in the messages. Returns a JSON-able dict with the estimates (degrees,
     seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
