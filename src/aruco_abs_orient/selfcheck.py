@@ -8,9 +8,10 @@ Without any reference, the marker yaws of a run tell on its set-up:
   The residuals (marker yaw − filtered yaw) are fitted by least squares as a smooth function of time
   (hat functions every ``knot_spacing`` s: what the filter lags or drifts) + ε·kᵢ + the tilt terms below,
   robustly (Huber); ε̂ is the correction to the offset in use.
-- **camera tilt (boresight roll/pitch)**: a camera rotated by (ωx, ωy) about its x, y axes turns the
-  azimuth of a marker at (az, el) in the image by −tan(el)·(ωx·cos az + ωy·sin az): residuals that
-  depend on where the marker is in the image.
+- **camera tilt (boresight roll/pitch)**: with the camera rotated by (ωx, ωy) about its x, y axes
+  against its lever arms, the yaw from a marker at (az, el) in the image is off by
+  −tan(el)·(ωx·cos az + ωy·sin az) (checked against a rendered camera roll): residuals that depend on
+  where the marker is in the image.
 - **boresight yaw**: on straight stretches the heading of base_link must be the direction the prism
   track runs in (x forward); a constant difference is the camera's mounting yaw (or a platform that
   crabs).
@@ -166,64 +167,77 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
     z_all = wrap_angle(res[ok & acc]) / np.hypot(sig[ok & acc], p.sigma_floor) if np.any(ok & acc) else np.zeros(0)
     out["normalised_residual_rms"] = float(np.sqrt(np.mean(z_all ** 2))) if len(z_all) else None
 
-    # a marker off the others: its median residual
-    moved: List[int] = []
-    per_marker = {}
-    for mid in np.unique(ids[ok]):
-        r = wrap_angle(res[ok & (ids == mid)])
-        if len(r) < 5:
-            continue
-        med = float(np.median(r))
-        spread = 1.4826 * float(np.median(np.abs(r - med))) / math.sqrt(len(r))
-        per_marker[int(mid)] = math.degrees(med)
-        if abs(med) > max(p.min_marker_bias, p.significance * spread):
-            moved.append(int(mid))
-            share = float(np.mean(acc[ids == mid]))
-            findings.append(Finding("marker", f"marker {int(mid)}: its yaws are off the other markers' by "
-                                    f"{_deg(med)} (median of {len(r)}, {100 * share:.0f} % accepted): moved or "
-                                    "wrongly surveyed; re-survey its centre or take it out of the marker map",
-                                    "jumps-in-the-heading", math.degrees(med)))
-    out["marker_median_residual_deg"] = per_marker
-
-    # time offset and camera tilt: one robust fit of the residuals
-    if prism_t is not None and len(prism_t) >= 2 and len(t):
+    # one robust fit: a smooth common part + time offset + camera tilt; a marker off it is moved
+    y, fit_ok = res, ok
+    if "odom_yaw" in obs and len(obs["odom_yaw"]) == len(t):  # the map→odom yaw of each marker yaw
+        y = wrap_angle(np.asarray(obs["yaw"], dtype=float) - np.asarray(obs["odom_yaw"], dtype=float))
+        if np.any(np.isfinite(y)):  # centred: the fit's linear terms need no wrap
+            y = wrap_angle(y - float(np.angle(np.mean(np.exp(1j * y[np.isfinite(y)])))))
+        fit_ok = np.isfinite(y) & np.isfinite(sig) & (sig > 0)
+    have_track = prism_t is not None and len(prism_t) >= 2 and len(t) > 0
+    if have_track:
         mxyz = np.array([marker_xyz.get(int(i), (np.nan, np.nan, np.nan)) for i in ids], dtype=float).reshape(-1, 3)
         k = bearing_rate(t, mxyz, prism_t, prism_xyz)
-        if "odom_yaw" in obs and len(obs["odom_yaw"]) == len(t):  # map→odom yaw of each marker yaw
-            y = wrap_angle(np.asarray(obs["yaw"], dtype=float) - np.asarray(obs["odom_yaw"], dtype=float))
-            if np.any(np.isfinite(y)):  # centred: the fit's linear terms need no wrap
-                y = wrap_angle(y - float(np.angle(np.mean(np.exp(1j * y[np.isfinite(y)])))))
-            fit_ok = np.isfinite(y) & np.isfinite(sig) & (sig > 0)
-        else:
-            y, fit_ok = res, ok
-        use = fit_ok & np.isfinite(k) & ~np.isin(ids, moved) & (np.abs(el) < math.radians(60))
-        if use.sum() >= p.min_samples:
-            tt, kk = t[use], k[use]
-            te = np.tan(el[use])
-            A = np.column_stack([_hat_basis(tt, p.knot_spacing), kk, -te * np.cos(az[use]), -te * np.sin(az[use])])
-            w = 1.0 / (sig[use] ** 2 + p.sigma_floor ** 2)
-            x, cov = _robust_lsq(A, wrap_angle(y[use]), w)
-            eps, eps_sigma = float(x[-3]), float(math.sqrt(max(cov[-3, -3], 0.0)))
-            tilt = np.array(x[-2:])
-            tilt_sigma = float(math.sqrt(max(cov[-2, -2] + cov[-1, -1], 0.0) / 2))
-            suggested = time_offset + eps
-            out["time_offset"] = {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
-                                  "suggested_s": suggested, "samples": int(use.sum())}
-            out["camera_tilt_deg"] = {"roll": math.degrees(tilt[0]), "pitch": math.degrees(tilt[1]),
-                                      "sigma": math.degrees(tilt_sigma)}
-            if abs(eps) > max(p.significance * eps_sigma, p.min_offset):
-                fix = commands.get("timesync", "aruco-abs-orient timesync")
-                findings.append(Finding("time_offset", f"observations disagree with a time offset: this run suggests "
-                                        f"{suggested:+.2f} s (in use {time_offset:+.3f} s, error {1e3 * eps:+.0f} ± "
-                                        f"{1e3 * eps_sigma:.0f} ms); run `{fix}`", "time-offset", suggested))
-            size = float(np.hypot(*tilt))
-            offset_found = findings and findings[-1].kind == "time_offset"  # it biases the tilt: fix it first
-            if size > max(p.significance * tilt_sigma, p.min_tilt) and not offset_found:
-                fix = commands.get("calibrate", "aruco-abs-orient calibrate")
-                findings.append(Finding("camera_tilt", f"marker yaws depend on where the marker is in the image: the "
-                                        f"camera looks tilted by {math.degrees(size):.2f}° (roll {_deg(tilt[0])}, "
-                                        f"pitch {_deg(tilt[1])}) against its lever arms; calibrate the boresight: "
-                                        f"run `{fix}`", "heading-wrong-by-180", math.degrees(size)))
+    else:
+        k = np.full(len(t), np.nan)
+    base = fit_ok & np.isfinite(k) & (np.abs(el) < math.radians(60))
+    moved: List[int] = []
+    x = cov = None
+    per_marker: Dict[int, Tuple[float, int, float]] = {}
+    markers_seen, counts = np.unique(ids[base], return_counts=True)
+    if base.sum() >= p.min_samples:
+        # a yaw offset per marker (the most seen one is the common part's): a moved marker shows in its own
+        # offset, while the time offset and the tilt come from how each marker's yaw varies
+        te = np.tan(el[base])
+        hats = _hat_basis(t[base], p.knot_spacing)
+        ref = markers_seen[int(np.argmax(counts))]
+        others = [m for m in markers_seen if m != ref]
+        A = np.column_stack([k[base], -te * np.cos(az[base]), -te * np.sin(az[base]), hats]
+                            + [(ids[base] == m).astype(float) for m in others])
+        w = 1.0 / (sig[base] ** 2 + p.sigma_floor ** 2)
+        x, cov = _robust_lsq(A, wrap_angle(y[base]), w)
+        n0 = 3 + hats.shape[1]
+        offsets = {int(ref): (0.0, 0.0)}
+        offsets.update({int(m): (float(x[n0 + i]), float(math.sqrt(max(cov[n0 + i, n0 + i], 0.0))))
+                        for i, m in enumerate(others)})
+        middle = float(np.median([v[0] for v in offsets.values()]))
+        for m, n in zip(markers_seen, counts):
+            d, sd = offsets[int(m)]
+            per_marker[int(m)] = (d - middle, int(n), sd)
+        out["marker_offset_deg"] = {m: math.degrees(v[0]) for m, v in per_marker.items()}
+        if len(per_marker) >= 3:  # "off the others" needs a majority to agree
+            moved = [m for m, (d, n, sd) in per_marker.items()
+                     if n >= 5 and abs(d) > max(p.min_marker_bias, p.significance * sd)]
+    for mid in moved:
+        med, n, _ = per_marker[mid]
+        share = float(np.mean(acc[ids == mid]))
+        findings.append(Finding("marker", f"marker {mid}: its yaws are off the other markers' by {_deg(med)} "
+                                f"({n} yaws, {100 * share:.0f} % accepted): moved or wrongly surveyed; "
+                                "re-survey its centre or take it out of the marker map", "jumps-in-the-heading",
+                                math.degrees(med)))
+    if x is not None:
+        eps, eps_sigma = float(x[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
+        tilt = np.array(x[1:3])
+        tilt_sigma = float(math.sqrt(max(cov[1, 1] + cov[2, 2], 0.0) / 2))
+        use = base
+        suggested = time_offset + eps
+        out["time_offset"] = {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
+                              "suggested_s": suggested, "samples": int(use.sum())}
+        out["camera_tilt_deg"] = {"roll": math.degrees(tilt[0]), "pitch": math.degrees(tilt[1]),
+                                  "sigma": math.degrees(tilt_sigma)}
+        if abs(eps) > max(p.significance * eps_sigma, p.min_offset):
+            fix = commands.get("timesync", "aruco-abs-orient timesync")
+            findings.append(Finding("time_offset", f"observations disagree with a time offset: this run suggests "
+                                    f"{suggested:+.2f} s (in use {time_offset:+.3f} s, error {1e3 * eps:+.0f} ± "
+                                    f"{1e3 * eps_sigma:.0f} ms); run `{fix}`", "time-offset", suggested))
+        size = float(np.hypot(*tilt))
+        offset_found = findings and findings[-1].kind == "time_offset"  # it biases the tilt: fix it first
+        if size > max(p.significance * tilt_sigma, p.min_tilt) and not offset_found:
+            fix = commands.get("calibrate", "aruco-abs-orient calibrate")
+            findings.append(Finding("camera_tilt", f"marker yaws depend on where the marker is in the image: the "
+                                    f"camera looks tilted by {math.degrees(size):.2f}° (roll {_deg(tilt[0])}, "
+                                    f"pitch {_deg(tilt[1])}) against its lever arms; calibrate the boresight: "
+                                    f"run `{fix}`", "heading-wrong-by-180", math.degrees(size)))
 
     # boresight yaw: heading vs the direction of travel on straight stretches
     pose_t = np.asarray(pose_t, dtype=float)

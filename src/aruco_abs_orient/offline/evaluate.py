@@ -36,12 +36,13 @@ PAPER = {  # Hasler & Nebiker's figures (real data), beside ours in the report
     "agreement": "median 0.66°, mean 1.17°, std 1.66°",
     "time_offset": "11 frames (367 ms), one-frame resolution",
 }
+DOC_DIR = os.path.join(os.path.dirname(os.path.realpath(__file__)), "..", "..", "..", "doc")  # in a checkout
 SETTLE_S = 1.0  # s after the fused output's first absolute yaw before it is judged (the EKF converges)
 
 
 def _doc(anchor: str, text: str, out_dir: str) -> str:
     """A Markdown link into doc/troubleshooting.md (relative to the report when the docs are here)."""
-    path = os.path.join(os.path.dirname(__file__), "..", "..", "..", "doc", "troubleshooting.md")
+    path = os.path.join(DOC_DIR, "troubleshooting.md")
     target = (os.path.relpath(os.path.abspath(path), os.path.abspath(out_dir)) if os.path.exists(path)
               else "doc/troubleshooting.md")
     return f"[{text}]({target}#{anchor})"
@@ -190,9 +191,11 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                  f"{1e3 * offset:+.1f} ms, lever arms from {summary.get('lever_arms', '?')}; "
                  + (f"reference `{reference}`." if reference else "no reference: the figures below are what the "
                     "run shows by itself.") + " Times are seconds since the start of the recording.")
+    findings = (summary.get("selfcheck") or {}).get("findings", [])
     for w in summary.get("warnings", []):
-        rep.notes.append(f"warning: {w}")
-    for c in (summary.get("selfcheck") or {}).get("findings", []):
+        if w not in {c["message"] for c in findings}:
+            rep.notes.append(f"warning: {w}")
+    for c in findings:
         rep.notes.append(f"{c['message']} ({_doc(c.get('doc', 'time-offset'), 'troubleshooting', out_dir)})")
     if overview:
         rep.plots["overview: a frame with its markers, the trajectory"] = overview
@@ -299,8 +302,7 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                                     f"heading RMSE {ev.fmt_angle(f['heading_ape'].stats.rmse)}, position RMSE "
                                     f"{1e3 * f['position']['rmse_m']:.1f} mm ({how})", "–",
                                     "[robot_localization.md](" + os.path.relpath(os.path.join(
-                                        os.path.dirname(__file__), "..", "..", "..", "doc", "robot_localization.md"),
-                                        os.path.abspath(out_dir)) + ")"))
+                                        DOC_DIR, "robot_localization.md"), os.path.abspath(out_dir)) + ")"))
         rep.plots["heading error vs reference"] = ev.plot_yaw_errors(os.path.join(out_dir, "heading_error.png"),
                                                                      errors, t0=t0)
         if obs is not None and len(obs["time"]):
@@ -319,6 +321,10 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                 results["error_by_frame_position"] = bias
                 rep.plots["yaw error by position in the frame (paper fig. 13)"] = ev.plot_frame_position(
                     os.path.join(out_dir, "frame_position.png"), bias)
+    sync_png = next((os.path.join(d, "timesync.png") for d in (out_dir, run_dir)
+                     if os.path.exists(os.path.join(d, "timesync.png"))), None)
+    if sync_png:  # written by `timesync --plot` into the run's directory
+        rep.plots["camera ↔ total-station time offset (timesync)"] = sync_png
     rep.headline.append(("time offset in use (camera − total station)", f"{1e3 * offset:+.1f} ms", PAPER["time_offset"],
                          _doc("time-offset", "time offset", out_dir)))
     if per_marker_rows:
