@@ -183,7 +183,8 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
         raise EvaluateError(str(e)) from None
     t0 = float(summary.get("recording_start_s", est.stamps[0] if len(est.stamps) else 0.0))
     offset = float(summary.get("time_offset_s", 0.0))
-    rep = ev.Report(title=f"aruco_abs_orient report: {os.path.basename(os.path.abspath(run_dir))}")
+    bag_name = os.path.basename(str(summary.get("bag", ""))) or "?"
+    rep = ev.Report(title=f"aruco_abs_orient report: {bag_name} ({os.path.basename(os.path.abspath(run_dir))})")
     results: Dict[str, object] = {}
     frames, with_pose = int(summary.get("frames", 0)), int(summary.get("frames_with_pose", len(est.stamps)))
     duration = float(summary.get("bag_duration_s", 0.0))
@@ -391,7 +392,8 @@ def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str],
         ax.plot(np.append(u, u[0]), np.append(v, v[0]), "-", color="lime", lw=1.5)
         ax.text(o.pixel[0], o.pixel[1] - 0.02 * grey.shape[0], f"id {o.id}", color="yellow", fontsize=9,
                 ha="center", bbox={"facecolor": "black", "alpha": 0.5, "pad": 1, "lw": 0})
-    ax.set_title(f"360° frame: {len(obs)} markers found (outlined, with ids)")
+    ax.set_title(f"360° frame from the middle of the recording: {len(obs)} marker{'s' if len(obs) != 1 else ''} "
+                 "found (outlined, with ids)")
     ax.set_axis_off()
     ax2 = fig.add_axes([0.08, 0.05, 0.88, 0.42])
     if reference:
