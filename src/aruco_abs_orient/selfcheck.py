@@ -5,9 +5,12 @@ Without any reference, the marker yaws of a run tell on its set-up:
 - **time offset**: a wrong camera ↔ total-station offset ε looks the prism up ε s off, which moves it
   along its track; the yaw from marker i is then off by ε·kᵢ, kᵢ = d/dt az(Mᵢ − P(t)) the rate at which
   the marker's map bearing from the prism turns (fast for near markers abeam, zero straight ahead).
-  The residuals (marker yaw − filtered yaw) are fitted by least squares as a smooth function of time
-  (hat functions every ``knot_spacing`` s: what the filter lags or drifts) + ε·kᵢ + the tilt terms below,
-  robustly (Huber); ε̂ is the correction to the offset in use.
+  The map→odom yaw of each marker yaw (marker yaw − odometry yaw; else the residual) is fitted by least
+  squares as a smooth function of time (hat functions every ``knot_spacing`` s: the odometry's drift) +
+  ε·kᵢ + the tilt terms below + a yaw offset per marker, robustly (Huber); ε̂ is the correction to the
+  offset in use. The tilt comes from a second fit without the per-marker offsets (each marker is seen
+  from a narrow range of directions, so its own offset would absorb the tilt), without the markers
+  found off the others.
 - **camera tilt (boresight roll/pitch)**: with the camera rotated by (ωx, ωy) about its x, y axes
   against its lever arms, the yaw from a marker at (az, el) in the image is off by
   −tan(el)·(ωx·cos az + ωy·sin az) (checked against a rendered camera roll): residuals that depend on
@@ -208,6 +211,15 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
         if len(per_marker) >= 3:  # "off the others" needs a majority to agree
             moved = [m for m, (d, n, sd) in per_marker.items()
                      if n >= 5 and abs(d) > max(p.min_marker_bias, p.significance * sd)]
+    tilt_fit = None
+    keep = base & ~np.isin(ids, moved)
+    if x is not None and keep.sum() >= p.min_samples:
+        # the tilt from all markers together: a marker's own offset would absorb it (each marker is seen from
+        # a narrow range of directions), so this fit has none (the markers found off the others are left out)
+        te = np.tan(el[keep])
+        B = np.column_stack([k[keep], -te * np.cos(az[keep]), -te * np.sin(az[keep]),
+                             _hat_basis(t[keep], p.knot_spacing)])
+        tilt_fit = _robust_lsq(B, wrap_angle(y[keep]), 1.0 / (sig[keep] ** 2 + p.sigma_floor ** 2))
     for mid in moved:
         med, n, _ = per_marker[mid]
         share = float(np.mean(acc[ids == mid]))
@@ -217,8 +229,9 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
                                 math.degrees(med)))
     if x is not None:
         eps, eps_sigma = float(x[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
-        tilt = np.array(x[1:3])
-        tilt_sigma = float(math.sqrt(max(cov[1, 1] + cov[2, 2], 0.0) / 2))
+        xt, ct = tilt_fit if tilt_fit is not None else (x, cov)
+        tilt = np.array(xt[1:3])
+        tilt_sigma = float(math.sqrt(max(ct[1, 1] + ct[2, 2], 0.0) / 2))
         use = base
         suggested = time_offset + eps
         out["time_offset"] = {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
