@@ -305,8 +305,11 @@ class RollingSelfCheck:
             q.popleft()
 
     def add_observation(self, t: float, marker_id: int, azimuth: float, elevation: float, yaw_sigma: float,
-                        residual: float, accepted: bool) -> None:
-        self._obs.append((t, marker_id, azimuth, elevation, yaw_sigma, residual, accepted))
+                        residual: float, accepted: bool, yaw: float = math.nan, odom_yaw: float = math.nan) -> None:
+        """One marker yaw (rad) at ``t`` (s): its bearing in the camera, σ, residual, whether the filter took
+        it, and, when known, the yaw itself and the odometry's yaw at ``t`` (then the fit does not depend on
+        what the filter accepted)."""
+        self._obs.append((t, marker_id, azimuth, elevation, yaw_sigma, residual, accepted, yaw, odom_yaw))
         self._trim(self._obs, t)
 
     def add_prism(self, t: float, xyz: Sequence[float]) -> None:
@@ -318,9 +321,11 @@ class RollingSelfCheck:
         self._trim(self._poses, t)
 
     def check(self) -> Dict[str, object]:
-        o = list(zip(*self._obs)) if self._obs else [()] * 7
+        o = list(zip(*self._obs)) if self._obs else [()] * 9
         obs = {k: np.asarray(v) for k, v in zip(("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
-                                                 "accepted"), o)}
+                                                 "accepted", "yaw", "odom_yaw"), o)}
+        if not np.any(np.isfinite(obs["odom_yaw"].astype(float))):
+            del obs["yaw"], obs["odom_yaw"]
         prism = sorted(self._prism)
         poses = sorted(self._poses)
         return check_run(obs, [p[0] for p in prism], [p[1] for p in prism], self.marker_xyz,

@@ -105,7 +105,7 @@ def test_rolling_window_for_the_node():
         live.add_prism(float(t), p)
     for i in range(len(obs["time"])):
         live.add_observation(*(obs[k][i] for k in ("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
-                                                   "accepted")))
+                                                   "accepted", "yaw", "odom_yaw")))
     level, message, values = live.diagnostics()
     assert len(live._obs) < len(obs["time"])  # bounded: the last 30 s only
     assert level == "warn" and "observations disagree with a time offset" in message
