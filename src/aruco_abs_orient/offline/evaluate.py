@@ -203,7 +203,7 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
 
     # coverage and gaps: what the run delivered
     if len(est.stamps) == 0:
-        reason = (summary.get("pipeline_stats") or {}).get("not_initialised_reason") or "see summary.json"
+        reason = "; ".join(summary.get("warnings") or []) or "its summary.json says what it counted"
         raise EvaluateError(f"{run_dir}/trajectory.tum: no poses (the run never initialised: {reason})")
     end = t0 + duration if duration else None
     holes = ev.gaps(est.stamps, 0.5, end=end)
