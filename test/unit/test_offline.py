@@ -313,3 +313,13 @@ def test_false_marker_id_in_5_percent_of_frames(ci_run, scenario_factory, tmp_pa
     stats = out.summary["pipeline_stats"]
     rejected = sum(v for k, v in stats.items() if k.startswith("rejected"))
     assert rejected >= 1  # the impostor was seen and thrown out somewhere
+
+
+def test_first_stamp_of_a_topic_and_of_a_missing_one(tiny):
+    """The EKF is judged from its first absolute yaw: a bag without that topic has none (not the first
+    message of another topic)."""
+    from aruco_abs_orient.offline.evaluate import first_stamp
+
+    assert first_stamp(tiny.bag) is None
+    data = read_bag_data(tiny.bag)
+    assert first_stamp(tiny.bag, "/ms60/prism", clock_offset=0.5) == pytest.approx(data.prism_stamps[0] - 0.5)

@@ -136,6 +136,8 @@ def first_stamp(bag: str, topic: str = "/abs_orient/orientation", clock_offset: 
     reader = open_reader(bag)
     try:
         conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:  # (no connections would read every topic)
+            return None
         for c, _, raw in reader.messages(connections=conns):
             h = reader.deserialize(raw, c.msgtype).header.stamp
             return h.sec + 1e-9 * h.nanosec - clock_offset
@@ -288,22 +290,29 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
         if fused:
             clock = offset if fused_clock_offset is None else fused_clock_offset
             traj = odometry_from_bag(fused, clock_offset=clock)
-            if after is None:
-                first = first_stamp(fused, clock_offset=clock)
-                start = (first if first is not None else float(traj.stamps[0])) + SETTLE_S
-                how = f"from {start - t0:.1f} s: {SETTLE_S:g} s after its first absolute yaw"
+            first = first_stamp(fused, clock_offset=clock)
+            link = "[robot_localization.md](" + os.path.relpath(os.path.join(DOC_DIR, "robot_localization.md"),
+                                                                os.path.abspath(out_dir)) + ")"
+            if after is None and first is None:
+                why = (f"not judged: {os.path.basename(fused)} has no abs_orient/orientation, the EKF had no absolute "
+                       "yaw (the replay's last line says why)")
+                results["fused_ekf"] = {"not_available": why}
+                rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)", why, "–",
+                                        _doc("a-replay-that-ends-or-fails", "replay", out_dir)))
             else:
-                start = after[1] + (t0 if after[0] == "since_start" else 0.0)
-                how = f"from {start - t0:.1f} s (--after)"
-            f = fused_errors(traj, reference, after=start, max_gap=max_gap)
-            f["clock_offset_s"] = clock
-            results["fused_ekf"] = f
-            errors["robot_localization EKF"] = f["heading_ape"]
-            rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)",
-                                    f"heading RMSE {ev.fmt_angle(f['heading_ape'].stats.rmse)}, position RMSE "
-                                    f"{1e3 * f['position']['rmse_m']:.1f} mm ({how})", "–",
-                                    "[robot_localization.md](" + os.path.relpath(os.path.join(
-                                        DOC_DIR, "robot_localization.md"), os.path.abspath(out_dir)) + ")"))
+                if after is None:
+                    start = first + SETTLE_S
+                    how = f"from {start - t0:.1f} s: {SETTLE_S:g} s after its first absolute yaw"
+                else:
+                    start = after[1] + (t0 if after[0] == "since_start" else 0.0)
+                    how = f"from {start - t0:.1f} s (--after)"
+                f = fused_errors(traj, reference, after=start, max_gap=max_gap)
+                f["clock_offset_s"] = clock
+                results["fused_ekf"] = f
+                errors["robot_localization EKF"] = f["heading_ape"]
+                rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)",
+                                        f"heading RMSE {ev.fmt_angle(f['heading_ape'].stats.rmse)}, position RMSE "
+                                        f"{1e3 * f['position']['rmse_m']:.1f} mm ({how})", "–", link))
         rep.plots["heading error vs reference"] = ev.plot_yaw_errors(os.path.join(out_dir, "heading_error.png"),
                                                                      errors, t0=t0)
         if obs is not None and len(obs["time"]):

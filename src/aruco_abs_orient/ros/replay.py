@@ -54,8 +54,8 @@ def parent_is_roslaunch(ppid: int) -> bool:
 def summary_line(bag: str, duration: Optional[float], counts: Mapping[str, int],
                  diagnostics: Optional[Mapping[str, object]]) -> str:
     """The one line that ends a replay. ``counts``: messages received on ``pose``, ``orientation``,
-    ``filtered``; ``diagnostics``: the node's newest status (``message`` and its key/values), None when
-    it never reported."""
+    ``filtered``; ``diagnostics``: the node's newest status (its key/values, and ``message`` as it was
+    while the bag played), None when it never reported."""
     head = f"replay: {os.path.basename(bag)} played to its end" + (f" ({duration:.1f} s)" if duration else "")
     if diagnostics is None:
         return (f"{head}; abs_orient reported nothing on /diagnostics and published {counts.get('pose', 0)} poses "
@@ -160,9 +160,12 @@ def main(argv=None) -> int:
     if player.returncode != 0:
         rospy.logfatal(f"replay: rosbag play {bag} failed (exit status {player.returncode}; its message is above)")
         return 1
+    with lock:  # the node's state while the bag played (after it, the node says "no image for ...")
+        playing = str(diag.get("message", ""))
     time.sleep(settle)  # wall clock: the sim clock stopped with the bag
     with lock:
-        line = summary_line(bag, _bag_duration(bag), dict(counts), dict(diag) if diag else None)
+        final = dict(diag, message=playing or diag.get("message", "")) if diag else None
+        line = summary_line(bag, _bag_duration(bag), dict(counts), final)
     for s in subs:
         s.unregister()
     rospy.loginfo(line)
