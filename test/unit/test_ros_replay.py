@@ -22,6 +22,7 @@ def test_summary_line_says_what_the_node_did_and_why_there_is_no_pose():
     diag = {"images received": "300", "images processed": "240", "images dropped": "60", "message": "tracking 2"}
     line = summary_line("/data/run1.bag", 20.0, {"pose": 157, "orientation": 120, "filtered": None}, diag)
     assert line.startswith("replay: run1.bag played to its end (20.0 s): abs_orient processed 240 of 300 images")
+    assert "(60 dropped while it was busy: a smaller rate:= gives it more time)" in line
     assert "published 157 poses and 120 marker yaws" in line and "EKF" not in line and "no pose" not in line
     idle = {"images received": "300", "images processed": "100", "images dropped": "0",
             "message": "initialising (needs a standstill with the prism and a marker)", "last error": "-"}

@@ -64,7 +64,8 @@ def summary_line(bag: str, duration: Optional[float], counts: Mapping[str, int],
     processed = diagnostics.get("images processed", "?")
     dropped = diagnostics.get("images dropped", 0)
     parts = [f"abs_orient processed {processed} of {received} images"
-             + (f" ({dropped} dropped: play slower with rate:=0.5)" if dropped not in (0, "0", "?") else "")]
+             + (f" ({dropped} dropped while it was busy: a smaller rate:= gives it more time)"
+                if dropped not in (0, "0", "?") else "")]
     parts.append(f"published {counts.get('pose', 0)} poses and {counts.get('orientation', 0)} marker yaws")
     if counts.get("filtered") is not None:
         parts.append(f"the EKF {counts['filtered']} odometry/filtered")
