@@ -101,3 +101,16 @@ def test_a_missing_bag_names_the_full_path(roscore, tmp_path):
     proc = _launch(tmp_path, roscore, "bag:=missing.bag", "markers:=markers.yaml")
     assert f"replay: no bag file {tmp_path / 'missing.bag'}" in proc.stdout, proc.stdout
     assert not _sim_time_set(roscore)
+
+
+def test_a_launch_with_its_own_master_ends_cleanly_and_leaves_its_master_alone(scenario_factory, tmp_path):
+    """roslaunch starts the master itself (no roscore): the master ends with the launch, nothing to restore."""
+    scen = scenario_factory("tiny")
+    port = _free_port()
+    env = {**os.environ, "ROS_MASTER_URI": f"http://localhost:{port}", "PWD": str(tmp_path)}
+    proc = subprocess.run(["roslaunch", "-p", str(port), "aruco_abs_orient", "postprocess.launch",
+                           f"bag:={scen.bag}", f"markers:={scen.markers}", "delay:=1.0"], cwd=str(tmp_path), env=env,
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stdout
+    assert "auto-starting new master" in proc.stdout and "played to its end" in proc.stdout
+    assert "removed /use_sim_time" not in proc.stdout and "has died" not in proc.stdout, proc.stdout
