@@ -163,3 +163,22 @@ def test_a_marker_moved_after_the_survey_is_named(ci, tmp_path):
     check, _ = _run(scen, tmp_path / "out", hidden["camera_time_offset"], str(moved))
     named = [f for f in check["findings"] if f["kind"] == "marker"]
     assert [f["message"].split(":")[0] for f in named] == ["marker 31"], check["findings"]
+
+
+@pytest.mark.parametrize("boresight_yaw_deg", [0.0, 0.3, -0.5])
+def test_heading_against_the_direction_of_travel_on_straights(boresight_yaw_deg):
+    """Straight stretches joined by turns: a heading off the prism track's direction by the camera's
+    mounting yaw is found (and none when there is none); turns and standstill are left out."""
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 60.0, 0.05)
+    heading = np.where(t < 20, 0.0, np.where(t < 25, (t - 20) * np.pi / 10, np.where(t < 45, np.pi / 2,
+                       np.pi / 2 + (t - 45) * np.pi / 10)))
+    speed = np.where(t < 2, 0.0, 1.0)
+    xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * (speed * 0.05)[:, None], axis=0)
+    prism = np.column_stack([xy + rng.normal(0, 0.003, xy.shape), np.ones(len(t))])
+    pose_t = t[::2]
+    pose_yaw = np.interp(pose_t, t, heading) + math.radians(boresight_yaw_deg) + rng.normal(0, 0.0005, len(pose_t))
+    r = check_run({}, t, prism, {}, pose_t, pose_yaw)
+    assert r["heading_minus_travel_deg"]["median"] == pytest.approx(boresight_yaw_deg, abs=0.05)
+    found = [f for f in r["findings"] if f["kind"] == "boresight_yaw"]
+    assert bool(found) == (boresight_yaw_deg != 0.0), r["findings"]
