@@ -20,7 +20,7 @@ import io
 import json
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
@@ -46,6 +46,11 @@ __all__ = [
     "plot_marker_yaws",
     "plot_frame_position",
     "plot_coherence",
+    "fmt_angle",
+    "normalised_residuals",
+    "gaps",
+    "md_table",
+    "Report",
     "write_report",
 ]
 
@@ -309,19 +314,23 @@ def save_figure(fig, path: str) -> str:
     return path
 
 
-def _time_axis(ax, times) -> float:
-    """Label ``ax``'s x axis as seconds since the earliest of ``times`` (arrays of stamps, s); return it."""
+def _time_axis(ax, times, t0: Optional[float] = None) -> float:
+    """Label ``ax``'s x axis as seconds since ``t0`` (s; the start of the recording, so every plot of a
+    report shares it), or since the earliest of ``times`` (arrays of stamps, s) when None; return it."""
+    if t0 is not None:
+        ax.set_xlabel("time since the start of the recording [s]")
+        return float(t0)
     t0 = min((float(np.min(t)) for t in times if len(t)), default=0.0)
     ax.set_xlabel(f"time since {t0:.3f} s [s]")
     return t0
 
 
 def plot_yaw_errors(path: str, errors: Mapping[str, YawErrors], title: str = "Heading error",
-                    size: Tuple[int, int] = (1200, 500)) -> str:
-    """Heading error (deg) over time for each labelled ``YawErrors``; PNG of ``size`` pixels."""
+                    size: Tuple[int, int] = (1200, 500), t0: Optional[float] = None) -> str:
+    """Heading error (deg) over time (s since ``t0``) for each labelled ``YawErrors``; PNG of ``size`` pixels."""
     fig = _figure(*size)
     ax = fig.add_subplot(1, 1, 1)
-    t0 = _time_axis(ax, [e.t for e in errors.values()])
+    t0 = _time_axis(ax, [e.t for e in errors.values()], t0)
     for label, e in errors.items():
         ax.plot(e.t - t0, np.degrees(e.error), ".", ms=2, label=f"{label} (RMSE {math.degrees(e.stats.rmse):.3f}°)")
     ax.axhline(0.0, color="k", lw=0.5)
@@ -335,13 +344,14 @@ def plot_yaw_errors(path: str, errors: Mapping[str, YawErrors], title: str = "He
 
 
 def plot_marker_yaws(path: str, series: Mapping[int, Tuple[np.ndarray, np.ndarray]],
-                     pairwise: Optional[PairwiseDifferences] = None, size: Tuple[int, int] = (1200, 800)) -> str:
+                     pairwise: Optional[PairwiseDifferences] = None, size: Tuple[int, int] = (1200, 800),
+                     t0: Optional[float] = None) -> str:
     """Per-marker yaw trajectories (deg; paper fig. 11) and, below, their pairwise differences
-    (deg; figs. 11–12); PNG of ``size`` pixels."""
+    (deg; figs. 11–12), over s since ``t0``; PNG of ``size`` pixels."""
     fig = _figure(*size)
     ax1 = fig.add_subplot(2, 1, 1)
     ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
-    t0 = _time_axis(ax2, [t for t, _ in series.values()])
+    t0 = _time_axis(ax2, [t for t, _ in series.values()], t0)
     for mid, (t, yaw) in sorted(series.items()):
         ax1.plot(t - t0, np.degrees(yaw), ".", ms=2, label=f"marker {mid}")
     ax1.set_ylabel("yaw [deg]")
@@ -427,51 +437,97 @@ def _jsonable(value):
     return value
 
 
-def _md_value(value) -> str:
+def fmt_angle(rad: Optional[float]) -> str:
+    """An angle (rad) for a person: degrees, 3 decimals below 1°, 2 below 10°, else 1; '–' for None/NaN."""
+    if rad is None or not math.isfinite(rad):
+        return "–"
+    d = math.degrees(rad)
+    return f"{d:.3f}°" if abs(d) < 1 else f"{d:.2f}°" if abs(d) < 10 else f"{d:.1f}°"
+
+
+def normalised_residuals(residual, sigma) -> Dict[str, Any]:
+    """σ consistency of residuals (rad) with their predicted 1-σ (rad): ``rms`` of residual/σ (1 when
+    the σ are honest, larger when they are too optimistic), the shares within 1, 2 and 3 σ (0.68, 0.95,
+    0.997 for a normal error) and ``n``. Non-finite or non-positive σ are left out."""
+    r = np.asarray(residual, dtype=float).ravel()
+    s = np.asarray(sigma, dtype=float).ravel()
+    ok = np.isfinite(r) & np.isfinite(s) & (s > 0)
+    if not np.any(ok):
+        raise EvaluationError("no residual with a positive σ to normalise")
+    z = wrap_angle(r[ok]) / s[ok]
+    a = np.abs(z)
+    return {"n": int(ok.sum()), "rms": float(np.sqrt(np.mean(z * z))), "mean": float(z.mean()),
+            "share_within_1_sigma": float(np.mean(a < 1)), "share_within_2_sigma": float(np.mean(a < 2)),
+            "share_within_3_sigma": float(np.mean(a < 3))}
+
+
+def gaps(stamps, min_gap: float = 0.5, start: Optional[float] = None, end: Optional[float] = None):
+    """Gaps longer than ``min_gap`` s in sorted ``stamps`` (s), including a missing start (from ``start``)
+    and end (to ``end``): a list of (from, to) in s, longest first."""
+    t = np.asarray(stamps, dtype=float).ravel()
+    edges = ([start] if start is not None else []) + list(t) + ([end] if end is not None else [])
+    e = np.asarray(edges, dtype=float)
+    if len(e) < 2:
+        return []
+    d = np.diff(e)
+    idx = np.flatnonzero(d > min_gap)
+    return sorted(((float(e[i]), float(e[i + 1])) for i in idx), key=lambda g: g[0] - g[1])
+
+
+def _md_cell(value) -> str:
     if isinstance(value, float):
-        return f"{value:.4g}"
+        return "–" if not math.isfinite(value) else f"{value:.4g}"
     if value is None:
         return "–"
-    return str(value)
+    return str(value).replace("|", "\\|")
 
 
-def _md_rows(prefix: str, value, rows: list) -> None:
-    if isinstance(value, dict):
-        for k, v in value.items():
-            _md_rows(f"{prefix}.{k}" if prefix else str(k), v, rows)
-    elif isinstance(value, list) and value and isinstance(value[0], (dict, list)):
-        rows.append((prefix, json.dumps(value)))
-    elif isinstance(value, list):
-        rows.append((prefix, ", ".join(_md_value(v) for v in value)))
-    else:
-        rows.append((prefix, _md_value(value)))
+def md_table(columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> list:
+    """Lines of a Markdown table (floats to 4 significant digits, None as '–')."""
+    out = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    out += ["| " + " | ".join(_md_cell(v) for v in row) + " |" for row in rows]
+    return out + [""]
 
 
-def write_report(out_dir: str, results: Mapping[str, Any], title: str = "aruco_abs_orient evaluation",
-                 name: str = "report") -> Tuple[str, str]:
-    """Write ``<out_dir>/<name>.md`` and ``<out_dir>/<name>.json`` atomically; returns their paths.
+@dataclass
+class Report:
+    """What a person reads first and then the details.
 
-    ``results`` maps a section name to an object with ``report_dict()`` (the evaluation results,
-    ``OffsetEstimate``) or to plain JSON-able values; numbers are in degrees / ms at this edge, as
-    the ``report_dict``s give them. The section ``plots`` (a mapping caption → PNG path, or a list of
-    paths) becomes images in the Markdown, with paths relative to ``out_dir``."""
+    ``headline``: rows (quantity, this run, the paper, what to check if it is bad — Markdown); ``notes``:
+    warnings and self-check findings (Markdown lines); ``plots``: caption → PNG path (the overview
+    first); ``tables``: (heading, columns, rows) detail tables; ``data``: the machine-readable results
+    (``report_dict`` objects or JSON-able values) for ``report.json``."""
+
+    title: str
+    intro: str = ""
+    headline: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    plots: Dict[str, str] = field(default_factory=dict)
+    tables: list = field(default_factory=list)
+    data: Dict[str, Any] = field(default_factory=dict)
+
+
+def write_report(out_dir: str, report: Report, name: str = "report") -> Tuple[str, str]:
+    """Write ``<out_dir>/<name>.md`` (one page of headline figures, the findings and the plots inline,
+    then the detail tables) and ``<out_dir>/<name>.json`` (``report.data`` with the headline and the
+    plots' paths) atomically; returns their paths. Plot paths are made relative to ``out_dir``."""
     os.makedirs(out_dir, exist_ok=True)
-    data = {"title": title}
-    lines = [f"# {title}", ""]
-    for section, value in results.items():
-        if section == "plots":
-            plots = value if isinstance(value, Mapping) else {os.path.basename(p): p for p in value}
-            rel = {caption: os.path.relpath(os.path.abspath(p), os.path.abspath(out_dir))
-                   for caption, p in plots.items()}
-            data["plots"] = rel
-            lines += ["## plots", ""] + [f"![{caption}]({p})" for caption, p in rel.items()] + [""]
-            continue
-        converted = _jsonable(value)
-        data[section] = converted
-        rows: list = []
-        _md_rows("", converted, rows)
-        lines += [f"## {section}", "", "| quantity | value |", "|---|---|"]
-        lines += [f"| {k or section} | {v} |" for k, v in rows] + [""]
+    rel = {caption: os.path.relpath(os.path.abspath(p), os.path.abspath(out_dir))
+           for caption, p in report.plots.items()}
+    lines = [f"# {report.title}", ""]
+    if report.intro:
+        lines += [report.intro, ""]
+    if report.headline:
+        lines += md_table(("", "this run", "the paper (real data)", "if it is bad, check"), report.headline)
+    if report.notes:
+        lines += ["**Checks:**", ""] + [f"- {n}" for n in report.notes] + [""]
+    lines += [f"![{caption}]({p})" for caption, p in rel.items()] + ([""] if rel else [])
+    if report.tables:
+        lines += ["## Details", ""]
+        for heading, columns, rows in report.tables:
+            lines += [f"### {heading}", ""] + md_table(columns, rows)
+    data = {"title": report.title, "headline": [list(r) for r in report.headline], "notes": list(report.notes),
+            **{k: _jsonable(v) for k, v in report.data.items()}, "plots": rel}
     md_path = os.path.join(out_dir, name + ".md")
     json_path = os.path.join(out_dir, name + ".json")
     atomic_write_text(json_path, json.dumps(data, indent=2, allow_nan=False) + "\n")

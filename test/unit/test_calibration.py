@@ -351,7 +351,15 @@ def test_cli_recovers_the_rendered_boresight(rendered, tmp_path, capsys):
     assert angle < 0.1, (angle, report)
     assert report["residual_rms_after_deg"] < 0.3 * report["residual_rms_before_deg"]
     np.testing.assert_allclose(loaded["prism"], np.array(hidden["base_T_prism"]), atol=1e-5)
-    assert 'type="static_transform_publisher"' in (tmp_path / "calibration.yaml.launch.xml").read_text()
+    # the launch file beside it is one roslaunch loads (standalone or <include>d), with both static tfs
+    import roslaunch.config
+    import roslaunch.xmlloader
+
+    config = roslaunch.config.ROSLaunchConfig()
+    roslaunch.xmlloader.XmlLoader().load(str(tmp_path / "calibration.launch"), config, verbose=False)
+    tfs = {n.name: n.args.split() for n in config.nodes if n.type == "static_transform_publisher"}
+    assert sorted(tfs) == ["camera_tf", "prism_tf"] and tfs["camera_tf"][-2:] == ["base_link", "camera"]
+    np.testing.assert_allclose([float(x) for x in tfs["camera_tf"][:3]], loaded["camera"][:3, 3], atol=1e-6)
 
 
 def test_cli_refuses_a_recording_without_motion(tmp_path, capsys):

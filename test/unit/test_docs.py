@@ -371,8 +371,14 @@ def test_cli_help_runs_and_shows_an_example(command):
                           text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
     assert proc.returncode == 0, proc.stdout
     assert "example" in proc.stdout.lower(), f"{command} --help shows no example:\n{proc.stdout}"
+    assert "``" not in proc.stdout, f"{command} --help shows reStructuredText markup:\n{proc.stdout}"
     for name, sub in sub_parsers(cli_parser(module)).items():
-        assert "example" in sub.format_help().lower(), f"{command} {name} --help shows no example"
+        text = sub.format_help()
+        assert "example" in text.lower(), f"{command} {name} --help shows no example"
+        assert sub.description, f"{command} {name} --help has no description"
+        assert "DESIGN" not in text, f"{command} {name} --help cites a document that is not in the repository"
+        lines = text.splitlines()  # an example continued with a backslash goes on, indented, on the next line
+        assert all(lines[i + 1].startswith("      ") for i, line in enumerate(lines[:-1]) if line.endswith("\\")), text
 
 
 def test_every_command_is_in_the_tools_table(api):

@@ -6,6 +6,7 @@ import json
 import math
 import os
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,9 +15,13 @@ from hypothesis import strategies as st
 
 from aruco_abs_orient.evaluation import (
     EvaluationError,
+    Report,
     error_by_frame_position,
     error_stats,
+    fmt_angle,
+    gaps,
     interp_yaw,
+    normalised_residuals,
     pairwise_differences,
     per_marker_series,
     plot_coherence,
@@ -188,25 +193,49 @@ def test_plots_are_pngs_of_the_requested_size(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["ape.png", "frame.png", "markers.png", "sync.png"]  # no temp files
 
 
-def test_report_contains_the_numbers_in_degrees(tmp_path):
+def test_report_has_a_headline_page_then_tables_and_json(tmp_path):
     t = np.arange(0.0, 10.0, 0.1)
     ape = yaw_ape(t, np.full(len(t), rad(1.5)), t, np.zeros_like(t))
-    plot = plot_yaw_errors(str(tmp_path / "plots_ape.png"), {"ours": ape})
+    plot = plot_yaw_errors(str(tmp_path / "plots_ape.png"), {"ours": ape}, t0=0.0)
     bias = error_by_frame_position([0.1, 0.2], [0.0, 0.1], [0.0, 0.0], el_bins=2, min_count=5)  # no full bin
-    md, js = write_report(str(tmp_path / "out"), {
-        "ape": ape, "timesync": make_estimate(), "frame_position": bias,
-        "scenario": {"name": "demo", "laps": 3}, "plots": {"heading error": plot}})
+    rep = Report(title="report of run1", intro="one line about the run",
+                 headline=[("heading vs reference", f"RMSE {fmt_angle(ape.stats.rmse)}", "–", "[x](t.md#a)")],
+                 notes=["observations disagree with a time offset: ..."], plots={"heading error": plot},
+                 tables=[("Per marker", ["marker", "n"], [[1, 200], [7, 3.14159]])],
+                 data={"ape": ape, "timesync": make_estimate(), "frame_position": bias})
+    md, js = write_report(str(tmp_path / "out"), rep)
     with open(js) as f:
         data = json.load(f)
     assert data["ape"]["rmse_deg"] == pytest.approx(1.5)
     assert data["ape"]["share_under_2_deg"] == 1.0
     assert data["timesync"]["offset_ms"] == pytest.approx(367.0)
     assert data["frame_position"]["max_abs_bias_deg"] is None  # NaN → null, never a made-up number
-    assert data["scenario"] == {"name": "demo", "laps": 3}
     assert data["plots"] == {"heading error": "../plots_ape.png"}
-    with open(md) as f:
-        text = f.read()
-    assert "| rmse_deg | 1.5 |" in text
-    assert "| offset_ms | 367 |" in text
-    assert "![heading error](../plots_ape.png)" in text
+    assert data["headline"][0][1] == "RMSE 1.50°"
+    text = Path(md).read_text()
+    lines = text.splitlines()
+    # the page a person reads first: title, the intro, the headline table, the checks, the plots; then details
+    assert lines[0] == "# report of run1" and lines[2] == "one line about the run"
+    assert "| heading vs reference | RMSE 1.50° | – | [x](t.md#a) |" in text
+    assert text.index("RMSE 1.50°") < text.index("**Checks:**") < text.index("![heading error](../plots_ape.png)") \
+        < text.index("## Details") < text.index("### Per marker")
+    assert "| 7 | 3.142 |" in text  # 4 significant digits
     assert sorted(os.listdir(tmp_path / "out")) == ["report.json", "report.md"]
+
+
+def test_fmt_angle_rounds_for_a_person():
+    assert [fmt_angle(rad(x)) for x in (0.0173, -0.66, 1.174, 23.456)] == ["0.017°", "-0.660°", "1.17°", "23.5°"]
+    assert fmt_angle(None) == fmt_angle(float("nan")) == "–"
+
+
+def test_normalised_residuals_and_gaps():
+    rng = np.random.default_rng(1)
+    sigma = np.full(20000, rad(0.1))
+    z = normalised_residuals(rng.normal(0, rad(0.1), 20000), sigma)
+    assert z["rms"] == pytest.approx(1.0, abs=0.03) and z["share_within_2_sigma"] == pytest.approx(0.954, abs=0.01)
+    assert normalised_residuals(rng.normal(0, rad(0.3), 20000), sigma)["rms"] == pytest.approx(3.0, abs=0.1)
+    with pytest.raises(EvaluationError):
+        normalised_residuals([0.1], [0.0])
+    t = np.concatenate([np.arange(1.0, 5.0, 0.1), np.arange(7.0, 9.0, 0.1)])
+    assert gaps(t, 0.5, start=0.0, end=10.0) == [pytest.approx((4.9, 7.0)), pytest.approx((8.9, 10.0)),
+                                                 pytest.approx((0.0, 1.0))]

@@ -7,6 +7,7 @@ import json
 import math
 import os
 import re
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ import yaml
 from aruco_abs_orient.evaluation import error_stats, interp_yaw, yaw_ape
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.offline.bagio import BagError, BagTopics, read_bag_data
+from aruco_abs_orient.offline.cli import build_parser
 from aruco_abs_orient.offline.cli import main as cli_main
 from aruco_abs_orient.offline.evaluate import read_observations
 from aruco_abs_orient.offline.process import process_bag
@@ -108,6 +110,60 @@ def test_timesync_cli_refines_the_offset_with_the_marker_bearings(ci_run, capsys
     assert "phase coherence" in out and "refined with the marker bearings" in out
     used = float(re.search(r"--time-offset (-?[0-9.]+)", out).group(1))
     assert abs(used - _hidden(scen)["camera_time_offset"]) < 0.005, out
+    # the use: line is a whole command: it parses with the CLI's own parser and names the real files
+    use = shlex.split(out.split("use: ", 1)[1].splitlines()[0])
+    assert use[:2] == ["aruco-abs-orient", "process"]
+    args = build_parser().parse_args(use[1:])
+    assert (args.bag, args.markers, args.out) == (scen.bag, scen.markers, "results/scenario")
+
+
+def test_evaluate_without_a_reference_reports_what_the_run_shows(ci_run, tmp_path, capsys):
+    """No ground truth: coverage, the markers' agreement beside the paper's, the residuals and their σ
+    consistency, per marker one row; the figures are those of observations.csv (read here with csv)."""
+    import csv
+
+    scen, res = ci_run
+    code = cli_main(["evaluate", os.path.dirname(res.trajectory_path), "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "markers' yaws agree (pairwise, same image): median" in out and "(paper: median 0.66°" in out
+    assert "vs reference" not in out
+    with open(res.observations_path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["yaw_deg"]]
+    accepted = np.array([float(r["residual_deg"]) for r in rows if r["accepted"] == "1" and r["residual_deg"]])
+    data = json.loads((tmp_path / "report.json").read_text())
+    assert data["residuals"]["rmse_deg"] == pytest.approx(float(np.sqrt(np.mean(accepted ** 2))), rel=1e-3)
+    assert data["reference"] is None and "heading_ape" not in data
+    summary = json.loads(Path(res.summary_path).read_text())
+    assert data["coverage"]["share"] == pytest.approx(summary["frames_with_pose"] / summary["frames"])
+    text = (tmp_path / "report.md").read_text()
+    for mid in sorted({r["id"] for r in rows}):
+        assert sum(line.startswith(f"| {mid} | ") for line in text.splitlines()) == 1, mid  # one row per marker
+    assert "no reference: the figures below are what the run shows by itself" in text
+
+
+def test_evaluate_with_a_reference_adds_the_errors(ci_run, tmp_path, capsys):
+    scen, res = ci_run
+    run = os.path.dirname(res.trajectory_path)
+    assert cli_main(["evaluate", run, "--reference", scen.truth, "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    _, _, ape = _heading_errors(run, scen.truth)
+    assert f"heading of base_link vs reference: RMSE {math.degrees(ape.stats.rmse):.3f}°" in out
+    data = json.loads((tmp_path / "report.json").read_text())
+    assert data["heading_ape"]["rmse_deg"] == pytest.approx(math.degrees(ape.stats.rmse))
+    assert data["recording_start_s"] == pytest.approx(read_bag_data(scen.bag).start)
+
+
+def test_evaluate_after_and_fused_arguments(capsys):
+    from aruco_abs_orient.offline.evaluate import parse_after
+
+    assert parse_after("4") == ("since_start", 4.0)
+    assert parse_after("1700000000.5abs") == ("absolute", 1700000000.5)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["evaluate", "run", "--after", "4s"])
+    assert "absolute stamp with the suffix abs" in capsys.readouterr().err
+    assert cli_main(["evaluate", "run", "--fused", "out.bag"]) == 2
+    assert "--fused needs --reference" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -257,3 +313,13 @@ def test_false_marker_id_in_5_percent_of_frames(ci_run, scenario_factory, tmp_pa
     stats = out.summary["pipeline_stats"]
     rejected = sum(v for k, v in stats.items() if k.startswith("rejected"))
     assert rejected >= 1  # the impostor was seen and thrown out somewhere
+
+
+def test_first_stamp_of_a_topic_and_of_a_missing_one(tiny):
+    """The EKF is judged from its first absolute yaw: a bag without that topic has none (not the first
+    message of another topic)."""
+    from aruco_abs_orient.offline.evaluate import first_stamp
+
+    assert first_stamp(tiny.bag) is None
+    data = read_bag_data(tiny.bag)
+    assert first_stamp(tiny.bag, "/ms60/prism", clock_offset=0.5) == pytest.approx(data.prism_stamps[0] - 0.5)

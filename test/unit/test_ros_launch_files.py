@@ -62,10 +62,9 @@ def test_postprocess_launch(use_ekf, tmp_path):
     assert map_odom_owners(c) == (["ekf_map"] if use_ekf == "true" else ["abs_orient"])
     assert c.params["/use_sim_time"].value is True
     n = nodes(c)
-    play = n[("rosbag", "play")]
-    assert play.required and "--clock" in play.args and "--rate=2.0" in play.args
-    assert play.args.endswith("/data/run.bag")
-    assert "--loop" not in play.args
+    replay = n[("aruco_abs_orient", "replay")]
+    assert replay.required and c.params["/replay/bag"].value == "/data/run.bag"
+    assert c.params["/replay/rate"].value == 2.0 and c.params["/replay/loop"].value is False
     rec = n[("rosbag", "record")]
     assert f"--output-name={tmp_path / 'out.bag'}" in rec.args and "/odometry/filtered" in rec.args
     assert c.params["/abs_orient/time_offset"].value == 0.367
@@ -73,8 +72,24 @@ def test_postprocess_launch(use_ekf, tmp_path):
 
 def test_postprocess_launch_loop_and_no_record():
     c = load("postprocess.launch", bag="/b.bag", markers="/m.yaml", loop="true")
-    n = nodes(c)
-    assert "--loop" in n[("rosbag", "play")].args and ("rosbag", "record") not in n
+    assert c.params["/replay/loop"].value is True and ("rosbag", "record") not in nodes(c)
+
+
+def test_relative_paths_are_resolved_against_the_callers_directory(monkeypatch, tmp_path):
+    """roslaunch runs nodes in ~/.ros: a relative path must be made absolute from where roslaunch started."""
+    monkeypatch.setenv("PWD", str(tmp_path))
+    c = load("postprocess.launch", bag="run1.bag", markers="site/markers.yaml", calibration="site/cal.yaml",
+             record="results/out.bag")
+    assert c.params["/replay/bag"].value == f"{tmp_path}/run1.bag"
+    assert c.params["/abs_orient/markers"].value == f"{tmp_path}/site/markers.yaml"
+    assert c.params["/abs_orient/calibration"].value == f"{tmp_path}/site/cal.yaml"
+    assert f"--output-name={tmp_path}/results/out.bag" in nodes(c)[("rosbag", "record")].args
+    c = load("live.launch", markers="site/markers.yaml", calibration="site/cal.yaml", use_ms60="false")
+    assert c.params["/lever_arms/calibration"].value == f"{tmp_path}/site/cal.yaml"
+    assert c.params["/abs_orient/markers"].value == f"{tmp_path}/site/markers.yaml"
+    c = load("abs_orient.launch", markers="/abs/markers.yaml")
+    assert c.params["/abs_orient/markers"].value == "/abs/markers.yaml"
+    assert c.params["/abs_orient/calibration"].value == ""
 
 
 def test_ekf_launch_loads_the_package_config():

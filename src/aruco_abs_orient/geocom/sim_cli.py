@@ -47,7 +47,8 @@ def parse_faults(text: str) -> FaultRates:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = argparse.ArgumentParser(prog="aruco-abs-orient-ms60-sim", description=__doc__, epilog=EPILOG,
+    parser = argparse.ArgumentParser(prog="aruco-abs-orient-ms60-sim", description=__doc__.replace("``", ""),
+                                     epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal (prints its path)")
     parser.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP 127.0.0.1:PORT (0: any free port)")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import glob
 import math
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
@@ -22,7 +23,7 @@ from ..transforms import make_T, quat_to_matrix
 from ..tum import Trajectory
 
 __all__ = ["BagError", "BagReadError", "BagTopics", "BagData", "read_bag_data", "iter_images", "open_reader",
-           "salvage_bag", "Bags", "bag_paths", "bag_name", "expand_bags"]
+           "salvage_bag", "Bags", "bag_paths", "bag_name", "expand_bags", "bags_for_shell"]
 
 Bags = Union[str, Sequence[str]]   # one bag, or the files of one recording
 
@@ -45,6 +46,11 @@ def expand_bags(args: Sequence[str]) -> Bags:
         else:
             paths.append(a)
     return paths[0] if len(paths) == 1 else paths
+
+
+def bags_for_shell(bags: Bags) -> str:
+    """The recording's file(s) as shell words, for the commands the tools print."""
+    return " ".join(shlex.quote(p) for p in bag_paths(bags))
 
 
 def bag_name(bags: Bags) -> str:

@@ -5,8 +5,8 @@ images streamed one by one, each searched whole for the map's markers (``trackin
 without a prediction, so the nominal calibration cannot bias what is found). Every observation
 (time, id, camera-frame bearing, σ) goes to :func:`aruco_abs_orient.calibration.calibrate` with the
 odometry trajectory and the prism track moved onto the camera clock (prism stamp + ``time_offset``).
-Writes the static-tf YAML read by ``live.launch``/``postprocess.launch`` and a launch snippet beside
-it (``<out>.launch.xml``).
+Writes the static-tf YAML read by ``live.launch``/``postprocess.launch`` and a launch file beside it
+(``calibration.yaml`` → ``calibration.launch``: the same static tfs, to roslaunch or ``<include>``).
 
 Units: seconds, metres, radians inside; degrees and millimetres in what is printed.
 """
@@ -17,6 +17,7 @@ import argparse
 import json
 import math
 import os
+import shlex
 import sys
 from typing import List, Optional
 
@@ -34,14 +35,15 @@ from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
-from .bagio import BagData, BagError, BagTopics, bag_name, bag_paths, iter_images, read_bag_data
+from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
+from .cli import process_command
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
 
 EXAMPLES = """examples:
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
   aruco-abs-orient calibrate run.bag --markers markers.yaml --lever-arm --out calibration.yaml
-  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset \
+  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset \\
       --out calibration.yaml
   roslaunch aruco_abs_orient live.launch markers:=markers.yaml calibration:=calibration.yaml
 
@@ -65,9 +67,11 @@ class CalibrateResult:
 
 def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTopics] = None,
                          progress: bool = True, detector_params: Optional[DetectorParams] = None,
-                         data: Optional[BagData] = None, every: int = 1) -> CalibrateResult:
+                         data: Optional[BagData] = None, every: int = 1,
+                         label: str = "calibrate: detect") -> CalibrateResult:
     """Every marker observation of ``bag``: whole-frame detection of the map's markers in every
-    ``every``-th image (30 fps frames a few cm apart add little but detection time)."""
+    ``every``-th image (30 fps frames a few cm apart add little but detection time); ``label`` names the
+    progress bar (the command that runs it)."""
     if every < 1:
         raise CalibrationError(f"every: expected an integer ≥ 1, got {every}")
     topics = topics or BagTopics()
@@ -83,7 +87,7 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=data.image_count, unit="frame", desc="calibrate: detect", dynamic_ncols=True)
+        bar = tqdm(total=data.image_count, unit="frame", desc=label, dynamic_ncols=True)
     try:
         for k, (stamp, payload) in enumerate(iter_images(bag, topics)):
             if bar is not None:
@@ -144,15 +148,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "calibrate", help="boresight (and lever arm) of the camera from a recording → static-tf YAML",
         description="Estimate the camera's boresight rotation in base_link (and optionally its lever arm) "
                     "by least squares over all marker observations of a recording; write the static-tf "
-                    "YAML that live.launch/postprocess.launch read, and a launch snippet beside it.",
+                    "YAML that live.launch/postprocess.launch read, and a launch file beside it (calibration.yaml → "
+                    "calibration.launch: the same static tfs by static_transform_publisher, to roslaunch or "
+                    "<include>).",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several "
                    "bags or a quoted glob ('run_*.bag') are one split recording")
-    p.add_argument("--markers", required=True, help="marker map YAML (DESIGN §3)")
+    p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
                    help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
     p.add_argument("--out", required=True, metavar="YAML",
-                   help="calibration YAML to write (atomically); the launch snippet goes to YAML.launch.xml")
+                   help="calibration YAML to write (atomically); the launch file goes beside it (.yaml → .launch)")
     p.add_argument("--lever-arm", action="store_true", help="also estimate the camera lever arm (3 more unknowns)")
     p.add_argument("--refine-time-offset", action="store_true",
                    help="also estimate the time offset (1 more unknown), starting from --time-offset (from "
@@ -169,6 +175,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
     p.set_defaults(func=run)
     return p
+
+
+def launch_path(out: str) -> str:
+    """The launch file written beside the calibration YAML ``out``: ``site/calibration.yaml`` →
+    ``site/calibration.launch``."""
+    root, ext = os.path.splitext(out)
+    return (root if ext in (".yaml", ".yml") else out) + ".launch"
 
 
 def _fail(msg: str, code: int = 2) -> int:
@@ -202,14 +215,15 @@ def run(args: argparse.Namespace) -> int:
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
     snippet = launch_snippet(cal, data.base_T_camera, data.base_T_prism, topics.base_frame, topics.camera_frame,
                              topics.prism_frame)
+    launch = launch_path(args.out)
     atomic_write_text(args.out, text)
-    atomic_write_text(args.out + ".launch.xml", snippet)
+    atomic_write_text(launch, f"<launch>\n{snippet}</launch>\n")
     print(json.dumps(cal.report_dict(), default=float))
-    print(f"wrote {args.out}\n      {args.out}.launch.xml")
+    print(f"wrote {args.out}\n      {launch}  (the static tfs: roslaunch it, or "
+          f"<include file=\"{os.path.abspath(launch)}\"/>)")
     if cal.time_offset_estimated:
         offset = args.time_offset + cal.time_offset_delta
         print(f"time offset refined with the marker bearings: {1e3 * offset:+.1f} ms ± "
               f"{1e3 * cal.time_offset_sigma:.1f} ms (given {1e3 * args.time_offset:+.1f} ms)")
-        print(f"use: aruco-abs-orient process {' '.join(bag_paths(args.bag))} --time-offset {offset:.4f} "
-              f"--calibration {args.out} ...")
+        print(f"use: {process_command(args.bag, shlex.quote(args.markers), offset, args.out)}")
     return 0

@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
+import shlex
 import sys
 from typing import List, Optional
 
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import PipelineError, PipelineParams
-from .bagio import BagError, BagTopics, bag_paths, expand_bags
+from .bagio import BagError, Bags, BagTopics, bag_paths, bags_for_shell, expand_bags
+from .evaluate import parse_after
 
 BAGS_HELP = ("; several bags (a `rosbag record --split` recording, in any order) or a quoted glob such as "
              "'run_*.bag' are read as one recording in time order")
@@ -27,6 +28,7 @@ EXAMPLES = """examples:
   aruco-abs-orient timesync run.bag
   aruco-abs-orient timesync run.bag --markers markers.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367
+  aruco-abs-orient evaluate results/
   aruco-abs-orient evaluate results/ --reference truth.tum
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367 \\
@@ -60,9 +62,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     p = sub.add_parser("process", help="bag → TUM trajectory of base_link in map, observations CSV, summary JSON",
+                       description="Process a recording as the node would, without a ROS master and without "
+                       "dropping frames: detect the markers in every image, the yaw of base_link from each "
+                       "(with the prism and the lever arms), the map->odom filter; write trajectory.tum, "
+                       "observations.csv and summary.json to --out, and check the run's own consistency "
+                       "(self-checks: warnings with the likely cause and the command that fixes it).",
                        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
-    p.add_argument("--markers", required=True, help="marker map YAML (DESIGN §3)")
+    p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
     p.add_argument("--out", required=True, help="output directory (created; files are replaced atomically)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
                    help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
@@ -95,25 +102,48 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refuse an estimate whose confidence (0-1) is below C (default 0.3)")
     _add_topics(p)
 
-    p = sub.add_parser("evaluate", help="a processed run vs a reference TUM: report, plots (paper figs. 11-13)",
-                       epilog="example:\n  aruco-abs-orient evaluate results/ --reference truth.tum --out report/",
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("run", help="output directory of `process` (trajectory.tum, observations.csv)")
-    p.add_argument("--reference", required=True, help="TUM file of base_link in map (e.g. the truth)")
+    p = sub.add_parser(
+        "evaluate", help="report of a processed run: markers agree?, residuals, coverage; errors vs a reference",
+        description="The report of a processed run (report.md: a page of headline figures beside the paper's, "
+                    "the plots, then tables per marker; report.json; PNG plots). Without --reference it shows what "
+                    "the run shows by itself, the paper's own evaluation: the markers' yaws against each other "
+                    "(pairwise, per-marker trajectories, paper figs. 11-12), the residuals and their sigma "
+                    "consistency, coverage and gaps, and the run's self-checks. With --reference (a TUM "
+                    "trajectory of base_link in map) it adds the heading and position errors (and fig. 13).",
+        epilog="examples:\n  aruco-abs-orient evaluate results/run1\n"
+               "  aruco-abs-orient evaluate results/run1 --reference truth.tum --overview run1.bag markers.yaml\n"
+               "  aruco-abs-orient evaluate results/run1 --reference truth.tum --fused results/run1_out.bag --after 5",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run", help="output directory of `process` (summary.json, trajectory.tum, observations.csv)")
+    p.add_argument("--reference", metavar="TUM", help="TUM file of base_link in map (e.g. a simulation's truth): "
+                   "adds the errors against it")
     p.add_argument("--out", help="report directory (default: the run directory)")
-    p.add_argument("--fused", metavar="BAG", help="also evaluate /odometry/filtered (robot_localization) recorded "
-                   "in BAG by postprocess.launch record:=BAG")
-    p.add_argument("--fused-clock-offset", type=float, default=0.0, metavar="S",
-                   help="the recorded stamps are on the camera clock: subtract S s (the --time-offset used)")
-    p.add_argument("--after", type=float, default=0.0, metavar="T",
-                   help="evaluate the fused output from reference time T on (s; default: all)")
+    p.add_argument("--fused", metavar="BAG", help="with --reference: also judge /odometry/filtered "
+                   "(robot_localization) recorded in BAG by postprocess.launch record:=BAG")
+    p.add_argument("--fused-clock-offset", type=float, metavar="S",
+                   help="the recorded stamps are on the camera clock: subtract S s (default: the time offset the "
+                        "run used, from its summary.json)")
+    p.add_argument("--after", type=parse_after, metavar="T",
+                   help="judge the fused output from T s after the start of the recording on (e.g. 5), or from "
+                        "an absolute total-station stamp with the suffix abs (e.g. 1700000000.5abs); default: "
+                        "1 s after its first absolute yaw")
     p.add_argument("--overview", nargs=2, metavar=("BAG", "MARKERS"),
-                   help="also draw overview.png: a frame of BAG with its markers above the trajectory")
+                   help="also draw overview.png (first in the report): a frame of BAG with its markers above the "
+                        "trajectory")
 
     from .calibrate import add_parser as add_calibrate
 
     add_calibrate(sub)
     return parser
+
+
+def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
+    """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s) and marker
+    map as given (``markers`` already shell-quoted or a placeholder), the output in ``results/<bag name>``."""
+    stem = os.path.splitext(os.path.basename(bag_paths(bag)[0]))[0] or "run"
+    cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} --out {shlex.quote('results/' + stem)} "
+           f"--time-offset {time_offset:.4f}")
+    return cmd + (f" --calibration {shlex.quote(calibration)}" if calibration else "")
 
 
 def _fail(msg: str, code: int = 2) -> int:
@@ -178,38 +208,29 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     if est.confidence < a.min_confidence:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
                      "weak: record longer, with more turns of varying rate, or give --markers)", 1)
-    print(f"use: aruco-abs-orient process {' '.join(bag_paths(a.bag))} --time-offset {est.offset:.4f} ...")
+    markers = shlex.quote(a.markers) if a.markers else "<markers.yaml>"
+    print(f"use: {process_command(a.bag, markers, est.offset)}" + ("" if a.markers else "   (give your marker map)"))
     return 0
 
 
 def cmd_evaluate(a: argparse.Namespace) -> int:
     from .evaluate import evaluate_run
 
-    extra = {}
-    if a.fused:
-        from .evaluate import fused_errors, odometry_from_bag
-
-        extra["fused_ekf"] = fused_errors(odometry_from_bag(a.fused, clock_offset=a.fused_clock_offset),
-                                          a.reference, after=a.after)
-    res = evaluate_run(a.run, a.reference, a.out, extra=extra)
+    if a.fused and not a.reference:
+        return _fail("--fused needs --reference: the EKF's output is judged against a reference trajectory")
+    overview = None
     if a.overview:
         from .evaluate import overview_figure
 
-        png = overview_figure(os.path.join(a.out or a.run, "overview.png"), a.overview[0], a.run, a.reference,
-                              MarkerMap.load(a.overview[1]))
-        print(f"wrote {png}")
-    ape = res["heading_ape"].stats
-    print(f"heading vs reference: RMSE {math.degrees(ape.rmse):.3f}°, p95 {math.degrees(ape.p95):.3f}°, "
-          f"coverage {100 * ape.coverage:.1f} %")
-    if "fused_ekf" in res:
-        f = res["fused_ekf"]
-        print(f"robot_localization EKF (/odometry/filtered) vs reference: heading RMSE "
-              f"{math.degrees(f['heading_ape'].stats.rmse):.3f}°, position RMSE {1e3 * f['position']['rmse_m']:.1f} mm")
-    agree = res.get("per_marker_agreement")
-    if hasattr(agree, "stats"):
-        st = agree.stats
-        print(f"markers agree: median {math.degrees(st.median):.3f}°, mean {math.degrees(st.mean):.3f}°, "
-              f"std {math.degrees(st.std):.3f}° (paper: 0.66°, 1.17°, 1.66°)")
+        os.makedirs(a.out or a.run, exist_ok=True)
+        overview = overview_figure(os.path.join(a.out or a.run, "overview.png"), a.overview[0], a.run, a.reference,
+                                   MarkerMap.load(a.overview[1]))
+    res = evaluate_run(a.run, a.reference, a.out, fused=a.fused, fused_clock_offset=a.fused_clock_offset,
+                       after=a.after, overview=overview)
+    for quantity, value, paper, _ in res["headline"]:
+        print(f"{quantity}: {value}" + (f" (paper: {paper})" if paper != "–" else ""))
+    for note in res["notes"]:
+        print(f"aruco-abs-orient: check: {note.split(' ([')[0]}", file=sys.stderr)
     print(f"wrote {res['report_md']}\n      {res['report_json']}")
     return 0
 

@@ -8,7 +8,8 @@ stays flat with the length of the recording.
 Outputs in ``out_dir`` (each written atomically: complete or absent):
 - ``trajectory.tum``: base_link in map, one line per image with a pose, stamps in total-station time;
 - ``observations.csv``: one row per marker observation;
-- ``summary.json``: counts, rates, settings, what was skipped and why.
+- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, and
+  the self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import json
 import math
 import os
 import queue
-import sys
+import shlex
 import tempfile
 import threading
 import time
@@ -30,6 +31,7 @@ import numpy as np
 from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineParams
+from ..selfcheck import check_run
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
 from .bagio import (
     BagData,
@@ -37,6 +39,7 @@ from .bagio import (
     Bags,
     BagTopics,
     bag_paths,
+    bags_for_shell,
     iter_images,
     open_reader,
     read_bag_data,
@@ -100,6 +103,23 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
         out.put((float("nan"), f"bag reading stopped: {e}"))
     finally:
         out.put(None)
+
+
+def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag) -> Dict:
+    """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`) with the commands that fix
+    what they find; each finding is also a warning of the summary."""
+    cols = list(zip(*checked)) if checked else [()] * 9
+    obs = {k: np.asarray(v) for k, v in zip(("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
+                                             "accepted", "yaw", "odom_yaw"), cols)}
+    bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
+    commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
+                "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
+                             f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
+    yaws = [math.atan2(T[1, 0], T[0, 0]) for T in poses]
+    result = check_run(obs, data.prism_stamps, data.prism_positions, {m.id: m.position for m in marker_map}, stamps,
+                       yaws, summary["pipeline_stats"], summary["frames"], summary["time_offset_s"], commands)
+    summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
+    return result
 
 
 def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: float = 0.0,
@@ -171,6 +191,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     first_pose = None
     odom_missing = 0
     timing_sum: Dict[str, float] = {}
+    checked: List[tuple] = []  # (t, id, az, el, yaw σ, residual, accepted, yaw, odom yaw) of each marker yaw
     modes: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)
     stop = threading.Event()
@@ -215,6 +236,9 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                     key = res.error.split(":")[0]
                     errors[key] = errors.get(key, 0) + 1
                 writer.writerows(_observation_rows(res))
+                odom_yaw = math.atan2(T_odom[1, 0], T_odom[0, 0])
+                checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
+                             r.residual, r.accepted, r.yaw, odom_yaw) for r in res.observations if math.isfinite(r.yaw)]
                 if res.map_T_base is not None:
                     if not with_pose:
                         first_pose = res.stamp
@@ -239,8 +263,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     duration = max(data.end - data.start, 0.0)
     reason = pipe.waiting_reason if with_pose == 0 else ""
     if reason:
-        print(f"warning: no pose in {frames} frame(s): the map→odom filter never started: {reason}",
-              file=sys.stderr)
+        data.warnings.append(f"no pose in {frames} frame(s): the map→odom filter never started: {reason}")
     summary = {
         "bag": os.path.abspath(bag) if isinstance(bag, str) else [os.path.abspath(b) for b in bag_paths(bag)],
         "markers": marker_map.source,
@@ -263,7 +286,9 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
         "bag_duration_s": duration,
         "wall_time_s": wall,
         "real_time_factor": duration / wall if wall > 0 else None,
+        "recording_start_s": float(data.start),
     }
+    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag)
     summary_path = os.path.join(out_dir, "summary.json")
     atomic_write_text(summary_path, json.dumps(summary, indent=2, default=float) + "\n")
     return ProcessResult(traj_path, obs_path, summary_path, summary)

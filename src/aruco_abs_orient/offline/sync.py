@@ -77,7 +77,7 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tu
     if marker_map is not None:
         from .calibrate import calibrate_bag, collect_observations
 
-        obs = collect_observations(bag, marker_map, topics, progress, data=data, every=every)
+        obs = collect_observations(bag, marker_map, topics, progress, data=data, every=every, label="timesync: detect")
         try:
             cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs, estimate_time_offset=True,
                                 params=CalibrationParams(max_boresight_sigma_deg=1.0))

@@ -605,7 +605,8 @@ class AbsOrientNode:
         if image_age > c.image_timeout:
             problems.append(f"no image for {image_age:.1f} s")
         if prism_age > c.prism_timeout:
-            problems.append("no prism yet" if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
+            problems.append(("no prism yet" if not self.prisms else "prisms arrive, waiting for the first image")
+                            if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
         for key, text in (("bad_images", "corrupt images"), ("tf_failures", "tf lookups failed"),
                           ("tf_nan", "NaN in tf"), ("frame_errors", "frame errors"), ("unknown_ids", "unknown ids"),
                           ("bad_prism", "bad prism messages"), ("pipeline_exceptions", "pipeline failures"),

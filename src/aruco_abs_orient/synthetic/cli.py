@@ -59,7 +59,7 @@ def _float(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="aruco-abs-orient-synth", description=__doc__.strip(), epilog=EXAMPLE,
+    p = _Parser(prog="aruco-abs-orient-synth", description=__doc__.strip().replace("``", ""), epilog=EXAMPLE,
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", choices=sorted(PRESETS), default="ci", help="base parameters (default: ci)")
     p.add_argument("--seed", type=_non_negative_int, help="random seed (default 0)")

@@ -1,0 +1,346 @@
+"""Self-checks of a run from its own observations: does the run agree with itself, and if not, why?
+
+Without any reference, the marker yaws of a run tell on its set-up:
+
+- **time offset**: a wrong camera ↔ total-station offset ε looks the prism up ε s off, which moves it
+  along its track; the yaw from marker i is then off by ε·kᵢ, kᵢ = d/dt az(Mᵢ − P(t)) the rate at which
+  the marker's map bearing from the prism turns (fast for near markers abeam, zero straight ahead).
+  The map→odom yaw of each marker yaw (marker yaw − odometry yaw; else the residual) is fitted by least
+  squares as a smooth function of time (hat functions every ``knot_spacing`` s: the odometry's drift) +
+  ε·kᵢ + the tilt terms below + a yaw offset per marker, robustly (Huber); ε̂ is the correction to the
+  offset in use. The tilt comes from a second fit without the per-marker offsets (each marker is seen
+  from a narrow range of directions, so its own offset would absorb the tilt), without the markers
+  found off the others.
+- **camera tilt (boresight roll/pitch)**: with the camera rotated by (ωx, ωy) about its x, y axes
+  against its lever arms, the yaw from a marker at (az, el) in the image is off by
+  −tan(el)·(ωx·cos az + ωy·sin az) (checked against a rendered camera roll): residuals that depend on
+  where the marker is in the image.
+- **boresight yaw**: on straight stretches the heading of base_link must be the direction the prism
+  track runs in (x forward); a constant difference is the camera's mounting yaw (or a platform that
+  crabs).
+- **a moved or wrongly surveyed marker**: its yaws stay off the others' (median residual).
+- **rates and σ**: the share of marker yaws accepted, the rejections per frame (the pipeline's
+  counters) and the RMS of residual/σ (about 1 when the σ are honest).
+
+Each finding has a message naming the likely cause and the command that fixes it. ``check_run`` is
+what ``process`` calls at the end of a run; :class:`RollingSelfCheck` keeps a bounded window for a
+live node (``diagnostics()`` gives a level, a message and key/values for ``/diagnostics``).
+ROS-free; angles in radians, times in seconds inside, degrees and ms in messages.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from dataclasses import dataclass, field
+from typing import Deque, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .transforms import wrap_angle
+
+__all__ = ["SelfCheckParams", "Finding", "bearing_rate", "check_run", "RollingSelfCheck"]
+
+
+@dataclass(frozen=True)
+class SelfCheckParams:
+    """Thresholds of the self-checks (a finding needs both the significance and the size)."""
+
+    knot_spacing: float = 5.0          # s, hat functions of the common (filter) part of the residuals
+    sigma_floor: float = math.radians(0.02)  # rad, added to each yaw σ (model errors beyond the pixel noise)
+    significance: float = 5.0          # a finding needs |estimate| > this × its σ
+    min_offset: float = 0.02           # s, smallest time offset error reported
+    min_tilt: float = math.radians(0.1)    # rad, smallest camera tilt reported
+    min_heading_travel: float = math.radians(0.15)  # rad, smallest heading vs travel difference reported
+    min_marker_bias: float = math.radians(0.5)  # rad, a marker this far off the others is reported
+    min_accepted_share: float = 0.7    # below: the rejections are reported
+    max_normalised_rms: float = 3.0    # above: the σ are reported as too optimistic
+    straight_speed: float = 0.2        # m/s, slower is not "driving straight"
+    straight_turn_rate: float = math.radians(2.0)  # rad/s, faster is turning
+    min_samples: int = 30
+
+
+@dataclass
+class Finding:
+    """One self-check that failed: ``kind`` (time_offset, camera_tilt, boresight_yaw, marker, rejections,
+    sigma), ``message`` (cause and fix, one line), ``doc`` (anchor in doc/troubleshooting.md)."""
+
+    kind: str
+    message: str
+    doc: str = "time-offset"
+    value: Optional[float] = None
+
+    def as_dict(self) -> Dict[str, object]:
+        return {"kind": self.kind, "message": self.message, "doc": self.doc, "value": self.value}
+
+
+def bearing_rate(t, marker_xyz, prism_t, prism_xyz, h: float = 0.1) -> np.ndarray:
+    """k = d/dt az(M − P(t)) (rad/s) at times ``t`` (s) for markers at ``marker_xyz`` (N×3, m), the
+    prism track (``prism_t`` sorted s, ``prism_xyz`` M×3 m) differenced over ±``h`` s; NaN outside it."""
+    t = np.asarray(t, dtype=float)
+    m = np.asarray(marker_xyz, dtype=float).reshape(-1, 3)
+    pt = np.asarray(prism_t, dtype=float)
+    pp = np.asarray(prism_xyz, dtype=float).reshape(-1, 3)
+    if len(pt) < 2:
+        return np.full(len(t), np.nan)
+
+    def az(tq):
+        x = np.interp(tq, pt, pp[:, 0])
+        y = np.interp(tq, pt, pp[:, 1])
+        return np.arctan2(m[:, 1] - y, m[:, 0] - x)
+
+    k = wrap_angle(az(t + h) - az(t - h)) / (2 * h)
+    k[(t - h < pt[0]) | (t + h > pt[-1])] = np.nan
+    return k
+
+
+def _hat_basis(t: np.ndarray, spacing: float) -> np.ndarray:
+    """Piecewise-linear hat functions on knots every ``spacing`` s over the span of ``t`` (N×K)."""
+    lo, hi = float(t.min()), float(t.max())
+    n = max(int(math.ceil((hi - lo) / spacing)), 1) + 1
+    knots = np.linspace(lo, hi if hi > lo else lo + 1.0, n)
+    step = knots[1] - knots[0]
+    return np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / step, 0.0, None)
+
+
+def _robust_lsq(A: np.ndarray, y: np.ndarray, w: np.ndarray, iterations: int = 5) -> Tuple[np.ndarray, np.ndarray]:
+    """Huber-weighted least squares of y ≈ A x with prior weights ``w`` (1/σ²): x and its covariance
+    (scaled by the robust scale of the normalised residuals)."""
+    wr = np.ones(len(y))
+    sw = np.sqrt(w)
+    x = np.zeros(A.shape[1])
+    scale = 1.0
+    for _ in range(iterations):
+        ww = np.sqrt(wr) * sw
+        x, *_ = np.linalg.lstsq(A * ww[:, None], y * ww, rcond=None)
+        z = (y - A @ x) * sw
+        scale = max(1.4826 * float(np.median(np.abs(z))), 1e-9)
+        a = np.abs(z) / (1.345 * scale)
+        wr = np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-12))
+    ww = wr * w
+    N = A.T @ (A * ww[:, None])
+    cov = np.linalg.pinv(N) * scale ** 2
+    return x, cov
+
+
+def _deg(x: float) -> str:
+    return f"{math.degrees(x):+.2f}°"
+
+
+def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Mapping[int, Sequence[float]],
+              pose_t=(), pose_yaw=(), stats: Optional[Mapping[str, int]] = None, frames: int = 0,
+              time_offset: float = 0.0, commands: Optional[Mapping[str, str]] = None,
+              params: Optional[SelfCheckParams] = None) -> Dict[str, object]:
+    """The self-checks of a run (see the module docstring).
+
+    ``obs``: per marker observation with a yaw, arrays ``time`` (s, total-station clock), ``id``,
+    ``azimuth``, ``elevation`` (rad, camera frame), ``yaw_sigma``, ``residual`` (rad; NaN before the
+    filter started), ``accepted`` (bool), and optionally ``yaw`` and ``odom_yaw`` (rad: the marker's yaw of
+    base_link and the odometry's at that time; then the time offset and tilt are fitted to their
+    difference, the map→odom yaw, independent of what the filter accepted); the prism track; the marker
+    map's positions {id: [x, y, z]}; the filtered poses' stamps and yaws (rad); the pipeline's counters
+    and the number of frames;
+    ``time_offset`` (s) in use; ``commands``: the command lines that fix things ({"timesync": ...,
+    "calibrate": ...}), quoted in the messages. Returns a JSON-able dict with the estimates (degrees,
+    seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
+    """
+    commands = dict(commands or {})
+    p = params or SelfCheckParams()
+    out: Dict[str, object] = {}
+    findings: List[Finding] = []
+    t = np.asarray(obs.get("time", ()), dtype=float)
+    ids = np.asarray(obs.get("id", ()), dtype=int)
+    res = np.asarray(obs.get("residual", ()), dtype=float)
+    sig = np.asarray(obs.get("yaw_sigma", ()), dtype=float)
+    acc = np.asarray(obs.get("accepted", ()), dtype=bool)
+    az = np.asarray(obs.get("azimuth", ()), dtype=float)
+    el = np.asarray(obs.get("elevation", ()), dtype=float)
+    ok = np.isfinite(res) & np.isfinite(sig) & (sig > 0)
+    out["observations"] = int(len(t))
+    out["accepted_share"] = float(np.mean(acc)) if len(acc) else None
+    if stats:
+        out["rejections_per_frame"] = {k: v / max(frames, 1) for k, v in sorted(stats.items())
+                                       if k.startswith("rejected") and v}
+    if len(acc) >= p.min_samples and float(np.mean(acc)) < p.min_accepted_share:
+        worst = max((out.get("rejections_per_frame") or {"-": 0}).items(), key=lambda kv: kv[1])
+        findings.append(Finding("rejections", f"only {100 * float(np.mean(acc)):.0f} % of the marker yaws were "
+                                f"accepted (most rejections: {worst[0]}, {worst[1]:.2f} per frame): the markers "
+                                "disagree with the prism, the odometry or each other; see the other checks",
+                                "no-markers-found", float(np.mean(acc))))
+    z_all = wrap_angle(res[ok & acc]) / np.hypot(sig[ok & acc], p.sigma_floor) if np.any(ok & acc) else np.zeros(0)
+    out["normalised_residual_rms"] = float(np.sqrt(np.mean(z_all ** 2))) if len(z_all) else None
+
+    # one robust fit: a smooth common part + time offset + camera tilt; a marker off it is moved
+    y, fit_ok = res, ok
+    if "odom_yaw" in obs and len(obs["odom_yaw"]) == len(t):  # the map→odom yaw of each marker yaw
+        y = wrap_angle(np.asarray(obs["yaw"], dtype=float) - np.asarray(obs["odom_yaw"], dtype=float))
+        if np.any(np.isfinite(y)):  # centred: the fit's linear terms need no wrap
+            y = wrap_angle(y - float(np.angle(np.mean(np.exp(1j * y[np.isfinite(y)])))))
+        fit_ok = np.isfinite(y) & np.isfinite(sig) & (sig > 0)
+    have_track = prism_t is not None and len(prism_t) >= 2 and len(t) > 0
+    if have_track:
+        mxyz = np.array([marker_xyz.get(int(i), (np.nan, np.nan, np.nan)) for i in ids], dtype=float).reshape(-1, 3)
+        k = bearing_rate(t, mxyz, prism_t, prism_xyz)
+    else:
+        k = np.full(len(t), np.nan)
+    base = fit_ok & np.isfinite(k) & (np.abs(el) < math.radians(60))
+    moved: List[int] = []
+    x = cov = None
+    per_marker: Dict[int, Tuple[float, int, float]] = {}
+    markers_seen, counts = np.unique(ids[base], return_counts=True)
+    if base.sum() >= p.min_samples:
+        # a yaw offset per marker (the most seen one is the common part's): a moved marker shows in its own
+        # offset, while the time offset and the tilt come from how each marker's yaw varies
+        te = np.tan(el[base])
+        hats = _hat_basis(t[base], p.knot_spacing)
+        ref = markers_seen[int(np.argmax(counts))]
+        others = [m for m in markers_seen if m != ref]
+        A = np.column_stack([k[base], -te * np.cos(az[base]), -te * np.sin(az[base]), hats]
+                            + [(ids[base] == m).astype(float) for m in others])
+        w = 1.0 / (sig[base] ** 2 + p.sigma_floor ** 2)
+        x, cov = _robust_lsq(A, wrap_angle(y[base]), w)
+        n0 = 3 + hats.shape[1]
+        offsets = {int(ref): (0.0, 0.0)}
+        offsets.update({int(m): (float(x[n0 + i]), float(math.sqrt(max(cov[n0 + i, n0 + i], 0.0))))
+                        for i, m in enumerate(others)})
+        middle = float(np.median([v[0] for v in offsets.values()]))
+        for m, n in zip(markers_seen, counts):
+            d, sd = offsets[int(m)]
+            per_marker[int(m)] = (d - middle, int(n), sd)
+        out["marker_offset_deg"] = {m: math.degrees(v[0]) for m, v in per_marker.items()}
+        if len(per_marker) >= 3:  # "off the others" needs a majority to agree
+            moved = [m for m, (d, n, sd) in per_marker.items()
+                     if n >= 5 and abs(d) > max(p.min_marker_bias, p.significance * sd)]
+    tilt_fit = None
+    keep = base & ~np.isin(ids, moved)
+    if x is not None and keep.sum() >= p.min_samples:
+        # the tilt from all markers together: a marker's own offset would absorb it (each marker is seen from
+        # a narrow range of directions), so this fit has none (the markers found off the others are left out)
+        te = np.tan(el[keep])
+        B = np.column_stack([k[keep], -te * np.cos(az[keep]), -te * np.sin(az[keep]),
+                             _hat_basis(t[keep], p.knot_spacing)])
+        tilt_fit = _robust_lsq(B, wrap_angle(y[keep]), 1.0 / (sig[keep] ** 2 + p.sigma_floor ** 2))
+    for mid in moved:
+        med, n, _ = per_marker[mid]
+        share = float(np.mean(acc[ids == mid]))
+        findings.append(Finding("marker", f"marker {mid}: its yaws are off the other markers' by {_deg(med)} "
+                                f"({n} yaws, {100 * share:.0f} % accepted): moved or wrongly surveyed; "
+                                "re-survey its centre or take it out of the marker map", "jumps-in-the-heading",
+                                math.degrees(med)))
+    if x is not None:
+        eps, eps_sigma = float(x[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
+        xt, ct = tilt_fit if tilt_fit is not None else (x, cov)
+        tilt = np.array(xt[1:3])
+        tilt_sigma = float(math.sqrt(max(ct[1, 1] + ct[2, 2], 0.0) / 2))
+        use = base
+        suggested = time_offset + eps
+        out["time_offset"] = {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
+                              "suggested_s": suggested, "samples": int(use.sum())}
+        out["camera_tilt_deg"] = {"roll": math.degrees(tilt[0]), "pitch": math.degrees(tilt[1]),
+                                  "sigma": math.degrees(tilt_sigma)}
+        if abs(eps) > max(p.significance * eps_sigma, p.min_offset):
+            fix = commands.get("timesync", "aruco-abs-orient timesync")
+            findings.append(Finding("time_offset", f"observations disagree with a time offset: this run suggests "
+                                    f"{suggested:+.2f} s (in use {time_offset:+.3f} s, error {1e3 * eps:+.0f} ± "
+                                    f"{1e3 * eps_sigma:.0f} ms); run `{fix}`", "time-offset", suggested))
+        size = float(np.hypot(*tilt))
+        offset_found = findings and findings[-1].kind == "time_offset"  # it biases the tilt: fix it first
+        if size > max(p.significance * tilt_sigma, p.min_tilt) and not offset_found:
+            fix = commands.get("calibrate", "aruco-abs-orient calibrate")
+            findings.append(Finding("camera_tilt", f"marker yaws depend on where the marker is in the image: the "
+                                    f"camera looks tilted by {math.degrees(size):.2f}° (roll {_deg(tilt[0])}, "
+                                    f"pitch {_deg(tilt[1])}) against its lever arms; calibrate the boresight: "
+                                    f"run `{fix}`", "heading-wrong-by-180", math.degrees(size)))
+
+    # boresight yaw: heading vs the direction of travel on straight stretches
+    pose_t = np.asarray(pose_t, dtype=float)
+    pose_yaw = np.asarray(pose_yaw, dtype=float)
+    if len(pose_t) > 10 and prism_t is not None and len(prism_t) >= 2:
+        pt, pp = np.asarray(prism_t, dtype=float), np.asarray(prism_xyz, dtype=float).reshape(-1, 3)
+        h = 0.25
+        inside = (pose_t - h >= pt[0]) & (pose_t + h <= pt[-1])
+        vx = (np.interp(pose_t + h, pt, pp[:, 0]) - np.interp(pose_t - h, pt, pp[:, 0])) / (2 * h)
+        vy = (np.interp(pose_t + h, pt, pp[:, 1]) - np.interp(pose_t - h, pt, pp[:, 1])) / (2 * h)
+        rate = np.gradient(np.unwrap(pose_yaw), pose_t) if len(pose_t) > 1 else np.zeros(0)
+        straight = inside & (np.hypot(vx, vy) > p.straight_speed) & (np.abs(rate) < p.straight_turn_rate)
+        if straight.sum() >= p.min_samples:
+            d = wrap_angle(pose_yaw[straight] - np.arctan2(vy[straight], vx[straight]))
+            med = float(np.median(d))
+            sem = 1.4826 * float(np.median(np.abs(d - med))) / math.sqrt(len(d))
+            out["heading_minus_travel_deg"] = {"median": math.degrees(med), "sigma": math.degrees(sem),
+                                               "samples": int(straight.sum())}
+            if abs(med) > max(p.min_heading_travel, p.significance * sem):
+                fix = commands.get("calibrate", "aruco-abs-orient calibrate")
+                findings.append(Finding("boresight_yaw", f"on straight stretches the heading differs from the "
+                                        f"direction of travel by {_deg(med)} ({int(straight.sum())} poses): the "
+                                        f"camera's mounting yaw (or a platform that crabs); run `{fix}`",
+                                        "heading-wrong-by-180", math.degrees(med)))
+    rms = out["normalised_residual_rms"]
+    if rms is not None and rms > p.max_normalised_rms:
+        causes = ", ".join(f.kind.replace("_", " ") for f in findings if f.kind in
+                           ("time_offset", "camera_tilt", "marker")) or "none of the checks above"
+        findings.append(Finding("sigma", f"the residuals are {rms:.1f} times their predicted σ (1 when honest); "
+                                f"likely cause: {causes}", "time-offset", rms))
+    out["findings"] = [f.as_dict() for f in findings]
+    return out
+
+
+@dataclass
+class RollingSelfCheck:
+    """The self-checks over the last ``window`` s of a live node. Feed it with ``add_observation``,
+    ``add_prism`` and ``add_pose`` (total-station clock), call ``diagnostics()`` every few seconds (it
+    fits ~a few thousand observations: milliseconds) for ``/diagnostics``: (level ``ok``/``warn``,
+    message, {key: value})."""
+
+    marker_xyz: Mapping[int, Sequence[float]]
+    time_offset: float = 0.0
+    window: float = 120.0
+    params: Optional[SelfCheckParams] = None
+    _obs: Deque[tuple] = field(default_factory=collections.deque)
+    _prism: Deque[tuple] = field(default_factory=collections.deque)
+    _poses: Deque[tuple] = field(default_factory=collections.deque)
+
+    def _trim(self, q: Deque[tuple], now: float) -> None:
+        while q and q[0][0] < now - self.window:
+            q.popleft()
+
+    def add_observation(self, t: float, marker_id: int, azimuth: float, elevation: float, yaw_sigma: float,
+                        residual: float, accepted: bool, yaw: float = math.nan, odom_yaw: float = math.nan) -> None:
+        """One marker yaw (rad) at ``t`` (s): its bearing in the camera, σ, residual, whether the filter took
+        it, and, when known, the yaw itself and the odometry's yaw at ``t`` (then the fit does not depend on
+        what the filter accepted)."""
+        self._obs.append((t, marker_id, azimuth, elevation, yaw_sigma, residual, accepted, yaw, odom_yaw))
+        self._trim(self._obs, t)
+
+    def add_prism(self, t: float, xyz: Sequence[float]) -> None:
+        self._prism.append((t, tuple(float(v) for v in xyz)))
+        self._trim(self._prism, t)
+
+    def add_pose(self, t: float, yaw: float) -> None:
+        self._poses.append((t, yaw))
+        self._trim(self._poses, t)
+
+    def check(self) -> Dict[str, object]:
+        o = list(zip(*self._obs)) if self._obs else [()] * 9
+        obs = {k: np.asarray(v) for k, v in zip(("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
+                                                 "accepted", "yaw", "odom_yaw"), o)}
+        if not np.any(np.isfinite(obs["odom_yaw"].astype(float))):
+            del obs["yaw"], obs["odom_yaw"]
+        prism = sorted(self._prism)
+        poses = sorted(self._poses)
+        return check_run(obs, [p[0] for p in prism], [p[1] for p in prism], self.marker_xyz,
+                         [p[0] for p in poses], [p[1] for p in poses], time_offset=self.time_offset,
+                         params=self.params)
+
+    def diagnostics(self) -> Tuple[str, str, Dict[str, object]]:
+        r = self.check()
+        values: Dict[str, object] = {"self-check findings": len(r["findings"])}
+        off = r.get("time_offset")
+        if off:
+            values["self-check suggested time offset [s]"] = off["suggested_s"]
+            values["self-check time offset sigma [ms]"] = 1e3 * off["sigma_s"]
+        if r.get("normalised_residual_rms") is not None:
+            values["self-check residual/sigma RMS"] = r["normalised_residual_rms"]
+        if not r["findings"]:
+            return "ok", "self-checks pass", values
+        return "warn", "; ".join(f["message"] for f in r["findings"]), values
