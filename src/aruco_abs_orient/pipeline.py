@@ -15,7 +15,7 @@ import bisect
 import math
 import time
 from dataclasses import dataclass, field, fields, replace
-from typing import Dict, List, Optional, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -317,14 +317,16 @@ class AbsOrientPipeline:
         res.tracking = tracked.stats
         self._count("rejected_unknown", tracked.stats.rejected_unknown)
         self._count("rejected_tracking_gate", tracked.stats.rejected_gate)
-        return self.process_observations(t, tracked.observations, odom_T_base, res, prism)
+        return self.process_observations(t, tracked.observations, odom_T_base, res, prism, tracked.gated)
 
     def process_observations(self, t: float, observations: List[MarkerObservation], odom_T_base,
-                             res: Optional[FrameResult] = None, prism=None) -> FrameResult:
+                             res: Optional[FrameResult] = None, prism=None,
+                             gated: Sequence[MarkerObservation] = ()) -> FrameResult:
         """The frame's marker ``observations`` (already detected, ids of the map) at total-station time
         ``t`` (s) with the odometry pose ``odom_T_base`` (4×4): yaws, fusion, filter. :meth:`process_image`
         calls it after detection; tests and other detectors may call it directly (``res`` and the
-        interpolated ``prism`` are then made here)."""
+        interpolated ``prism`` are then made here). ``gated``: markers the tracker found far from their
+        prediction: their yaws are reported (a moved marker shows there) but not used."""
         if res is None:
             res = FrameResult(stamp=float(t))
             odom_T_base = np.asarray(odom_T_base, dtype=float)
@@ -335,14 +337,14 @@ class AbsOrientPipeline:
         if prism is None:
             self._count("no_prism")
             res.observations = [ObservationResult(o, reason="no prism position")
-                                for o in observations]
+                                for o in list(observations) + list(gated)]
         else:
             p, extra_sigma = prism
             res.prism_position = p
             s2 = self.params.prism_sigma ** 2 + extra_sigma ** 2
             prism_cov = np.eye(3) * s2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
-            self._solve_frame(t, res, observations, p, prism_cov, roll, pitch, odom_T_base)
+            self._solve_frame(t, res, observations, p, prism_cov, roll, pitch, odom_T_base, gated)
         res.timings["solve"] = 1e3 * (time.perf_counter() - clock)
 
         res.initialised = self.filter.initialised
@@ -363,12 +365,13 @@ class AbsOrientPipeline:
         return res
 
     def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, roll, pitch,
-                     odom_T_base) -> None:
+                     odom_T_base, gated=()) -> None:
         """Yaw from each marker (closed form), their fusion (shared prism/tilt errors, false ids
         dropped), and one filter update with the fused yaw."""
         q = self.params
         estimates = []
-        for o in observations:
+        tracker_gated = {id(o) for o in gated}
+        for o in list(observations) + list(gated):
             m = self.marker_map[o.id]  # the tracker only returns ids of the map
             try:
                 est = yaw_from_marker(
@@ -381,6 +384,9 @@ class AbsOrientPipeline:
                 continue
             r = ObservationResult(o, yaw=est.yaw, yaw_sigma=est.sigma, range=est.range)
             res.observations.append(r)
+            if id(o) in tracker_gated:
+                r.reason = "tracking gate: far from its predicted bearing (moved marker, or the filter is off)"
+                continue
             if abs(est.elevation_residual) > q.elevation_gate * est.elevation_sigma:
                 r.reason = "elevation disagrees with the map (wrong id or moved marker)"
                 self._count("rejected_elevation")

@@ -73,8 +73,12 @@ class TrackingStats:
 
 @dataclass
 class TrackingResult:
+    """``observations``: accepted map markers; ``gated``: map markers found farther than ``gate_deg``
+    from their prediction (kept out of the filter, but reported: a moved marker shows up there)."""
+
     observations: List[MarkerObservation]
     stats: TrackingStats
+    gated: List[MarkerObservation] = field(default_factory=list)
 
 
 class MarkerTracker:
@@ -185,7 +189,7 @@ class MarkerTracker:
                                                            max_el=math.radians(q.sweep_max_el_deg),
                                                            skip_ids={o.id for o in candidates})
             self._since_full += 1
-        accepted = []
+        accepted, gated = [], []
         for o in candidates:
             if o.id not in self.map:
                 stats.rejected_unknown += 1
@@ -193,6 +197,7 @@ class MarkerTracker:
                     o.id not in by_id
                     or float(angle_between(o.centre, by_id[o.id].bearing)) > math.radians(q.gate_deg)):
                 stats.rejected_gate += 1
+                gated.append(o)
             else:
                 accepted.append(o)
         accepted = sorted(dedupe_observations(accepted), key=lambda o: o.id)
@@ -204,4 +209,4 @@ class MarkerTracker:
         self._misses = self._misses + 1 if missed else 0
         self.frame += 1
         stats.time_ms = (time.perf_counter() - t0) * 1000.0
-        return TrackingResult(accepted, stats)
+        return TrackingResult(accepted, stats, sorted(dedupe_observations(gated), key=lambda o: o.id))

@@ -98,7 +98,7 @@ def _inputs_and_outputs(args) -> tuple:
     """Files an aruco-abs-orient command reads and writes (paths as given)."""
     reads, writes = [], []
     if args.command in ("process", "timesync", "calibrate"):
-        reads.append(args.bag)
+        reads += args.bag                       # one or several bags (a split recording)
     if args.command == "evaluate":
         reads.append(args.run)
         reads += [p for p in (args.reference, args.fused) if p]

@@ -114,7 +114,7 @@ def test_timesync_cli_refines_the_offset_with_the_marker_bearings(ci_run, capsys
     use = shlex.split(out.split("use: ", 1)[1].splitlines()[0])
     assert use[:2] == ["aruco-abs-orient", "process"]
     args = build_parser().parse_args(use[1:])
-    assert (args.bag, args.markers, args.out) == (scen.bag, scen.markers, "results/scenario")
+    assert (args.bag, args.markers, args.out) == ([scen.bag], scen.markers, "results/scenario")
 
 
 def test_evaluate_without_a_reference_reports_what_the_run_shows(ci_run, tmp_path, capsys):

@@ -56,6 +56,7 @@ import numpy as np
 from ..calibration import CalibrationError, load_calibration
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
+from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
 
@@ -223,6 +224,10 @@ class AbsOrientNode:
         self.time_offset = config.time_offset
         self.time_offset_source = "parameter"
         self.offset_estimator: Optional[OnlineOffsetEstimator] = None  # made with the pipeline (lever arm)
+        self._selfcheck_lock = threading.Lock()   # fed by the image thread, read by the diagnostics timer
+        self.selfcheck = self._new_selfcheck()
+        self._selfcheck_report: Tuple[str, str, Dict[str, object]] = ("ok", "", {})
+        self._selfcheck_wall = -math.inf
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
         self._reconfigured: Dict[str, object] = {}          # the values it last handed over
@@ -341,6 +346,32 @@ class AbsOrientNode:
         if self._throttle.due(key):
             self.rospy.logwarn(f"abs_orient: {text} ({self.counts[key]} so far)")
 
+    def _new_selfcheck(self) -> RollingSelfCheck:
+        return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset)
+
+    def _feed_selfcheck(self, result: FrameResult, odom_T_base: np.ndarray) -> None:
+        """The frame's marker yaws and pose for the rolling self-checks (time offset, tilt, moved marker)."""
+        odom_yaw = float(yaw_of(odom_T_base[:3, :3]))
+        with self._selfcheck_lock:
+            for r in result.observations:
+                if math.isfinite(r.yaw):
+                    o = r.observation
+                    self.selfcheck.add_observation(result.stamp, o.id, o.azimuth, o.elevation, r.yaw_sigma,
+                                                   r.residual, r.accepted, r.yaw, odom_yaw)
+            if result.map_T_base is not None:
+                self.selfcheck.add_pose(result.stamp, float(yaw_of(result.map_T_base[:3, :3])))
+
+    def _selfcheck_status(self, now_wall: float) -> Tuple[str, str, Dict[str, object]]:
+        """The rolling self-checks, evaluated at most every 5 s (a fit over up to 120 s of observations)."""
+        if now_wall - self._selfcheck_wall >= 5.0:
+            self._selfcheck_wall = now_wall
+            with self._selfcheck_lock:
+                try:
+                    self._selfcheck_report = self.selfcheck.diagnostics()
+                except Exception as e:  # a check must never take the node down
+                    self._selfcheck_report = ("ok", "", {"self-check note": f"{type(e).__name__}: {e}"})
+        return self._selfcheck_report
+
     def _reset(self, why: str) -> None:
         self.rospy.logwarn(f"abs_orient: {why}: resetting (filter, tracking, prism history, tf buffer)")
         self.counts["resets"] += 1
@@ -353,6 +384,8 @@ class AbsOrientNode:
         self.initialised = False
         if self.offset_estimator is not None:
             self.offset_estimator.clear()
+        with self._selfcheck_lock:
+            self.selfcheck = self._new_selfcheck()
 
     def _ensure_pipeline(self) -> bool:
         if self.pipeline is not None:
@@ -393,6 +426,8 @@ class AbsOrientNode:
             self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
             self.counts["prisms"] += 1
             self.pipeline.add_prism(t, p)
+            with self._selfcheck_lock:
+                self.selfcheck.add_prism(t, p)
             if self.offset_estimator is not None:
                 self.offset_estimator.add_track(t, float(p[0]), float(p[1]))
 
@@ -465,6 +500,7 @@ class AbsOrientNode:
             self.counts["unknown_ids"] += unknown
         self._publish(result, stamp, odom_T_base)
         self.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        self._feed_selfcheck(result, odom_T_base)
         self._estimate_time_offset(s, odom_T_base, result)
         for stage, ms in result.timings.items():
             self.stage_ms[stage] = self.stage_ms.get(stage, 0.0) + ms
@@ -614,6 +650,10 @@ class AbsOrientNode:
                           ("resets", "time jumped back: reset")):
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
+        check_level, check_message, check_values = self._selfcheck_status(now_wall)
+        values.update(check_values)
+        if check_level == "warn":
+            problems.append(f"self-check: {check_message}")
         if problems and level == "ok":
             level = "warn"
         if not problems and not self.initialised:
