@@ -49,6 +49,7 @@ class SelfCheckParams:
     knot_spacing: float = 5.0          # s, hat functions of the common (filter) part of the residuals
     sigma_floor: float = math.radians(0.02)  # rad, added to each yaw σ (model errors beyond the pixel noise)
     significance: float = 5.0          # a finding needs |estimate| > this × its σ
+    tilt_significance: float = 4.0     # the same for the camera tilt (two components, fitted on every yaw)
     min_offset: float = 0.02           # s, smallest time offset error reported
     min_tilt: float = math.radians(0.1)    # rad, smallest camera tilt reported
     min_heading_travel: float = math.radians(0.15)  # rad, smallest heading vs travel difference reported
@@ -187,30 +188,47 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
     moved: List[int] = []
     x = cov = None
     per_marker: Dict[int, Tuple[float, int, float]] = {}
-    markers_seen, counts = np.unique(ids[base], return_counts=True)
-    if base.sum() >= p.min_samples:
-        # a yaw offset per marker (the most seen one is the common part's): a moved marker shows in its own
-        # offset, while the time offset and the tilt come from how each marker's yaw varies
-        te = np.tan(el[base])
-        hats = _hat_basis(t[base], p.knot_spacing)
-        ref = markers_seen[int(np.argmax(counts))]
-        others = [m for m in markers_seen if m != ref]
-        A = np.column_stack([k[base], -te * np.cos(az[base]), -te * np.sin(az[base]), hats]
-                            + [(ids[base] == m).astype(float) for m in others])
-        w = 1.0 / (sig[base] ** 2 + p.sigma_floor ** 2)
-        x, cov = _robust_lsq(A, wrap_angle(y[base]), w)
+
+    def offsets_fit(mask):
+        """(x, cov, {marker: (offset from the middle one rad, yaws, σ)}) of the fit over ``mask``."""
+        seen, counts = np.unique(ids[mask], return_counts=True)
+        te = np.tan(el[mask])
+        hats = _hat_basis(t[mask], p.knot_spacing)
+        ref = seen[int(np.argmax(counts))]
+        others = [m for m in seen if m != ref]
+        A = np.column_stack([k[mask], -te * np.cos(az[mask]), -te * np.sin(az[mask]), hats]
+                            + [(ids[mask] == m).astype(float) for m in others])
+        xs, cs = _robust_lsq(A, wrap_angle(y[mask]), 1.0 / (sig[mask] ** 2 + p.sigma_floor ** 2))
         n0 = 3 + hats.shape[1]
         offsets = {int(ref): (0.0, 0.0)}
-        offsets.update({int(m): (float(x[n0 + i]), float(math.sqrt(max(cov[n0 + i, n0 + i], 0.0))))
+        offsets.update({int(m): (float(xs[n0 + i]), float(math.sqrt(max(cs[n0 + i, n0 + i], 0.0))))
                         for i, m in enumerate(others)})
         middle = float(np.median([v[0] for v in offsets.values()]))
-        for m, n in zip(markers_seen, counts):
-            d, sd = offsets[int(m)]
-            per_marker[int(m)] = (d - middle, int(n), sd)
+        return xs, cs, {int(m): (offsets[int(m)][0] - middle, int(n), offsets[int(m)][1])
+                        for m, n in zip(seen, counts)}
+
+    if base.sum() >= p.min_samples:
+        # a yaw offset per marker (the most seen one is the common part's): a moved marker shows in its own
+        # offset, while the time offset and the tilt come from how each marker's yaw varies. The worst marker
+        # off the others is taken out and the rest fitted again (a moved marker's error varies along the
+        # track and would otherwise leak into the others'), until the rest agree.
+        x, cov, per_marker = offsets_fit(base)
         out["marker_offset_deg"] = {m: math.degrees(v[0]) for m, v in per_marker.items()}
-        if len(per_marker) >= 3:  # "off the others" needs a majority to agree
-            moved = [m for m, (d, n, sd) in per_marker.items()
-                     if n >= 5 and abs(d) > max(p.min_marker_bias, p.significance * sd)]
+        current = dict(per_marker)
+        while len(current) >= 3:  # "off the others" needs a majority to agree
+            off = {m: d for m, (d, n, sd) in current.items()
+                   if n >= 5 and abs(d) > max(p.min_marker_bias, p.significance * sd)}
+            if not off:
+                break
+            worst = max(off, key=lambda m: abs(off[m]))
+            moved.append(worst)
+            per_marker[worst] = current[worst]
+            rest = base & ~np.isin(ids, moved)
+            if rest.sum() < p.min_samples:
+                break
+            _, _, current = offsets_fit(rest)
+            per_marker.update(current)
+        out["marker_offset_deg"].update({m: math.degrees(per_marker[m][0]) for m in per_marker})
     tilt_fit = None
     keep = base & ~np.isin(ids, moved)
     if x is not None and keep.sum() >= p.min_samples:
@@ -245,7 +263,7 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
                                     f"{1e3 * eps_sigma:.0f} ms); run `{fix}`", "time-offset", suggested))
         size = float(np.hypot(*tilt))
         offset_found = findings and findings[-1].kind == "time_offset"  # it biases the tilt: fix it first
-        if size > max(p.significance * tilt_sigma, p.min_tilt) and not offset_found:
+        if size > max(p.tilt_significance * tilt_sigma, p.min_tilt) and not offset_found:
             fix = commands.get("calibrate", "aruco-abs-orient calibrate")
             findings.append(Finding("camera_tilt", f"marker yaws depend on where the marker is in the image: the "
                                     f"camera looks tilted by {math.degrees(size):.2f}° (roll {_deg(tilt[0])}, "
