@@ -591,7 +591,19 @@ def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(buf, dtype=np.uint8), flag)
     if img is None or buf[-2:] != b"\xff\xd9":
         raise DetectionError(f"{what}: corrupt or truncated JPEG ({len(buf)} bytes)")
+    if reduce > 1 and not _IMDECODE_REDUCES:  # average reduce×reduce blocks, as the DCT scaling does
+        img = cv2.resize(img, (-(-img.shape[1] // reduce), -(-img.shape[0] // reduce)), interpolation=cv2.INTER_AREA)
     return img
+
+
+def _imdecode_reduces() -> bool:
+    """Whether ``cv2.imdecode`` honours IMREAD_REDUCED_* (OpenCV 4.6 and 4.11 do; Noetic's 4.2
+    ignores it and decodes at full size)."""
+    probe = cv2.imencode(".jpg", np.zeros((16, 16), np.uint8))[1]
+    return cv2.imdecode(probe, cv2.IMREAD_REDUCED_GRAYSCALE_2).shape == (8, 8)
+
+
+_IMDECODE_REDUCES = _imdecode_reduces()
 
 
 # --------------------------------------------------------------------------- OpenCV adapter
