@@ -118,8 +118,8 @@ def api_comparison_frames():
          for i, (d, el) in enumerate([(0.6, -38), (1.0, -12), (2.0, 8), (4.0, 22), (8.0, 36)])]
         + [facing_marker(10 + i, 0.19, 1.5 * azel_to_bearing(-3.0 + 1.0 * i, (70.0 if i % 2 else -70.0) * DEG),
                          roll=rng.uniform(-0.6, 0.6)) for i in range(6)],
-        [facing_marker(i, 0.19, d * azel_to_bearing(-2.5 + 1.2 * i, el * DEG), roll=rng.uniform(-0.6, 0.6))
-         for i, (d, el) in enumerate([(0.5, 10), (1.0, 45), (1.0, -52), (2.0, 60), (3.0, -48)])],
+        [facing_marker(i, 0.19, d * azel_to_bearing(-2.8 + 0.9 * i, el * DEG), roll=rng.uniform(-0.6, 0.6))
+         for i, (d, el) in enumerate([(0.5, 10), (0.5, -35), (0.5, 50), (1.0, 45), (1.0, -52), (2.0, 60), (3.0, -48)])],
         [facing_marker(i, 0.19, 12.0 * azel_to_bearing(-3.0 + 0.6 * i, rng.uniform(-0.3, 0.3)),
                        roll=rng.uniform(-0.7, 0.7)) for i in range(10)],
     ]

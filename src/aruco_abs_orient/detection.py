@@ -664,6 +664,10 @@ class ArucoBackend:
         p.errorCorrectionRate = float(q.error_correction_rate)
         p.cornerRefinementMethod = int(getattr(aruco, _REFINE[q.corner_refinement]))
         p.cornerRefinementWinSize = int(q.corner_refine_win)
+        if hasattr(p, "relativeCornerRefinmentWinSize"):  # [sic]
+            # newer OpenCV (4.11 here; not 4.2) shrinks the subpixel window to 0.3 cells of a small
+            # marker: keep corner_refine_win on every version, so both APIs give the same corners
+            p.relativeCornerRefinmentWinSize = 1000.0
         p.cornerRefinementMaxIterations = int(q.corner_refine_max_iter)
         p.cornerRefinementMinAccuracy = float(q.corner_refine_min_accuracy)
         return p
