@@ -82,11 +82,13 @@ def test_the_venv_has_noetics_versions():
     assert res["function API"] and not res["ArucoDetector"] and not res["generateImageMarker"]
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(2400)
 def test_core_unit_tests_pass_on_noetics_versions(tmp_path, capsys):
     report = tmp_path / "junit.xml"
     files = [str(ROOT / "test" / "unit" / f"test_{name}.py") for name in CORE_TESTS]
     out = run_noetic(["-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "junit_family=xunit1",
-                      f"--junitxml={report}", f"--basetemp={tmp_path / 'tmp'}"] + files, timeout=1500)
+                      f"--junitxml={report}", f"--basetemp={tmp_path / 'tmp'}"] + files, timeout=2300)
     tail = "\n".join(out.stdout.splitlines()[-40:])
     assert report.is_file(), f"the Python 3.8 pytest run wrote no report (exit {out.returncode}):\n{tail}"
     suite = ET.parse(str(report)).getroot()
@@ -146,7 +148,7 @@ def test_opencv_4_2_function_api_finds_the_same_markers_as_arucodetector(tmp_pat
     old = json.loads(out.stdout.strip().splitlines()[-1])
     assert old["api"] == "function"
     det = MarkerDetector("DICT_4X4_50", api="ArucoDetector")
-    n_found = n_rendered = 0
+    far_found = far = 0
     for k, (img, ms) in enumerate(frames):
         new = {o.id: o.centre for o in det.detect(img)}
         old_k = {int(i): np.array(c) for i, c in old["frames"][k].items()}
@@ -155,6 +157,8 @@ def test_opencv_4_2_function_api_finds_the_same_markers_as_arucodetector(tmp_pat
         for i, centre in new.items():
             assert float(angle_between(old_k[i], centre)) / DEG < 0.005, f"frame {k}, marker {i}"
             assert float(angle_between(centre, truth[i])) / DEG < 0.06, f"frame {k}, marker {i} is not where rendered"
-        n_found += len(new)
-        n_rendered += len(ms)
-    assert n_found >= 0.95 * n_rendered, f"only {n_found} of {n_rendered} rendered markers found"
+        missed = [m for m in ms if m.id not in new]
+        assert all(np.linalg.norm(m.center) > 11.9 for m in missed), f"frame {k}: missed {[m.id for m in missed]}"
+        far += sum(np.linalg.norm(m.center) > 11.9 for m in ms)
+        far_found += sum(np.linalg.norm(m.center) > 11.9 for m in ms if m.id in new)
+    assert far_found >= 0.8 * far, f"only {far_found} of {far} markers at 12 m found"
