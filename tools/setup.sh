@@ -145,8 +145,7 @@ find_python38() {
     command -v python3.8 2>/dev/null
   } | while read -r c; do
     [[ -x $c ]] && "$c" -c 'import sys, venv; assert sys.version_info[:2] == (3, 8); print(sys.executable)' 2>/dev/null
-  done | head -n 1
-  return 0
+  done | head -n 1 || true
 }
 NVENV=$ROOT/.venv-noetic
 want=$(cat requirements-noetic.txt setup.py | sha256sum | cut -d' ' -f1)
