@@ -72,6 +72,26 @@ def wire_time_s(n_bytes: int, baud: int) -> float:
     return 10.0 * n_bytes / float(baud)
 
 
+def _open_port(url: str, baud: int):
+    """``serial.serial_for_url(url)``, opened with non-blocking reads. A socket:// port flushes its
+    input with :func:`_drain_socket`: pyserial 3.4's own flush (Noetic's python3-serial) spins forever
+    in ``open()`` when the peer has already hung up (it loops on the EOF; fixed in 3.5)."""
+    port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=1.0, do_not_open=True)
+    if type(port).__module__ == "serial.urlhandler.protocol_socket":
+        port.reset_input_buffer = lambda: _drain_socket(port)
+    port.open()
+    return port
+
+
+def _drain_socket(port) -> None:
+    """Discard what a socket:// port has received; stops at the end of the stream."""
+    try:
+        while select.select([port._socket], [], [], 0)[0] and port._socket.recv(4096):
+            pass
+    except OSError as e:
+        raise serial.SerialException(f"read failed: {e}") from None
+
+
 class GeoComClient:
     """GeoCOM over one pyserial port. ``timeout_s`` is the default reply timeout (s)."""
 
@@ -88,7 +108,7 @@ class GeoComClient:
         try:
             # non-blocking reads; waiting is done with select() on the port's descriptor so that
             # a reply is taken in one piece the moment it arrives (its reception time matters)
-            self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
+            self._serial = _open_port(url, self.baud)
         except (serial.SerialException, ValueError, OSError) as e:
             raise GeoComLinkError(f"cannot open GeoCOM port {url!r}: {e}") from None
         try:
