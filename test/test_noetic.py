@@ -105,6 +105,34 @@ def test_core_unit_tests_pass_on_noetics_versions(tmp_path, capsys):
     assert total - skipped >= 250, f"only {total - skipped} tests ran: files missing from the run?\n{tail}"
 
 
+#: run by .venv-noetic's python (pyserial 3.4): a socket:// peer that hangs up at once (a serial-to-TCP
+#: bridge of the MS60 during an outage); the hang-up arrives before the port's open() flushes its input
+HUNG_UP_PEER = (
+    "import os, socket, threading, time\n"
+    "from aruco_abs_orient.geocom.client import GeoComClient\n"
+    "srv = socket.socket(); srv.bind(('127.0.0.1', 0)); srv.listen(4)\n"
+    "def serve():\n"
+    "    while True:\n"
+    "        c, _ = srv.accept(); c.close()\n"
+    "threading.Thread(target=serve, daemon=True).start()\n"
+    "connect = socket.create_connection\n"
+    "def late(*a, **k):\n"
+    "    s = connect(*a, **k); time.sleep(0.2); return s\n"
+    "socket.create_connection = late\n"
+    "opened = threading.Event()\n"
+    "def client():\n"
+    "    GeoComClient('socket://127.0.0.1:%d' % srv.getsockname()[1]).close(); opened.set()\n"
+    "threading.Thread(target=client, daemon=True).start()\n"
+    "print('opened' if opened.wait(5.0) else 'open() still spinning after 5 s', flush=True)\n"
+    "os._exit(0)\n")
+
+
+def test_geocom_socket_port_opens_when_the_peer_has_hung_up_on_pyserial_3_4():
+    out = run_noetic(["-c", HUNG_UP_PEER], timeout=60)
+    assert out.returncode == 0, out.stdout
+    assert out.stdout.strip().splitlines()[-1] == "opened"
+
+
 # --------------------------------------------------------------------------- the two OpenCV ArUco APIs
 
 def api_comparison_frames():
