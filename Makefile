@@ -33,4 +33,4 @@ lint: setup
 	  $$(grep -l 'python' scripts/* 2>/dev/null) && echo "lint: clean"
 
 clean:
-	source tools/paths.sh && rm -rf "$$(aao_workspace "$$PWD")" .venv .pytest_cache .hypothesis .ruff_cache
+	source tools/paths.sh && rm -rf "$$(aao_workspace "$$PWD")" .venv .venv-noetic .pytest_cache .hypothesis .ruff_cache

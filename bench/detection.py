@@ -13,6 +13,8 @@ textured background), full size (3840×1920 by default). Prints one table per se
             map-guided tracker, their ratio, and what each finds
   fullframe the whole-frame search (MarkerDetector.detect: seam, poles, rescue) vs one plain
             cv2.aruco call on the same frame (near, far, seam, pole): ms, ratio, ids found
+  opencv_api OpenCV 4.2's function API (.venv-noetic, a Noetic robot's Python stack) vs this venv's
+            ArucoDetector on the same frames: markers found, bearing differences, ms/frame
 
 Usage: bench/detection.py [--frames 60] [--width 3840] [--fp-frames 500] [--only speed,range]
 """
@@ -356,6 +358,83 @@ def section_fullframe(args, det):
 SECTIONS = {"jpeg": section_jpeg, "accuracy": section_accuracy, "bias": section_bias, "range": section_range,
             "seam_pole": section_seam_pole, "fp": section_fp, "speed": section_speed,
             "fullframe": section_fullframe}
+NOETIC_PY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".venv-noetic", "bin", "python")
+#: run by .venv-noetic's python: full-frame detection in .npy frames; bearings and ms per frame as JSON
+NOETIC_DETECT = (
+    "import json, sys, time, numpy as np\n"
+    "from aruco_abs_orient.detection import MarkerDetector\n"
+    "det, out = MarkerDetector('DICT_4X4_50'), []\n"
+    "for f in sys.argv[1:]:\n"
+    "    img = np.load(f)\n"
+    "    t = time.perf_counter()\n"
+    "    obs = det.detect(img)\n"
+    "    out.append({'ms': (time.perf_counter() - t) * 1000.0, 'obs': {o.id: o.centre.tolist() for o in obs}})\n"
+    "print(json.dumps({'api': det.backend.api, 'frames': out}))\n")
+
+
+def section_opencv_api(args, det):
+    """Issue 19: OpenCV 4.2's function API (Noetic's python3-opencv, in .venv-noetic) vs this venv's
+    OpenCV on the same rendered frames, per kind of scene."""
+    import json
+    import subprocess
+    import tempfile
+
+    import cv2
+
+    if not os.path.isfile(NOETIC_PY):
+        print(f"\n## OpenCV 4.2 function API: skipped, no {NOETIC_PY} (make setup builds it from a Python 3.8)")
+        return
+    scenes = {"1-12 m, |el| < 20 deg": [], "seam, 0.6-8 m": [], "+-70 deg, 1.5 m": [], "0.5-3 m, 45-60 deg": []}
+    for f in range(args.range_frames):
+        rng = np.random.default_rng(1900 + f)
+        scenes["1-12 m, |el| < 20 deg"].append(
+            [facing_marker(i, SIZE, d * azel_to_bearing(-3.0 + 0.5 * i + rng.uniform(0, 0.2),
+                                                        rng.uniform(-20, 20) * DEG), roll=rng.uniform(-0.7, 0.7))
+             for i, d in enumerate(range(1, 13))])
+        scenes["seam, 0.6-8 m"].append(
+            [facing_marker(i, SIZE, d * azel_to_bearing(math.pi + rng.uniform(-0.4, 0.4) * SIZE / d, el * DEG),
+                           roll=rng.uniform(-0.7, 0.7))
+             for i, (d, el) in enumerate([(0.6, -38), (1.0, -12), (2.0, 8), (4.0, 22), (8.0, 36)])])
+        scenes["+-70 deg, 1.5 m"].append(
+            [facing_marker(i, SIZE, 1.5 * azel_to_bearing(-3.0 + 1.0 * i + rng.uniform(0, 0.5),
+                                                          (70 if i % 2 else -70) * DEG), roll=rng.uniform(-0.7, 0.7))
+             for i in range(6)])
+        scenes["0.5-3 m, 45-60 deg"].append(
+            [facing_marker(i, SIZE, d * azel_to_bearing(-2.5 + 1.2 * i, rng.uniform(45, 60) * DEG * (-1) ** i),
+                           roll=rng.uniform(-0.7, 0.7)) for i, d in enumerate([0.5, 1.0, 1.5, 2.0, 3.0])])
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for s, (name, frames) in enumerate(scenes.items()):
+            imgs = [render_equirect(args.width, ms, seed=1950 + 31 * s + f) for f, ms in enumerate(frames)]
+            files = [os.path.join(tmp, f"{s}_{f}.npy") for f in range(len(imgs))]
+            for path, img in zip(files, imgs):
+                np.save(path, img)
+            env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+            out = subprocess.run([NOETIC_PY, "-c", NOETIC_DETECT] + files, stdout=subprocess.PIPE, text=True, env=env,
+                                 check=True)
+            old = json.loads(out.stdout.strip().splitlines()[-1])
+            n = found_new = found_old = same = 0
+            diffs, ms_new = [], []
+            for img, ms, o in zip(imgs, frames, old["frames"]):
+                t = time.perf_counter()
+                new = {ob.id: ob.centre for ob in det.detect(img)}
+                ms_new.append((time.perf_counter() - t) * 1000.0)
+                o_ids = {int(i): np.array(c) for i, c in o["obs"].items()}
+                n += len(ms)
+                found_new += len(new)
+                found_old += len(o_ids)
+                same += sorted(new) == sorted(o_ids)
+                diffs += [float(angle_between(new[i], o_ids[i])) / DEG for i in set(new) & set(o_ids)]
+            rows.append((name, n, found_new, found_old, f"{same}/{len(imgs)}",
+                         f"{np.median(diffs):.5f}" if diffs else "-", f"{max(diffs):.5f}" if diffs else "-",
+                         f"{np.median(ms_new):.0f}", f"{np.median([o['ms'] for o in old['frames']]):.0f}"))
+    table(f"OpenCV 4.2 function API ({old['api']}, .venv-noetic: Python 3.8, numpy 1.17) vs OpenCV "
+          f"{cv2.__version__} {det.backend.api} on the same {args.width} px frames ({args.range_frames} per scene)",
+          ["scene", "rendered", f"found {det.backend.api}", "found 4.2", "same ids", "median diff deg",
+           "max diff deg", "ms/frame here", "ms/frame 4.2"], rows)
+
+
+SECTIONS["opencv_api"] = section_opencv_api
 
 
 def main(argv=None):

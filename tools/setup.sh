@@ -5,6 +5,9 @@
 #   3. the real robot_localization, built by ../shared/tools/build-robot-localization into $WS/rl,
 #   4. the catkin workspace $WS (the repository linked as $WS/src/aruco_abs_orient), built with
 #      the venv's python. $WS is outside the repository (tools/paths.sh says why and where).
+#   5. the venv .venv-noetic: a Python 3.8 (pyenv's, or python3.8 on PATH; $AAO_PYTHON38 overrides)
+#      with a Noetic robot's versions (requirements-noetic.txt), for test/test_noetic.py. Without a
+#      Python 3.8 it warns and goes on (that test then fails and says how to get one).
 # Each step is skipped when a stamp says nothing it depends on changed, so a repeated run takes
 # seconds. No `set -u`: catkin's setup.bash reads unset variables.
 set -eo pipefail
@@ -125,5 +128,55 @@ if [[ "$(cat "$STAMPS/catkin" 2>/dev/null)" != "$want" || ! -f $WS/devel/setup.b
   echo "$want" >"$STAMPS/catkin"
 else
   log "catkin workspace: up to date"
+fi
+# --------------------------------------------------------------------------- 5. .venv-noetic
+# Every Python 3.8 interpreter we can see, the newest patch release first: $AAO_PYTHON38, pyenv's
+# versions (pyenv root, $PYENV_ROOT, ~/.pyenv), python3.8 on PATH (a pyenv shim only works when pyenv
+# selects 3.8: each candidate is asked for its version and its real path).
+find_python38() {
+  local roots=() c
+  command -v pyenv >/dev/null 2>&1 && roots+=("$(pyenv root 2>/dev/null)")
+  roots+=("${PYENV_ROOT:-}" "${HOME:-/root}/.pyenv")
+  {
+    [[ -n ${AAO_PYTHON38:-} ]] && echo "$AAO_PYTHON38"
+    for c in "${roots[@]}"; do
+      [[ -n $c ]] && printf '%s\n' "$c"/versions/3.8*/bin/python3.8
+    done | sort -rV
+    command -v python3.8 2>/dev/null
+  } | while read -r c; do
+    [[ -x $c ]] && "$c" -c 'import sys, venv; assert sys.version_info[:2] == (3, 8); print(sys.executable)' 2>/dev/null
+  done | head -n 1 || true
+}
+NVENV=$ROOT/.venv-noetic
+want=$(cat requirements-noetic.txt setup.py | sha256sum | cut -d' ' -f1)
+if [[ -x $NVENV/bin/python && "$(cat "$STAMPS/venv-noetic" 2>/dev/null)" == "$want" ]]; then
+  log "venv-noetic: up to date"
+else
+  rm -f -- "$STAMPS/venv-noetic"
+  PY38=$(find_python38)
+  if [[ -z $PY38 ]]; then
+    log "WARNING: no Python 3.8 found (\$AAO_PYTHON38, \$(pyenv root)/versions/3.8*, ~/.pyenv/versions/3.8*," \
+      "python3.8 on PATH): .venv-noetic not built and test/test_noetic.py will fail. Get one with" \
+      "'pyenv install 3.8' (or on Ubuntu 20.04: apt install python3.8-venv), then run make setup again."
+  else
+    if [[ ! -x $NVENV/bin/python ]] || [[ "$("$NVENV/bin/python" -c 'import sys; print(sys.version_info[:2] == (3, 8))' \
+      2>/dev/null)" != True ]]; then
+      log "creating the venv $NVENV from $PY38 (a Noetic robot's Python stack)"
+      rm -rf -- "$NVENV"
+      "$PY38" -m venv "$NVENV"
+      echo '*' >"$NVENV/.gitignore"
+    fi
+    log "installing requirements-noetic.txt into $NVENV"
+    "$NVENV/bin/python" -m pip install -q --disable-pip-version-check -r requirements-noetic.txt 2>&1 |
+      grep -v 'is ignored: it is neither a file nor a directory\|DEPRECATION: PyYAML is being installed' >&2 || true
+    "$NVENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e . 2>&1 |
+      grep -v 'is ignored: it is neither a file nor a directory' >&2 || true
+    if "$NVENV/bin/python" -c 'import numpy, cv2, yaml, serial, scipy, matplotlib, rosbags, pytest, hypothesis
+import aruco_abs_orient.offline.cli' && "$NVENV/bin/python" -m pip check -q >&2; then
+      echo "$want" >"$STAMPS/venv-noetic"
+    else
+      log "WARNING: $NVENV cannot import its requirements (see above): test/test_noetic.py will fail"
+    fi
+  fi
 fi
 log "done in $(elapsed) s"

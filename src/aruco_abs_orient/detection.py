@@ -697,7 +697,19 @@ def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(buf, dtype=np.uint8), flag)
     if img is None or buf[-2:] != b"\xff\xd9":
         raise DetectionError(f"{what}: corrupt or truncated JPEG ({len(buf)} bytes)")
+    if reduce > 1 and not _IMDECODE_REDUCES:  # average reduce×reduce blocks, as the DCT scaling does
+        img = cv2.resize(img, (-(-img.shape[1] // reduce), -(-img.shape[0] // reduce)), interpolation=cv2.INTER_AREA)
     return img
+
+
+def _imdecode_reduces() -> bool:
+    """Whether ``cv2.imdecode`` honours IMREAD_REDUCED_* (OpenCV 4.6 and 4.11 do; Noetic's 4.2
+    ignores it and decodes at full size)."""
+    probe = cv2.imencode(".jpg", np.zeros((16, 16), np.uint8))[1]
+    return cv2.imdecode(probe, cv2.IMREAD_REDUCED_GRAYSCALE_2).shape == (8, 8)
+
+
+_IMDECODE_REDUCES = _imdecode_reduces()
 
 
 # --------------------------------------------------------------------------- OpenCV adapter
@@ -758,6 +770,10 @@ class ArucoBackend:
         p.errorCorrectionRate = float(q.error_correction_rate)
         p.cornerRefinementMethod = int(getattr(aruco, _REFINE[q.corner_refinement]))
         p.cornerRefinementWinSize = int(q.corner_refine_win)
+        if hasattr(p, "relativeCornerRefinmentWinSize"):  # [sic]
+            # newer OpenCV (4.11 here; not 4.2) shrinks the subpixel window to 0.3 cells of a small
+            # marker: keep corner_refine_win on every version, so both APIs give the same corners
+            p.relativeCornerRefinmentWinSize = 1000.0
         p.cornerRefinementMaxIterations = int(q.corner_refine_max_iter)
         p.cornerRefinementMinAccuracy = float(q.corner_refine_min_accuracy)
         return p

@@ -111,13 +111,18 @@ def matrix_to_quat(R) -> np.ndarray:
     return np.concatenate([wxyz[..., 1:], wxyz[..., :1]], axis=-1)
 
 
+def _broadcast_shapes(*shapes) -> tuple:
+    """``np.broadcast_shapes`` (numpy ≥ 1.20) for numpy 1.17 too (Noetic's python3-numpy)."""
+    return np.broadcast(*[np.empty(s + (0,), dtype=bool) for s in shapes]).shape[:-1]
+
+
 def make_T(R=None, t=None) -> np.ndarray:
     """4×4 homogeneous transform(s) from rotation (..., 3, 3) and translation (..., 3)."""
     if R is None:
         R = np.eye(3)
     R = np.asarray(R, dtype=float)
     t = np.zeros(R.shape[:-2] + (3,)) if t is None else np.asarray(t, dtype=float)
-    shape = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    shape = _broadcast_shapes(R.shape[:-2], t.shape[:-1])
     T = np.zeros(shape + (4, 4))
     T[..., :3, :3] = R
     T[..., :3, 3] = t

@@ -260,7 +260,8 @@ def test_truncated_bag_is_salvaged_up_to_the_cut(scenario_factory, tmp_path, cap
     from aruco_abs_orient.offline.bagio import salvage_bag
 
     n, _ = salvage_bag(str(dst), str(tmp_path / "copy.bag"))
-    import rosbag  # Debian's: the salvaged bag is a proper indexed bag
+    # ROS's own rosbag reads the salvaged copy: a proper indexed bag (needs ROS: skipped in .venv-noetic)
+    rosbag = pytest.importorskip("rosbag", reason="needs ROS's rosbag (not in .venv-noetic)")
 
     with rosbag.Bag(str(tmp_path / "copy.bag")) as b:
         assert b.get_message_count() == n

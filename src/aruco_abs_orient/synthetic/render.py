@@ -149,6 +149,13 @@ def _resolve_profile(profile: Union[str, RenderProfile]) -> RenderProfile:
     return p
 
 
+def _marker_image(dictionary, marker_id: int, side_px: int) -> np.ndarray:
+    """cv2.aruco's image (side_px, side_px) uint8 of a marker with a one-bit border:
+    ``generateImageMarker`` (OpenCV ≥ 4.7) or ``drawMarker`` (Noetic's 4.2), same arguments."""
+    draw = getattr(cv2.aruco, "generateImageMarker", None) or cv2.aruco.drawMarker
+    return draw(dictionary, marker_id, side_px, borderBits=1)
+
+
 @functools.lru_cache(maxsize=64)
 def _marker_bits(dictionary: str, marker_id: int) -> np.ndarray:
     """Grey levels (n, n) float32 of the marker's bits incl. the black border and the white quiet
@@ -160,7 +167,7 @@ def _marker_bits(dictionary: str, marker_id: int) -> np.ndarray:
     n_ids = d.bytesList.shape[0]
     if not 0 <= marker_id < n_ids:
         raise RenderError(f"marker id {marker_id} is not in {dictionary} (ids 0..{n_ids - 1})")
-    bits = cv2.aruco.generateImageMarker(d, int(marker_id), n_marker, borderBits=1)
+    bits = _marker_image(d, int(marker_id), n_marker)
     q = QUIET_ZONE_BITS
     out = np.full((n_marker + 2 * q, n_marker + 2 * q), _WHITE, dtype=np.float32)
     out[q:q + n_marker, q:q + n_marker] = np.where(bits > 127, _WHITE, _BLACK)
