@@ -336,13 +336,26 @@ def rendered(tmp_path_factory):
     return out, hidden
 
 
-def test_cli_recovers_the_rendered_boresight(rendered, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def calibrated(rendered, tmp_path_factory):
+    """`calibrate` run once on the rendered recording: (output YAML path, its JSON report line, exit code)."""
+    import contextlib
+    import io
+
     out, hidden = rendered
-    yaml_path = tmp_path / "calibration.yaml"
-    code = _cli([out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset",
-                 hidden["camera_time_offset"], "--out", yaml_path, "--quiet"])
-    assert code == 0, capsys.readouterr().err
-    report = json.loads(capsys.readouterr().out.splitlines()[0])
+    yaml_path = tmp_path_factory.mktemp("calibrated") / "calibration.yaml"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = _cli([out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset",
+                     hidden["camera_time_offset"], "--out", yaml_path, "--quiet"])
+    return yaml_path, printed.getvalue(), code
+
+
+def test_cli_recovers_the_rendered_boresight(rendered, calibrated):
+    _, hidden = rendered
+    yaml_path, printed, code = calibrated
+    assert code == 0, printed
+    report = json.loads(printed.splitlines()[0])
     loaded = load_calibration(str(yaml_path))
     true_T = np.array(hidden["base_T_camera_true"])
     dR = loaded["camera"][:3, :3].T @ true_T[:3, :3]
@@ -351,12 +364,20 @@ def test_cli_recovers_the_rendered_boresight(rendered, tmp_path, capsys):
     assert angle < 0.1, (angle, report)
     assert report["residual_rms_after_deg"] < 0.3 * report["residual_rms_before_deg"]
     np.testing.assert_allclose(loaded["prism"], np.array(hidden["base_T_prism"]), atol=1e-5)
-    # the launch file beside it is one roslaunch loads (standalone or <include>d), with both static tfs
+
+
+def test_cli_writes_a_launch_file_roslaunch_loads(calibrated):
+    """The launch file beside the calibration is one roslaunch loads (standalone or <include>d), with both
+    static tfs (needs ROS's roslaunch: not on a bare Python 3.8 stack)."""
+    pytest.importorskip("roslaunch", reason="needs ROS's roslaunch")
     import roslaunch.config
     import roslaunch.xmlloader
 
+    yaml_path, _, code = calibrated
+    assert code == 0
+    loaded = load_calibration(str(yaml_path))
     config = roslaunch.config.ROSLaunchConfig()
-    roslaunch.xmlloader.XmlLoader().load(str(tmp_path / "calibration.launch"), config, verbose=False)
+    roslaunch.xmlloader.XmlLoader().load(str(yaml_path.parent / "calibration.launch"), config, verbose=False)
     tfs = {n.name: n.args.split() for n in config.nodes if n.type == "static_transform_publisher"}
     assert sorted(tfs) == ["camera_tf", "prism_tf"] and tfs["camera_tf"][-2:] == ["base_link", "camera"]
     np.testing.assert_allclose([float(x) for x in tfs["camera_tf"][:3]], loaded["camera"][:3, 3], atol=1e-6)
