@@ -44,7 +44,8 @@ def launch_respawn_delay(path=NODE_LAUNCH) -> float:
 class RosProcesses:
     """A private master + static tfs + the node, stopped (by pid) on exit. With ``respawn_delay`` (s)
     the node is started again that long after it died (as roslaunch's respawn); :attr:`restarts`
-    lists ``(death noticed, restarted, new pid)`` in time.monotonic() s."""
+    lists ``(death noticed, restarted, new pid)`` and :attr:`node_started` maps each node process's pid to
+    its start, in time.monotonic() s."""
 
     def __init__(self, node_params, respawn_delay=None):
         port = free_port()
@@ -61,6 +62,7 @@ class RosProcesses:
         params = [f"_{k}:={v}" for k, v in node_params.items()]
         self.node_cmd = [os.path.join(HERE, "..", "scripts", "abs_orient")] + params
         self.node = subprocess.Popen(self.node_cmd, stdout=log, stderr=subprocess.STDOUT)
+        self.node_started = {self.node.pid: time.monotonic()}
         self.restarts = []
         self._stopping = threading.Event()
         self._supervisor = None
@@ -76,6 +78,7 @@ class RosProcesses:
             if self._stopping.wait(delay):
                 return
             self.node = subprocess.Popen(self.node_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+            self.node_started[self.node.pid] = time.monotonic()
             self.restarts.append((died, time.monotonic(), self.node.pid))
 
     def stop(self):

@@ -152,8 +152,8 @@ def main(argv=None) -> int:
     ap.add_argument("--width", type=int, default=3840, help="equirect width in px (height = width/2)")
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--duration", type=float, default=600.0, help="s of soak after initialisation")
-    ap.add_argument("--kills", type=int, default=5, help="SIGKILLs of the node (respawned)")
-    ap.add_argument("--stalls", type=int, default=10, help="stalls: camera pauses and node freezes, alternately")
+    ap.add_argument("--kills", type=int, default=4, help="SIGKILLs of the node (respawned)")
+    ap.add_argument("--stalls", type=int, default=8, help="stalls: camera pauses and node freezes, alternately")
     ap.add_argument("--gap", type=float, default=15.0, help="s at least between two events")
     ap.add_argument("--every", type=float, default=10.0, help="s between memory samples")
     ap.add_argument("--settle", type=float, default=60.0, help="s after a process's start before its memory counts")
@@ -254,15 +254,17 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
           f"({n_steady} images)")
     print("memory (RSS of the node's process), per process from its first sample "
           f"{args.settle:g} s after its start:")
-    starts = {ros.restarts[i][2]: ros.restarts[i][1] - t0 for i in range(len(ros.restarts))}
     for pid in dict.fromkeys(p for _, p, _ in mem):
-        rows = [(t, r) for t, p, r in mem if p == pid and t >= starts.get(pid, -np.inf) + args.settle]
+        born = ros.node_started[pid] - t0
+        rows = [(t, r) for t, p, r in mem if p == pid and t >= born + args.settle]
         if len(rows) < 2:
+            print(f"  pid {pid} (started at {born:.0f} s): too short-lived for a figure")
             continue
         (ta, ra), (tb, rb) = rows[0], rows[-1]
         slope = (rb - ra) / (tb - ta) * 60.0
-        print(f"  pid {pid}: {ra:.1f} MB at {ta:.0f} s -> {rb:.1f} MB at {tb:.0f} s ({rb - ra:+.1f} MB, "
-              f"{slope:+.2f} MB/min; min {min(r for _, r in rows):.1f}, max {max(r for _, r in rows):.1f})")
+        low, high = min(r for _, r in rows), max(r for _, r in rows)
+        print(f"  pid {pid} (started at {born:.0f} s): {ra:.1f} MB at {ta:.0f} s -> {rb:.1f} MB at {tb:.0f} s "
+              f"({rb - ra:+.1f} MB, {slope:+.2f} MB/min; min {low:.1f}, max {high:.1f})")
     print(f"recovered from {sum(1 for a, b in windows if b - a < RECOVERY_TIMEOUT_S)} of {len(log)} events")
     return 0 if ok else 1
 
