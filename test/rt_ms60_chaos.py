@@ -4,7 +4,9 @@ pty served by one strict simulated MS60 (garbage bytes before 2 % of its replies
 
 1. SIGKILL of the driver at a random moment while it publishes (found by its pid over the node's
    XML-RPC API, as rosnode does); roslaunch respawns it;
-2. SIGKILL again, at a random moment after the respawned driver published again;
+2. SIGKILL again while it publishes, and once more at a random moment of the respawned driver's start
+   (0-2.5 s after it registered: its session set-up or its clock's warm-up), which leaves the
+   instrument wherever the session was;
 3. the simulator's link goes silent for ``LINK_OUTAGE_S`` (its link-loss injection: on a pty the line
    carries nothing either way, as with a cable pulled out).
 
@@ -143,13 +145,15 @@ class Ms60ChaosCheck(unittest.TestCase):
             while not self.count() and time.monotonic() < deadline and not rospy.is_shutdown():
                 time.sleep(0.05)
             self.assertTrue(self.count(), "no ms60/prism within 40 s of the start")
-            for k, when in ((1, "while it publishes"), (2, "during the set-up of a driver respawned after a kill")):
+            for k, when in ((1, "while it publishes"), (2, "while a respawned driver starts")):
                 time.sleep(float(rng.uniform(0.5, 2.5)))    # a random moment while publishing
                 if k == 2:   # kill, then kill the respawned driver at a random moment of its set-up / warm-up
                     pids.append(self.kill_driver()[1])
-                    self.assertIsNotNone(self.wait_respawn(pids[-1], time.monotonic() + kill_bound),
-                                         f"not respawned within {kill_bound:.1f} s")
+                    respawned = self.wait_respawn(pids[-1], time.monotonic() + kill_bound)
+                    self.assertIsNotNone(respawned, f"not respawned within {kill_bound:.1f} s")
                     time.sleep(float(rng.uniform(0.0, 2.5)))
+                    figure("kill 2: the respawned driver killed after it started",
+                           time.monotonic() - started_monotonic(respawned), "s")
                 t_kill, pid = self.kill_driver()
                 pids.append(pid)
                 back = self.wait_fresh(t_kill + 0.1, kill_bound + 10.0)   # in flight at the kill: within 0.1 s
