@@ -18,8 +18,11 @@ publishes for every image it processes, and map->odom on /tf):
   after its recovery);
 - dropped fraction: published images without detections (overall, which includes the images sent while
   the node was dead or frozen, and in the steady state);
-- memory: RSS of the node's process every ``--every`` s with the process it belongs to; per process,
-  the growth from its first sample ``--settle`` s after its start to its last (flat = a few MB);
+- memory: RSS of the node's process every ``--every`` s with the process it belongs to (and the host's
+  load, the node's own processing rate); per process, from ``--settle`` s after its start (its RSS
+  climbs for ~100 s at 3840 px while its allocator's pools fill), the floor and the peak of the first
+  half of its samples vs the second half (flat: the same floor; the peak includes transient full-frame
+  buffers, ~85 MB at 3840 px, present or not at the sample's instant);
 - recoveries: kill → the first map->odom of the respawned node (split into kill → new process and new
   process → map->odom); stall end → the first detections of an image published after it, and the
   longest gap in map->odom during the stall.
@@ -27,6 +30,7 @@ publishes for every image it processes, and map->odom on /tf):
 Exit status 0 when the node recovered from every event; 1 otherwise (or if it did not initialise).
 """
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -156,7 +160,7 @@ def main(argv=None) -> int:
     ap.add_argument("--stalls", type=int, default=8, help="stalls: camera pauses and node freezes, alternately")
     ap.add_argument("--gap", type=float, default=15.0, help="s at least between two events")
     ap.add_argument("--every", type=float, default=10.0, help="s between memory samples")
-    ap.add_argument("--settle", type=float, default=60.0, help="s after a process's start before its memory counts")
+    ap.add_argument("--settle", type=float, default=100.0, help="s after a process's start before its memory counts")
     ap.add_argument("--seed", type=int, default=21)
     args = ap.parse_args(argv)
     if min(args.kills, args.stalls) < 0 or args.duration <= 0 or args.every <= 0:
@@ -171,12 +175,12 @@ def run(args, ros) -> int:
     print(f"rendered {args.width}x{args.width // 2} scene in {render_s:.1f} s ({len(frames['good']) / 1e3:.0f} kB "
           f"JPEG)", flush=True)
     out = Outputs()
-    feed, _ = start_feed(ros, frames, base_T_prism, args.fps)
+    feed, mon = start_feed(ros, frames, base_T_prism, args.fps)
     gate = ImageGate(feed.pub_image)
     feed.pub_image = gate
     print(f"soak: {args.width}x{args.width // 2} at {args.fps:g} fps for {args.duration:g} s; events at "
           + ", ".join(f"{t:.0f} s {k}" + (f" {L:.1f} s" if L else "") for t, k, L in events), flush=True)
-    print("   t [s]    pid  RSS [MB]  images published  processed", flush=True)
+    print("   t [s]    pid  RSS [MB]  images published  processed  node rate [Hz]  host load (1 min)", flush=True)
     done, log, mem = threading.Event(), [], []
     t0 = time.monotonic()
     events_thread = threading.Thread(target=run_events, args=(events, t0, ros, gate, done, log), daemon=True)
@@ -195,7 +199,9 @@ def run(args, ros) -> int:
                 processed = sum(1 for ns in stamps if ns in out.detections)
             published = len(stamps)
             mem.append((time.monotonic() - t0, node.pid, rss))
-            print(f"  {mem[-1][0]:6.0f}  {node.pid:6d}  {rss:8.1f}  {published:16d}  {processed:9d}", flush=True)
+            rate = float(mon.values.get("rate [Hz]", "nan"))
+            print(f"  {mem[-1][0]:6.0f}  {node.pid:6d}  {rss:8.1f}  {published:16d}  {processed:9d}  {rate:14.1f}  "
+                  f"{os.getloadavg()[0]:17.1f}", flush=True)
         time.sleep(2.0)   # the last recoveries and in-flight detections
     finally:
         done.set()
@@ -252,19 +258,20 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
     print(f"dropped: {100.0 * (1 - len(lat_all) / max(len(published), 1)):.1f} % overall (with the dead and "
           f"frozen node), {100.0 * (1 - len(lat_steady) / max(n_steady, 1)):.1f} % in the steady state "
           f"({n_steady} images)")
-    print("memory (RSS of the node's process), per process from its first sample "
-          f"{args.settle:g} s after its start:")
+    print(f"memory (RSS of the node's process) per process, from {args.settle:g} s after its start (its buffers "
+          "filled), first half of its samples vs second half: the floor (least) and the peak (transient "
+          "full-frame buffers come and go):")
     for pid in dict.fromkeys(p for _, p, _ in mem):
         born = ros.node_started[pid] - t0
-        rows = [(t, r) for t, p, r in mem if p == pid and t >= born + args.settle]
-        if len(rows) < 2:
+        rss = [r for t, p, r in mem if p == pid and t >= born + args.settle]
+        times = [t for t, p, _ in mem if p == pid and t >= born + args.settle]
+        if len(rss) < 4:
             print(f"  pid {pid} (started at {born:.0f} s): too short-lived for a figure")
             continue
-        (ta, ra), (tb, rb) = rows[0], rows[-1]
-        slope = (rb - ra) / (tb - ta) * 60.0
-        low, high = min(r for _, r in rows), max(r for _, r in rows)
-        print(f"  pid {pid} (started at {born:.0f} s): {ra:.1f} MB at {ta:.0f} s -> {rb:.1f} MB at {tb:.0f} s "
-              f"({rb - ra:+.1f} MB, {slope:+.2f} MB/min; min {low:.1f}, max {high:.1f})")
+        a, b = rss[: len(rss) // 2], rss[len(rss) // 2:]
+        print(f"  pid {pid} (started at {born:.0f} s), {times[0]:.0f}-{times[-1]:.0f} s: floor {min(a):.1f} -> "
+              f"{min(b):.1f} MB ({min(b) - min(a):+.1f}), peak {max(a):.1f} -> {max(b):.1f} MB "
+              f"({max(b) - max(a):+.1f})")
     print(f"recovered from {sum(1 for a, b in windows if b - a < RECOVERY_TIMEOUT_S)} of {len(log)} events")
     return 0 if ok else 1
 
