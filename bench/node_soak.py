@@ -27,7 +27,11 @@ publishes for every image it processes, and map->odom on /tf):
   process → map->odom); stall end → the first detections of an image published after it, and the
   longest gap in map->odom during the stall.
 
-Exit status 0 when the node recovered from every event; 1 otherwise (or if it did not initialise).
+- correctness: every map->odom's yaw against the scene's true map->odom (the first after each kill, and the
+  largest of all).
+
+Exit status 0 when the node recovered from every event and no map->odom was more than
+``--max-yaw-error-deg`` (1°) off; 1 otherwise (or if it did not initialise).
 """
 import argparse
 import os
@@ -39,6 +43,9 @@ import time
 import numpy as np
 import psutil
 from _ros_harness import render_scene, run_with_node, start_feed, stop_feed
+
+from aruco_abs_orient.ros.conversions import transform_to_matrix
+from aruco_abs_orient.transforms import wrap_angle, yaw_of
 
 STEADY_BEFORE_S = 0.5   # images published this long before an event may be caught by it
 STEADY_AFTER_S = 1.0    # and this long after its recovery still queued behind it
@@ -70,10 +77,12 @@ class ImageGate:
 
 
 class Outputs:
-    """Arrival (time.monotonic()) of every abs_orient/detections (by image stamp) and every map->odom."""
+    """Arrival (time.monotonic()) of every abs_orient/detections (by image stamp) and every map->odom, with
+    the map->odom's yaw error (rad) against the scene's true map->odom."""
 
     def __init__(self):
         import rospy
+        import rt_abs_orient_scene as scene  # in test/, on the path once _ros_harness is imported
         from tf2_msgs.msg import TFMessage
 
         from aruco_abs_orient.msg import MarkerObservations
@@ -81,6 +90,8 @@ class Outputs:
         self.lock = threading.Lock()
         self.detections = {}   # stamp ns -> arrival s
         self.map_odom = []     # arrival s
+        self.yaw_errors = []   # rad, one per map->odom
+        self.true_yaw = float(yaw_of(scene.MAP_T_ODOM[:3, :3]))
         rospy.Subscriber("abs_orient/detections", MarkerObservations, self._on_det, queue_size=100)
         rospy.Subscriber("/tf", TFMessage, self._on_tf, queue_size=1000)
 
@@ -91,10 +102,12 @@ class Outputs:
 
     def _on_tf(self, msg):
         t = time.monotonic()
-        if any(tr.header.frame_id.lstrip("/") == "map" and tr.child_frame_id.lstrip("/") == "odom"
-               for tr in msg.transforms):
-            with self.lock:
-                self.map_odom.append(t)
+        for tr in msg.transforms:
+            if tr.header.frame_id.lstrip("/") == "map" and tr.child_frame_id.lstrip("/") == "odom":
+                err = float(wrap_angle(yaw_of(transform_to_matrix(tr.transform)[:3, :3]) - self.true_yaw))
+                with self.lock:
+                    self.map_odom.append(t)
+                    self.yaw_errors.append(err)
 
 
 def schedule(args, rng):
@@ -162,6 +175,8 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=float, default=10.0, help="s between memory samples")
     ap.add_argument("--settle", type=float, default=100.0, help="s after a process's start before its memory counts")
     ap.add_argument("--seed", type=int, default=21)
+    ap.add_argument("--max-yaw-error-deg", type=float, default=1.0,
+                    help="exit status 1 if any map->odom's yaw is further from the truth (as the chaos rostest)")
     args = ap.parse_args(argv)
     if min(args.kills, args.stalls) < 0 or args.duration <= 0 or args.every <= 0:
         ap.error("--kills/--stalls must be ≥ 0, --duration and --every > 0")
@@ -216,6 +231,7 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
     with out.lock:
         detections = dict(out.detections)
         map_odom = np.array(out.map_odom)
+        yaw_err_deg = np.degrees(np.abs(out.yaw_errors))
     ok = True
     print(f"\nevents ({len(log)}), times from the soak's start:")
     windows = []
@@ -230,7 +246,9 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
                 continue
             split = "" if restart is None else \
                 f" (kill -> new process {restart[1] - start:.2f} s, new process -> map->odom {back - restart[1]:.2f} s)"
-            print(f"  {start - t0:6.1f} s  kill pid {pid}: recovery {back - start:.2f} s{split}")
+            first = yaw_err_deg[int(np.searchsorted(map_odom, back))]
+            print(f"  {start - t0:6.1f} s  kill pid {pid}: recovery {back - start:.2f} s{split}; its first map->odom "
+                  f"{first:.3f} deg off")
             windows.append((start, back))
         else:
             back = min((detections[ns] for t, ns in published if t > end and ns in detections), default=None)
@@ -273,7 +291,10 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
               f"{min(b):.1f} MB ({min(b) - min(a):+.1f}), peak {max(a):.1f} -> {max(b):.1f} MB "
               f"({max(b) - max(a):+.1f})")
     print(f"recovered from {sum(1 for a, b in windows if b - a < RECOVERY_TIMEOUT_S)} of {len(log)} events")
-    return 0 if ok else 1
+    worst = float(yaw_err_deg.max()) if len(yaw_err_deg) else float("nan")
+    print(f"map->odom yaw vs the scene's truth, all {len(yaw_err_deg)} sent: median "
+          f"{float(np.median(yaw_err_deg)):.3f} deg, max {worst:.3f} deg (limit {args.max_yaw_error_deg:g})")
+    return 0 if ok and worst <= args.max_yaw_error_deg else 1
 
 
 if __name__ == "__main__":
