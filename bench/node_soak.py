@@ -248,7 +248,7 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
                 f" (kill -> new process {restart[1] - start:.2f} s, new process -> map->odom {back - restart[1]:.2f} s)"
             first = yaw_err_deg[int(np.searchsorted(map_odom, back))]
             print(f"  {start - t0:6.1f} s  kill pid {pid}: recovery {back - start:.2f} s{split}; its first map->odom "
-                  f"{first:.3f} deg off")
+                  f"{first:.4f} deg off")
             windows.append((start, back))
         else:
             back = min((detections[ns] for t, ns in published if t > end and ns in detections), default=None)
@@ -293,7 +293,7 @@ def report(args, ros, gate, out, log, mem, t0) -> int:
     print(f"recovered from {sum(1 for a, b in windows if b - a < RECOVERY_TIMEOUT_S)} of {len(log)} events")
     worst = float(yaw_err_deg.max()) if len(yaw_err_deg) else float("nan")
     print(f"map->odom yaw vs the scene's truth, all {len(yaw_err_deg)} sent: median "
-          f"{float(np.median(yaw_err_deg)):.3f} deg, max {worst:.3f} deg (limit {args.max_yaw_error_deg:g})")
+          f"{float(np.median(yaw_err_deg)):.4f} deg, max {worst:.4f} deg (limit {args.max_yaw_error_deg:g})")
     return 0 if ok and worst <= args.max_yaw_error_deg else 1
 
 
