@@ -3,6 +3,8 @@
 A private ROS master on a free port, the lever-arm static tfs and the abs_orient node on the marker map
 of the rendered rostest scene (test/rt_abs_orient_scene.py), a feed of that scene at a frame rate and a
 monitor of the node's /diagnostics and detections; everything it starts is stopped by pid at the end.
+With ``respawn``, a node that dies is started again the way roslaunch does for launch/abs_orient.launch
+(``respawn="true"``: its ``respawn_delay`` after the death is noticed, polled every 0.1 s).
 """
 import os
 import socket
@@ -10,12 +12,14 @@ import subprocess
 import sys
 import threading
 import time
+import xml.etree.ElementTree as ET
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TEST_DIR = os.path.join(HERE, "..", "test")
 sys.path.insert(0, TEST_DIR)
 
 SCENE_MARKERS = os.path.join(TEST_DIR, "abs_orient_scene_markers.yaml")
+NODE_LAUNCH = os.path.join(HERE, "..", "launch", "abs_orient.launch")
 INIT_TIMEOUT_S = 60.0
 
 
@@ -29,10 +33,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-class RosProcesses:
-    """A private master + static tfs + the node, stopped (by pid) on exit."""
+def launch_respawn_delay(path=NODE_LAUNCH) -> float:
+    """The abs_orient node's ``respawn_delay`` (s) in launch/abs_orient.launch."""
+    node = ET.parse(path).getroot().find("node[@name='abs_orient']")
+    if node is None or node.get("respawn_delay") is None:
+        raise BenchError(f"{path}: no <node name=\"abs_orient\" respawn_delay=...>")
+    return float(node.get("respawn_delay"))
 
-    def __init__(self, node_params):
+
+class RosProcesses:
+    """A private master + static tfs + the node, stopped (by pid) on exit. With ``respawn_delay`` (s)
+    the node is started again that long after it died (as roslaunch's respawn); :attr:`restarts`
+    lists ``(death noticed, restarted, new pid)`` and :attr:`node_started` maps each node process's pid to
+    its start, in time.monotonic() s."""
+
+    def __init__(self, node_params, respawn_delay=None):
         port = free_port()
         os.environ["ROS_MASTER_URI"] = f"http://localhost:{port}"
         os.environ.setdefault("ROS_HOSTNAME", "localhost")
@@ -45,16 +60,35 @@ class RosProcesses:
             self.procs.append(subprocess.Popen(["rosrun", "tf2_ros", "static_transform_publisher"] + args,
                                                stdout=log, stderr=log))
         params = [f"_{k}:={v}" for k, v in node_params.items()]
-        script = os.path.join(HERE, "..", "scripts", "abs_orient")
-        self.node = subprocess.Popen([script] + params, stdout=log,
-                                     stderr=subprocess.STDOUT)
-        self.procs.append(self.node)
+        self.node_cmd = [os.path.join(HERE, "..", "scripts", "abs_orient")] + params
+        self.node = subprocess.Popen(self.node_cmd, stdout=log, stderr=subprocess.STDOUT)
+        self.node_started = {self.node.pid: time.monotonic()}
+        self.restarts = []
+        self._stopping = threading.Event()
+        self._supervisor = None
+        if respawn_delay is not None:
+            self._supervisor = threading.Thread(target=self._supervise, args=(respawn_delay,), daemon=True)
+            self._supervisor.start()
+
+    def _supervise(self, delay):
+        while not self._stopping.wait(0.1):
+            if self.node.poll() is None:
+                continue
+            died = time.monotonic()
+            if self._stopping.wait(delay):
+                return
+            self.node = subprocess.Popen(self.node_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+            self.node_started[self.node.pid] = time.monotonic()
+            self.restarts.append((died, time.monotonic(), self.node.pid))
 
     def stop(self):
-        for p in reversed(self.procs):
+        self._stopping.set()
+        if self._supervisor is not None:
+            self._supervisor.join(5)
+        for p in [self.node] + list(reversed(self.procs)):
             if p.poll() is None:
                 p.terminate()
-        for p in self.procs:
+        for p in [self.node] + self.procs:
             try:
                 p.wait(10)
             except subprocess.TimeoutExpired:
@@ -92,10 +126,15 @@ class Monitor:
                 self.e2e_ms.append(1e3 * (time.monotonic() - sent))
 
 
-def run_with_node(run, args) -> int:
-    """Start the processes, return ``run(args, ros)`` (an exit status), stop them; a
-    :class:`BenchError` becomes its message on stderr and status 1."""
-    ros = RosProcesses({"markers": SCENE_MARKERS})
+def run_with_node(run, args, respawn=False) -> int:
+    """Start the processes (with ``respawn``: the node respawned as abs_orient.launch does), return
+    ``run(args, ros)`` (an exit status), stop them; a :class:`BenchError` becomes its message on stderr
+    and status 1."""
+    try:
+        ros = RosProcesses({"markers": SCENE_MARKERS}, launch_respawn_delay() if respawn else None)
+    except BenchError as e:
+        print(e, file=sys.stderr)
+        return 1
     try:
         return run(args, ros)
     except BenchError as e:
