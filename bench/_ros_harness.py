@@ -34,11 +34,12 @@ def free_port() -> int:
 
 
 def launch_respawn_delay(path=NODE_LAUNCH) -> float:
-    """The abs_orient node's ``respawn_delay`` (s) in launch/abs_orient.launch."""
+    """The abs_orient node's ``respawn_delay`` (s) in launch/abs_orient.launch (roslaunch's default 0 when
+    it sets none)."""
     node = ET.parse(path).getroot().find("node[@name='abs_orient']")
-    if node is None or node.get("respawn_delay") is None:
-        raise BenchError(f"{path}: no <node name=\"abs_orient\" respawn_delay=...>")
-    return float(node.get("respawn_delay"))
+    if node is None:
+        raise BenchError(f"{path}: no <node name=\"abs_orient\">")
+    return float(node.get("respawn_delay", 0.0))
 
 
 class RosProcesses:
