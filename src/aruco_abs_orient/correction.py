@@ -56,6 +56,10 @@ Model details:
   map position (tracked by the prism) is kept. Likewise, when no prism has been accepted for
   ``reinit_after`` s (a gap of minutes, a station re-set-up, a VO position jump), two consecutive
   prisms that agree re-anchor the translation, keeping δψ.
+* Restart: :meth:`snapshot` gives the state (a small dict of numbers, for a state file) and
+  :meth:`restore` starts a new filter from one that is at most ``max_age`` s old, its covariance grown
+  by the process noise over that age (a node respawned while the robot drives publishes map→odom at
+  once; markers that disagree with the restored state take over through the lock-out recovery).
 * Out-of-order / late measurements: a measurement older than the filter time by at most
   ``max_delay`` s is applied to the current state with its noise inflated by the process noise
   accumulated over the delay (exact for a random walk up to the correlation with the updates in
@@ -159,6 +163,7 @@ class FilterStats:
     reinitialisations: int = 0
     lockout_recoveries: int = 0         # resets to the consensus of consistently gated yaws
     noise_scale: float = 1.0            # current factor on the yaw random walk's variance (adaptive)
+    restored_age: float = float("nan")  # s: age of the state it was restored from (NaN: not restored)
     last_update: float = float("nan")
     last_yaw: float = float("nan")
     last_prism: float = float("nan")
@@ -266,6 +271,41 @@ class MapOdomFilter:
         x = F @ self.x
         P = F @ self.P @ F.T + self._process_noise(dt, self._odom_pos)
         return make_T(rot_z(x[0]), x[1:4]), P[:4, :4]
+
+    def snapshot(self) -> Optional[Dict[str, object]]:
+        """The state as plain numbers (JSON-ready), None before initialisation: time ``t`` (s), ``x``,
+        ``P``, the odometry position it turns about and the yaw noise scale."""
+        if not self.initialised:
+            return None
+        return {"t": self.t, "x": self.x.tolist(), "P": self.P.tolist(), "odom_pos": self._odom_pos.tolist(),
+                "noise_scale": self.stats.noise_scale}
+
+    def restore(self, snap: Dict[str, object], t: float, max_age: float) -> str:
+        """Start from a :meth:`snapshot` taken at most ``max_age`` s before ``t`` (s): the state predicted to
+        ``t`` (its covariance grown by the process noise). Returns '' when restored, else why not."""
+        if self.initialised:
+            return "the filter is already running"
+        try:
+            t0 = float(snap["t"])
+            x, P = np.array(snap["x"], dtype=float), np.array(snap["P"], dtype=float)
+            odom_pos = np.array(snap["odom_pos"], dtype=float)
+            scale = float(snap.get("noise_scale", 1.0))
+        except (KeyError, TypeError, ValueError) as e:
+            return f"not a filter state ({e})"
+        if x.shape != (5,) or P.shape != (5, 5) or odom_pos.shape != (3,) or not (
+                np.all(np.isfinite(x)) and np.all(np.isfinite(P)) and np.all(np.isfinite(odom_pos))
+                and math.isfinite(t0) and math.isfinite(scale) and scale >= 1.0):
+            return "not a filter state (wrong shapes or non-finite numbers)"
+        age = float(t) - t0
+        if not 0.0 <= age <= max_age:
+            return f"the state is {age:.1f} s old (restored only from 0 to {max_age:g} s)"
+        self.x, self.P, self.t = x, 0.5 * (P + P.T), t0
+        self._odom_pos, self._odom_pos_t = odom_pos, t0
+        self.stats.noise_scale = min(scale, self.params.adapt_max_scale)
+        self._predict_to(float(t))
+        self.stats.state, self.stats.waiting_reason, self.stats.restored_age = "tracking", "", age
+        self.stats.last_update = self.stats.last_yaw = self.stats.last_prism = float(t)
+        return ""
 
     # ------------------------------------------------------------------ inputs
 

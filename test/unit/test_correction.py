@@ -306,3 +306,32 @@ def test_update_result_truthiness_and_params_update():
     assert f.add_yaw(d.t[k], d.heading[k] + 0.5, SIGMA_YAW, d.odom_T_base[k]).status == "accepted"
     with pytest.raises(CorrectionError, match="gate_chi2_yaw"):
         f.update_params(FilterParams(gate_chi2_yaw=0.0))
+
+
+def test_a_restarted_filter_continues_from_its_snapshot_and_refuses_a_stale_one():
+    """A node respawned while driving: the new filter starts from the old one's snapshot (a JSON round trip),
+    its covariance grown over the gap, and tracks on; a snapshot older than max_age, or from the future (a
+    bag replayed again), is refused with the reason."""
+    import json
+
+    d = Drive(11, 30.0, drift_rate=math.radians(3.0) / 60.0)
+    f = MapOdomFilter(PRISM_IN_BASE)
+    k_stop = int(np.searchsorted(d.t, 15.0))
+    for k in range(k_stop):
+        f.add_prism(d.t[k], d.prism(k), SIGMA_PRISM, d.odom_T_base[k])
+        f.add_yaw(d.t[k], d.yaw(k), SIGMA_YAW, d.odom_T_base[k], marker_id=(3, 5)[k % 2])
+    snap = json.loads(json.dumps(f.snapshot()))
+    assert MapOdomFilter(PRISM_IN_BASE).snapshot() is None
+    t_restart = d.t[k_stop - 1] + 2.0                      # 2 s later, still driving
+    g = MapOdomFilter(PRISM_IN_BASE)
+    assert g.restore(snap, t_restart, max_age=10.0) == ""
+    assert g.initialised and g.stats.restored_age == pytest.approx(2.0)
+    k = int(np.searchsorted(d.t, t_restart))
+    T, P = g.map_T_odom(t_restart)
+    assert abs(wrap_angle(math.atan2(T[1, 0], T[0, 0]) - d.dpsi[k])) < 3.0 * math.sqrt(P[0, 0])
+    assert P[0, 0] > f.P[0, 0]                              # grown over the gap
+    errs = d.run(g, errors_from=t_restart)                  # the drive goes on: it tracks, no lock-out
+    assert max(abs(e[1]) for e in errs if e[0] > t_restart + 1.0) < math.radians(0.2)
+    for t_now, why in ((snap["t"] + 11.0, "old"), (snap["t"] - 5.0, "old")):
+        assert why in MapOdomFilter(PRISM_IN_BASE).restore(snap, t_now, max_age=10.0)
+    assert "not a filter state" in MapOdomFilter(PRISM_IN_BASE).restore({"t": 1.0}, 1.0, 10.0)

@@ -42,7 +42,9 @@ status 2.
 from __future__ import annotations
 
 import collections
+import json
 import math
+import os
 import sys
 import threading
 import time
@@ -59,6 +61,7 @@ from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_
 from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
+from ..tum import atomic_write_text
 
 __all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
 
@@ -92,6 +95,10 @@ class NodeConfig:
     - ``prism_timeout``: s, prism older than this → diagnostics warn.
     - ``image_timeout``: s (wall clock), no image for this long → diagnostics warn.
     - ``diagnostics_rate``: Hz.
+    - ``state_file``: JSON file where the map→odom filter's state is kept (written at most once a second);
+      a node (re)started within ``state_max_age`` s of it starts from it and publishes map→odom at once.
+      Empty: none.
+    - ``state_max_age``: s, oldest state restored (in ROS time: a bag replayed later never matches).
     - frames: ``map_frame``, ``odom_frame``, ``base_frame``, ``camera_frame``, ``prism_frame``.
     """
 
@@ -108,6 +115,8 @@ class NodeConfig:
     prism_timeout: float = 1.0
     image_timeout: float = 2.0
     diagnostics_rate: float = 1.0
+    state_file: str = ""
+    state_max_age: float = 10.0
     map_frame: str = "map"
     odom_frame: str = "odom"
     base_frame: str = "base_link"
@@ -139,7 +148,7 @@ class NodeConfig:
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
-                     "image_timeout"):
+                     "image_timeout", "state_max_age"):
             if getattr(config, name) <= 0:
                 raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
         return config
@@ -228,6 +237,7 @@ class AbsOrientNode:
         self.selfcheck = self._new_selfcheck()
         self._selfcheck_report: Tuple[str, str, Dict[str, object]] = ("ok", "", {})
         self._selfcheck_wall = -math.inf
+        self._state_saved_wall = -math.inf
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
         self._reconfigured: Dict[str, object] = {}          # the values it last handed over
@@ -414,7 +424,40 @@ class AbsOrientNode:
         camera, prism = arms[c.camera_frame][:3, 3].round(3), arms[c.prism_frame][:3, 3].round(3)
         self.rospy.loginfo(f"abs_orient: lever arms from {source}: camera at {camera} m, prism at {prism} m "
                            f"in {c.base_frame}")
+        self._restore_state()
         return True
+
+    def _restore_state(self) -> None:
+        """Start the filter from ``~state_file`` when it is recent (a respawn while the robot drives)."""
+        c = self.config
+        if not c.state_file or not os.path.exists(c.state_file):
+            return
+        now = self.rospy.get_time() - self.time_offset
+        try:
+            with open(c.state_file) as f:
+                why = self.pipeline.filter.restore(json.load(f), now, c.state_max_age)
+        except (OSError, ValueError) as e:
+            why = f"cannot read it: {e}"
+        if why:
+            self.rospy.loginfo(f"abs_orient: not starting from {c.state_file}: {why}")
+            return
+        self.initialised = True
+        self.rospy.loginfo(f"abs_orient: started from the map->odom state in {c.state_file} "
+                           f"({self.pipeline.filter.stats.restored_age:.2f} s old)")
+
+    def _save_state(self, now_wall: float) -> None:
+        """Write the filter's state to ``~state_file`` (atomically, at most once a second)."""
+        c = self.config
+        if not c.state_file or now_wall - self._state_saved_wall < 1.0:
+            return
+        snap = self.pipeline.filter.snapshot() if self.pipeline is not None else None
+        if snap is None:
+            return
+        self._state_saved_wall = now_wall
+        try:
+            atomic_write_text(c.state_file, json.dumps(snap) + "\n")
+        except OSError as e:
+            self._error("state_file", f"~state_file {c.state_file}: cannot write: {e}")
 
     def _feed_prisms(self) -> None:
         while self.prism_errors:
@@ -500,6 +543,7 @@ class AbsOrientNode:
             self.counts["unknown_ids"] += unknown
         self._publish(result, stamp, odom_T_base)
         self.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        self._save_state(time.monotonic())
         self._feed_selfcheck(result, odom_T_base)
         self._estimate_time_offset(s, odom_T_base, result)
         for stage, ms in result.timings.items():
@@ -633,6 +677,7 @@ class AbsOrientNode:
             values["filter lock-out recoveries"] = fs.lockout_recoveries
             values["filter re-initialisations"] = fs.reinitialisations
             values["filter yaw noise scale"] = fs.noise_scale
+            values["filter restored from a state [s old]"] = fs.restored_age if math.isfinite(fs.restored_age) else "-"
         problems = []
         level = "ok"
         if self.pipeline is None and delta.get("no_static_tf", 0):
@@ -647,7 +692,7 @@ class AbsOrientNode:
                           ("tf_nan", "NaN in tf"), ("frame_errors", "frame errors"), ("unknown_ids", "unknown ids"),
                           ("bad_prism", "bad prism messages"), ("pipeline_exceptions", "pipeline failures"),
                           ("bad_params", "reconfigured parameters refused"),
-                          ("resets", "time jumped back: reset")):
+                          ("resets", "time jumped back: reset"), ("state_file", "state file writes failed")):
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
         check_level, check_message, check_values = self._selfcheck_status(now_wall)
