@@ -50,3 +50,33 @@ def generated_cfg(tmp_path_factory):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+# --------------------------------------------------------------------------- test order and the Noetic run
+NOETIC_CORE = "test_core_unit_tests_pass_on_noetics_versions"
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """The rostests first (their timing on a machine nobody else loads), then the unit tests, test_noetic last:
+    its Python 3.8 run of the core unit tests goes on in the background while the unit tests run (mostly it
+    waits on simulated instruments and clocks), and the test collects it at the end."""
+    def rank(item):
+        name = Path(str(item.fspath)).name
+        return 0 if name == "test_rostests.py" else 2 if name == "test_noetic.py" else 1
+    items.sort(key=rank)  # stable: the order within each group is kept
+    config._noetic_core = next((i for i in items if i.name == NOETIC_CORE), None)
+
+
+def pytest_runtest_setup(item):
+    core = getattr(item.config, "_noetic_core", None)
+    if core is not None and "/test/unit/" in str(item.fspath) and not core.module.BACKGROUND.get("started"):
+        core.module.BACKGROUND["started"] = True
+        if core.module.NOETIC_PY.is_file():  # without it the test itself fails and says how to get one
+            core.module.BACKGROUND["run"] = core.module.CoreRun()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    core = getattr(session.config, "_noetic_core", None)
+    run = core.module.BACKGROUND.pop("run", None) if core is not None else None
+    if run is not None:  # started but never collected (the session was cut short)
+        run.stop()

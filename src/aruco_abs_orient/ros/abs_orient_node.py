@@ -695,10 +695,6 @@ class AbsOrientNode:
                           ("resets", "time jumped back: reset"), ("state_file", "state file writes failed")):
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
-        check_level, check_message, check_values = self._selfcheck_status(now_wall)
-        values.update(check_values)
-        if check_level == "warn":
-            problems.append(f"self-check: {check_message}")
         if problems and level == "ok":
             level = "warn"
         if not problems and not self.initialised:
@@ -713,7 +709,11 @@ class AbsOrientNode:
         level, message, values = self.health(now_wall, self.cv.stamp_to_sec(self.rospy.Time.now()))
         status = self.cv.diagnostic_status("abs_orient: pipeline", level, message, values,
                                            hardware_id=self.rospy.get_name())
-        self.pub_diagnostics.publish(self.cv.diagnostic_array(self.rospy.Time.now(), [status]))
+        check_level, check_message, check_values = self._selfcheck_status(now_wall)
+        check = self.cv.diagnostic_status("abs_orient: self-check", check_level,
+                                          check_message or "not enough observations yet", check_values,
+                                          hardware_id=self.rospy.get_name())
+        self.pub_diagnostics.publish(self.cv.diagnostic_array(self.rospy.Time.now(), [status, check]))
         self._diag_prev = dict(self.counts)
         self._diag_wall = now_wall
         self.stage_ms.clear()
