@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_docs import code_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCUMENTS = sorted((ROOT / "doc").glob("*.md")) + [ROOT / "README.md"]
@@ -34,24 +35,7 @@ RUN = {"process", "evaluate", "timesync"}
 
 def bash_commands(path: Path) -> list:
     """The command lines of the ```bash blocks of ``path`` (continuations joined, comments removed)."""
-    out, lang, pending = [], None, ""
-    for line in path.read_text().splitlines():
-        stripped = line.strip()
-        if stripped.startswith("```"):
-            lang = None if lang is not None else (stripped[3:].strip() or "plain")
-            pending = ""
-            continue
-        if lang not in ("bash", "sh", "shell"):
-            continue
-        line = re.sub(r"\s#\s.*$", "", stripped)
-        line = pending + line
-        if line.endswith("\\"):
-            pending = line[:-1] + " "
-            continue
-        pending = ""
-        if line:
-            out.append(line)
-    return out
+    return code_lines(path, ("bash", "sh", "shell"))
 
 
 def substitute(line: str) -> str:

@@ -396,14 +396,15 @@ def documents() -> list:
     return sorted(DOC.glob("*.md")) + [ROOT / "README.md"]
 
 
-def code_lines(path: Path) -> list:
-    """Command lines of the fenced code blocks (continuations joined, comments and prompts removed)."""
-    out, inside, pending = [], False, ""
+def code_lines(path: Path, languages=None) -> list:
+    """Command lines of the fenced code blocks (continuations joined, comments and prompts removed); with
+    ``languages``, of the blocks whose fence names one of them only (e.g. ```bash)."""
+    out, lang, pending = [], None, ""
     for line in path.read_text().splitlines():
         if line.lstrip().startswith("```"):
-            inside, pending = not inside, ""
+            lang, pending = (None if lang is not None else (line.strip()[3:].strip() or "plain")), ""
             continue
-        if not inside:
+        if lang is None or (languages is not None and lang not in languages):
             continue
         line = re.sub(r"\s#\s.*$", "", line).strip()
         line = pending + line
