@@ -277,6 +277,16 @@ _SIGNATURES: Dict[int, Tuple[_Check, ...]] = {
     Rpc.AUS_GetUserLockState: (),
 }
 _MOTIONS = (Rpc.AUT_LockIn, Rpc.AUT_FineAdjust, Rpc.AUT_Search, Rpc.AUT_PS_SearchNext)
+#: settings the instrument only stores and reports back: RPC → (attribute, type, True for the setter)
+_STORED = {rpc: (name, kind, is_set) for set_rpc, get_rpc, name, kind in (
+    (Rpc.COM_SetDoublePrecision, Rpc.COM_GetDoublePrecision, "precision", int),
+    (Rpc.BAP_SetTargetType, Rpc.BAP_GetTargetType, "target_type", int),
+    (Rpc.BAP_SetPrismType, Rpc.BAP_GetPrismType, "prism_type", int),
+    (Rpc.TMC_SetEdmMode, Rpc.TMC_GetEdmMode, "edm_mode", int),
+    (Rpc.TMC_SetPrismCorr, Rpc.TMC_GetPrismCorr, "prism_constant_m", float),
+) for rpc, is_set in ((set_rpc, True), (get_rpc, False))}
+#: BAP_GetMeasPrg reports what BAP_SetMeasPrg stored (the setter refuses programs first)
+_STORED[Rpc.BAP_GetMeasPrg] = ("meas_prg", int, False)
 _ANGLE_RPCS = (Rpc.TMC_GetAngle1, Rpc.TMC_GetAngle5, Rpc.TMC_GetSimpleMea, Rpc.TMC_GetSimpleCoord,
                Rpc.TMC_GetFullMeas)
 
@@ -517,11 +527,12 @@ class Ms60Simulator:
         c = self.config
         if rpc == Rpc.COM_NullProc:
             return ()
-        if rpc == Rpc.COM_SetDoublePrecision:
-            self.precision = int(p[0])
+        if rpc in _STORED:  # a setting the instrument only stores and reports back
+            name, kind, is_set = _STORED[rpc]
+            if not is_set:
+                return (getattr(self, name),)
+            setattr(self, name, kind(p[0]))
             return ()
-        if rpc == Rpc.COM_GetDoublePrecision:
-            return (self.precision,)
         if rpc == Rpc.COM_GetSWVersion:
             return c.geocom
         if rpc == Rpc.CSV_GetSWVersion:
@@ -561,28 +572,6 @@ class Ms60Simulator:
                 raise _Refusal(RC.IVPARAM)   # this firmware does not know the program
             self.meas_prg = int(p[0])
             return ()
-        if rpc == Rpc.BAP_GetMeasPrg:
-            return (self.meas_prg,)
-        if rpc == Rpc.BAP_SetTargetType:
-            self.target_type = int(p[0])
-            return ()
-        if rpc == Rpc.BAP_GetTargetType:
-            return (self.target_type,)
-        if rpc == Rpc.BAP_SetPrismType:
-            self.prism_type = int(p[0])
-            return ()
-        if rpc == Rpc.BAP_GetPrismType:
-            return (self.prism_type,)
-        if rpc == Rpc.TMC_SetEdmMode:
-            self.edm_mode = int(p[0])
-            return ()
-        if rpc == Rpc.TMC_GetEdmMode:
-            return (self.edm_mode,)
-        if rpc == Rpc.TMC_SetPrismCorr:
-            self.prism_constant_m = float(p[0])
-            return ()
-        if rpc == Rpc.TMC_GetPrismCorr:
-            return (self.prism_constant_m,)
         if rpc == Rpc.TMC_GetStation:
             return self.station
         if rpc in (Rpc.TMC_SetStation, Rpc.TMC_SetOrientation):
