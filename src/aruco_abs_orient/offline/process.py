@@ -32,6 +32,7 @@ from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineParams
 from ..selfcheck import check_run
+from ..transforms import yaw_of
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
 from .bagio import (
     BagData,
@@ -115,7 +116,7 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
                 "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
                              f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
-    yaws = [math.atan2(T[1, 0], T[0, 0]) for T in poses]
+    yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     result = check_run(obs, data.prism_stamps, data.prism_positions, {m.id: m.position for m in marker_map}, stamps,
                        yaws, summary["pipeline_stats"], summary["frames"], summary["time_offset_s"], commands)
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
@@ -236,7 +237,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                     key = res.error.split(":")[0]
                     errors[key] = errors.get(key, 0) + 1
                 writer.writerows(_observation_rows(res))
-                odom_yaw = math.atan2(T_odom[1, 0], T_odom[0, 0])
+                odom_yaw = float(yaw_of(T_odom[:3, :3]))
                 checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
                              r.residual, r.accepted, r.yaw, odom_yaw) for r in res.observations if math.isfinite(r.yaw)]
                 if res.map_T_base is not None:
