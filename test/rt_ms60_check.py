@@ -14,7 +14,7 @@ import unittest
 import numpy as np
 import rospy
 import rostest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import String
 
@@ -67,6 +67,7 @@ class Ms60DriverCheck(unittest.TestCase):
             t0 = time.time()
             time.sleep(seconds)
             rates = [(link.count() - n) / (time.time() - t0) for link, n in zip(links, starts)]
+            steady_diags = [st for d in list(diags) for st in d.status]
             statuses = [dict(link.statuses[-1]) for link in links]
             # re-lock: hide the prism until the driver reports the loss, then show it
             lost = None
@@ -116,7 +117,15 @@ class Ms60DriverCheck(unittest.TestCase):
         rospy.loginfo(f"rt_ms60_check: re-lock {relock_s - t_back:.2f} s after the prism came back "
                       f"(lock-in {tcp_sim.config.lock_in_s} s)")
         self.assertLess(relock_s - t_back, tcp_sim.config.lock_in_s + 1.0)
-        self.assertTrue(any(s.name.startswith("ms60_driver") for d in diags for s in d.status))
+        # diagnostic_updater's statuses while locked: the driver's own task with the instrument's serial number as
+        # hardware id (the simulator's 1234567), the frequency status at ~rate and the prism stamp offset, all OK
+        for link in links:
+            for task in ("prism tracking", "prism positions topic status", "prism stamp offset"):
+                name = f"{link.ns}/ms60_driver: {task}"
+                seen = [st for st in steady_diags if st.name == name]
+                self.assertTrue(seen, f"no {name!r} on /diagnostics: {sorted({st.name for st in steady_diags})}")
+                self.assertEqual(seen[-1].level, DiagnosticStatus.OK, f"{name}: {seen[-1].message} {seen[-1].values}")
+                self.assertIn("#1234567", seen[-1].hardware_id, name)
 
 
 if __name__ == "__main__":

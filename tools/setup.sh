@@ -30,7 +30,7 @@ elapsed() { awk -v a="$t_start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b 
 APT_PKGS=(
   python3-rospy python3-roslaunch python3-rosmaster rosout python3-rostest librostest-dev
   python3-tf2-ros python3-std-msgs python3-geometry-msgs python3-nav-msgs python3-sensor-msgs
-  python3-tf2-msgs python3-visualization-msgs python3-diagnostic-msgs python3-cv-bridge
+  python3-tf2-msgs python3-visualization-msgs python3-diagnostic-msgs python3-diagnostic-updater python3-cv-bridge
   python3-dynamic-reconfigure libdynamic-reconfigure-config-init-mutex-dev python3-rosbag
   catkin catkin-lint python3-venv tf2-tools python3-rostopic python3-rosnode python3-rosservice rosbash
   ros-std-msgs ros-geometry-msgs ros-sensor-msgs ros-nav-msgs ros-diagnostic-msgs ros-visualization-msgs

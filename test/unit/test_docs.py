@@ -188,16 +188,19 @@ def publishers_and_subscribers(module: str) -> dict:
 
 
 def abs_orient_diagnostic_keys() -> set:
-    """The literal keys of the ``values`` dictionary the abs_orient node reports on /diagnostics."""
+    """The literal keys of the ``values`` dictionary of the abs_orient node's ``pipeline`` status
+    (``nodestate.NodeHealth.report``), and those the node adds with ``….extra_values["key"] = …``."""
     keys = set()
-    for node in ast.walk(ast.parse(module_path("aruco_abs_orient.ros.abs_orient_node").read_text())):
-        target = getattr(node, "target", None) or (node.targets[0] if isinstance(node, ast.Assign) else None)
-        value = getattr(node, "value", None)
-        if isinstance(target, ast.Name) and target.id == "values" and isinstance(value, ast.Dict):
-            keys |= {k.value for k in value.keys if isinstance(k, ast.Constant)}
-        if (isinstance(target, ast.Subscript) and getattr(target.value, "id", None) == "values"
-                and isinstance(target.slice, ast.Constant)):
-            keys.add(target.slice.value)
+    for module in ("aruco_abs_orient.nodestate", "aruco_abs_orient.ros.abs_orient_node"):
+        for node in ast.walk(ast.parse(module_path(module).read_text())):
+            target = getattr(node, "target", None) or (node.targets[0] if isinstance(node, ast.Assign) else None)
+            value = getattr(node, "value", None)
+            if isinstance(target, ast.Name) and target.id == "values" and isinstance(value, ast.Dict):
+                keys |= {k.value for k in value.keys if isinstance(k, ast.Constant)}
+            if (isinstance(target, ast.Subscript) and isinstance(target.slice, ast.Constant)
+                    and (getattr(target.value, "id", None) == "values"
+                         or getattr(target.value, "attr", None) == "extra_values")):
+                keys.add(target.slice.value)
     return keys
 
 

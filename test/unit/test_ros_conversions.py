@@ -235,12 +235,13 @@ def test_marker_array_places_every_marker_of_the_example_map(request):
 
 
 def test_diagnostic_status_levels_and_values():
-    s = cv.diagnostic_status("abs_orient: pipeline", "warn", "no prism for 31 s",
-                             {"markers seen": 2, "prism age [s]": 31.04, "offset": float("nan")})
-    assert s.level == s.WARN and s.message == "no prism for 31 s"
+    from diagnostic_updater import DiagnosticStatusWrapper
+
+    wrapper = DiagnosticStatusWrapper(name="pipeline")  # what a diagnostic_updater task fills
+    s = cv.fill_diagnostic(wrapper, "warn", "no prism for 31 s",
+                           {"markers seen": 2, "prism age [s]": 31.04, "offset": float("nan")})
+    assert s is wrapper and s.level == s.WARN and s.message == "no prism for 31 s" and s.name == "pipeline"
     assert [(kv.key, kv.value) for kv in s.values] == [("markers seen", "2"), ("prism age [s]", "31.04"),
                                                         ("offset", "nan")]
-    arr = cv.diagnostic_array(rospy.Time(3), [s])
-    assert arr.status[0] is s and arr.header.stamp == rospy.Time(3)
     with pytest.raises(ValueError, match="diagnostic level 'bad'"):
-        cv.diagnostic_status("x", "bad", "", {})
+        cv.fill_diagnostic(wrapper, "bad", "", {})

@@ -15,19 +15,20 @@ Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry th
   accepted it (its gate drops false ids);
 - ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
   arm removed; ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
-  ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``/diagnostics``.
+  ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``/diagnostics`` through diagnostic_updater (hardware
+id: the camera frame): the ``pipeline`` status (:class:`aruco_abs_orient.nodestate.NodeHealth`), the
+``self-check``, frequency statuses of images processed, prism positions and map→odom sent, timestamp
+statuses of the image age and the prism stamp offset.
 
 Time. ``~time_offset`` (s): camera stamps = true (total-station) time + offset; the pipeline works in
-total-station time (``stamp − offset``), the published messages keep the image stamp. ``map → odom`` is
-stamped at the image time (every processed frame once the filter is initialised), never future-dated.
-When the newest ``odom → base_link`` stamp in the tf buffer is ``1/~tf_rate`` s past the newest map→odom
-sent (no marker seen, camera stalled, frames dropped, images slower than tf_rate), map→odom is
-re-published AT THAT ODOMETRY STAMP with the filter's prediction there: the stamp advances with the
-odometry, never beyond it. A stamp already sent is never sent again (tf2 drops a repeated stamp of an
-edge as TF_REPEATED_DATA); an image-time value a little older than a re-published one is still sent
-(tf2 inserts out-of-order stamps within its cache), so no measurement is lost. A stamp going back by
-more than ``~time_jump_tolerance`` s (sim time: a bag looped or restarted) resets the pipeline and
-clears the tf buffer.
+total-station time (``stamp − offset``), the published messages keep the image stamp. ``map → odom``
+estimated at an image's time ``t`` is stamped ``t + ~transform_tolerance`` (future-dated, as amcl), and
+re-published with the filter's prediction at the newest ``odom → base_link`` stamp ``s`` (stamped
+``s + ~transform_tolerance``) when that is ``1/~tf_rate`` s past the newest stamp sent; the stamps sent
+only go forward (a frame too late for that corrects the filter and goes out at the next newer stamp).
+The policy is :class:`aruco_abs_orient.nodestate.MapOdomStamps` (ROS-free, unit-tested). A stamp going
+back by more than ``~time_jump_tolerance`` s (sim time: a bag looped or restarted) resets the pipeline
+and clears the tf buffer.
 
 Real time. The image callback only drops the message into a one-slot mailbox (the newest wins; a
 replaced, unprocessed image is counted as dropped); the main thread processes the mailbox. Subscriber
@@ -57,6 +58,7 @@ import numpy as np
 
 from ..calibration import CalibrationError, load_calibration
 from ..markers import MarkerMap, MarkerMapError
+from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomStamps, NodeHealth
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
@@ -89,12 +91,18 @@ class NodeConfig:
       static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static); empty:
       the lever arms come from tf.
     - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
+    - ``transform_tolerance``: s, map→odom estimated at time t is stamped t + this (future-dated, as amcl).
     - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
     - ``tf_timeout``: s (wall clock), how long to wait for ``odom → base_link`` at an image stamp.
     - ``time_jump_tolerance``: s, a stamp going back by more than this resets the node.
     - ``prism_timeout``: s, prism older than this → diagnostics warn.
     - ``image_timeout``: s (wall clock), no image for this long → diagnostics warn.
     - ``diagnostics_rate``: Hz.
+    - ``expected_image_rate``, ``expected_prism_rate``: Hz, the rates the frequency statuses of images
+      processed and prism positions expect (± ``rate_tolerance``, a fraction); map→odom's expects
+      ``tf_rate`` to ``max(tf_rate, expected_image_rate)``.
+    - ``max_image_age``: s, an image older than this when processed (ROS time) → its timestamp status errs;
+      the prism stamp offset's limit is ``prism_timeout``.
     - ``state_file``: JSON file where the map→odom filter's state is kept (written at most once a second);
       a node (re)started within ``state_max_age`` s of it starts from it and publishes map→odom at once.
       Empty: none.
@@ -109,12 +117,17 @@ class NodeConfig:
     apply_estimated_time_offset: bool = True
     calibration: str = ""
     publish_tf: bool = True
+    transform_tolerance: float = 0.1
     tf_rate: float = 20.0
     tf_timeout: float = 0.05
     time_jump_tolerance: float = 0.5
     prism_timeout: float = 1.0
     image_timeout: float = 2.0
     diagnostics_rate: float = 1.0
+    expected_image_rate: float = 30.0
+    expected_prism_rate: float = 20.0
+    rate_tolerance: float = 0.5
+    max_image_age: float = 0.5
     state_file: str = ""
     state_max_age: float = 10.0
     map_frame: str = "map"
@@ -148,9 +161,13 @@ class NodeConfig:
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
-                     "image_timeout", "state_max_age"):
+                     "image_timeout", "state_max_age", "expected_image_rate", "expected_prism_rate", "max_image_age"):
             if getattr(config, name) <= 0:
                 raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
+        if config.transform_tolerance < 0:
+            raise NodeConfigError(f"~transform_tolerance: expected a number of s >= 0, got {config.transform_tolerance!r}")
+        if not 0 <= config.rate_tolerance < 1:
+            raise NodeConfigError(f"~rate_tolerance: expected a fraction in [0, 1), got {config.rate_tolerance!r}")
         return config
 
     def calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
@@ -216,9 +233,9 @@ class AbsOrientNode:
     """The node's state and its main loop; constructed after ``rospy.init_node``."""
 
     def __init__(self, config: NodeConfig, marker_map: MarkerMap):
+        import diagnostic_updater
         import rospy
         import tf2_ros
-        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped
         from sensor_msgs.msg import CompressedImage, Image
         from visualization_msgs.msg import MarkerArray
@@ -243,6 +260,9 @@ class AbsOrientNode:
         self._reconfigured: Dict[str, object] = {}          # the values it last handed over
         self._pending_for_pipeline: Dict[str, object] = {}  # waiting for the pipeline to exist
         self._throttle = _Throttle()
+        self.stamps = MapOdomStamps(config.transform_tolerance, 1.0 / config.tf_rate, config.time_jump_tolerance)
+        self.health = NodeHealth(config.image_timeout, config.prism_timeout, config.publish_tf, time.monotonic(),
+                                 (config.base_frame, config.camera_frame, config.prism_frame))
 
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0), debug=False)
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
@@ -252,26 +272,17 @@ class AbsOrientNode:
         self.pub_pose = rospy.Publisher("abs_orient/pose", PoseStamped, queue_size=10)
         self.pub_detections = rospy.Publisher("abs_orient/detections", MarkerObservations, queue_size=10)
         self.pub_markers = rospy.Publisher("abs_orient/markers", MarkerArray, queue_size=1, latch=True)
-        self.pub_diagnostics = rospy.Publisher("/diagnostics", DiagnosticArray, queue_size=10)
 
         # counters and state (main thread only, except the mailbox and the prism deque)
         self.images = Mailbox()
         self.prisms: Deque[Tuple[float, np.ndarray]] = collections.deque(maxlen=1000)
         self.prism_errors: Deque[str] = collections.deque(maxlen=100)
-        self.counts: Dict[str, int] = collections.Counter()
-        self.last_error = ""
-        self.latencies_ms: Deque[float] = collections.deque(maxlen=600)
-        self.stage_ms: Dict[str, float] = {}  # ms per stage summed since the last diagnostics report
-        self.last_image_stamp: Optional[float] = None     # s, camera clock
+        self.prism_stamps: Deque[float] = collections.deque(maxlen=1000)  # for the timestamp status
         self.last_prism_stamp: Optional[float] = None     # s, total-station clock
         self.last_image_wall = time.monotonic()
-        self.last_tf_stamp: Optional[float] = None        # s, newest map→odom stamp sent
-        self.sent_tf_stamps: Deque[float] = collections.deque(maxlen=64)
         self.initialised = False                          # the pipeline's filter, from the last good frame
         self.last_result: Optional[FrameResult] = None
-        self.seen_ids: Tuple[int, ...] = ()
-        self._diag_prev: Dict[str, int] = {}
-        self._diag_wall = time.monotonic()
+        self._start_diagnostics(diagnostic_updater)
 
         if config.image_transport == "compressed":
             self.image_sub = rospy.Subscriber("camera/image/compressed", CompressedImage, self._on_image,
@@ -296,6 +307,32 @@ class AbsOrientNode:
             self.prism_errors.append(str(e))
             return
         self.prisms.append((t, p))
+        self.diag_prisms.tick()
+        self.diag_prism_offset.tick(t)
+
+    def _start_diagnostics(self, du) -> None:
+        """diagnostic_updater's tasks: the node's health, the self-check, three frequency statuses and two
+        timestamp statuses (names in doc/ros_api.md); published every 1/~diagnostics_rate s."""
+        c = self.config
+        self.rospy.set_param("~diagnostic_period", 1.0 / c.diagnostics_rate)  # what the Updater reads
+        self.updater = du.Updater()
+        self.updater.setHardwareID(c.camera_frame)
+        self.updater.add("pipeline", self._pipeline_task)
+        self.updater.add("self-check", self._selfcheck_task)
+
+        def frequency(name: str, low: float, high: float):
+            return du.HeaderlessTopicDiagnostic(name, self.updater, du.FrequencyStatusParam(
+                {"min": low, "max": high}, c.rate_tolerance, 10))
+
+        self.diag_images = frequency("images processed", c.expected_image_rate, c.expected_image_rate)
+        self.diag_prisms = frequency("prism positions", c.expected_prism_rate, c.expected_prism_rate)
+        self.diag_tf = frequency("map->odom published", c.tf_rate, max(c.tf_rate, c.expected_image_rate))
+        self.diag_image_age = du.TimeStampStatus(du.TimeStampStatusParam(-c.time_jump_tolerance, c.max_image_age),
+                                                 "image age")
+        self.diag_prism_offset = du.TimeStampStatus(du.TimeStampStatusParam(-c.time_jump_tolerance,
+                                                                            c.prism_timeout), "prism stamp offset")
+        self.updater.add(self.diag_image_age)
+        self.updater.add(self.diag_prism_offset)
 
     def _start_reconfigure(self) -> None:
         try:
@@ -326,8 +363,7 @@ class AbsOrientNode:
             if item is not None:
                 self._process(*item)
             self._republish_map_odom()
-            if time.monotonic() - self._diag_wall >= 1.0 / self.config.diagnostics_rate:
-                self._publish_diagnostics()
+            self.updater.update()
 
     def _apply_params(self) -> None:
         with self._param_lock:
@@ -351,10 +387,9 @@ class AbsOrientNode:
             self._error("bad_params", f"parameters not applied: {e}")
 
     def _error(self, key: str, text: str) -> None:
-        self.counts[key] += 1
-        self.last_error = text
+        n = self.health.error(key, text)
         if self._throttle.due(key):
-            self.rospy.logwarn(f"abs_orient: {text} ({self.counts[key]} so far)")
+            self.rospy.logwarn(f"abs_orient: {text} ({n} so far)")
 
     def _new_selfcheck(self) -> RollingSelfCheck:
         return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset)
@@ -384,12 +419,12 @@ class AbsOrientNode:
 
     def _reset(self, why: str) -> None:
         self.rospy.logwarn(f"abs_orient: {why}: resetting (filter, tracking, prism history, tf buffer)")
-        self.counts["resets"] += 1
+        self.health.count("resets")
         if self.pipeline is not None:
             self.pipeline.reset()
         self.tf_buffer.clear()  # static transforms survive a clear
-        self.last_image_stamp = self.last_prism_stamp = self.last_tf_stamp = None
-        self.sent_tf_stamps.clear()
+        self.last_prism_stamp = None
+        self.stamps.reset()
         self.last_result = None
         self.initialised = False
         if self.offset_estimator is not None:
@@ -464,10 +499,10 @@ class AbsOrientNode:
             self._error("bad_prism", f"ms60/prism: {self.prism_errors.popleft()}")
         while self.prisms and self.pipeline is not None:  # kept (bounded) until the pipeline exists
             t, p = self.prisms.popleft()
-            if self.last_prism_stamp is not None and t < self.last_prism_stamp - self.config.time_jump_tolerance:
+            if self.stamps.jumped_back(self.last_prism_stamp, t):
                 self._reset(f"ms60/prism time jumped back by {self.last_prism_stamp - t:.3f} s")
             self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
-            self.counts["prisms"] += 1
+            self.health.count("prisms")
             self.pipeline.add_prism(t, p)
             with self._selfcheck_lock:
                 self.selfcheck.add_prism(t, p)
@@ -502,14 +537,15 @@ class AbsOrientNode:
         stamp = msg.header.stamp
         s = cv.stamp_to_sec(stamp)
         self.last_image_wall = time.monotonic()
-        if self.last_image_stamp is not None:
-            if s < self.last_image_stamp - self.config.time_jump_tolerance:
-                self._reset(f"image time jumped back by {self.last_image_stamp - s:.3f} s")
-            elif s <= self.last_image_stamp:
-                self._error("out_of_order",
-                            f"image stamp {s:.3f} s not after the previous one, {self.last_image_stamp:.3f} s")
-                return
-        self.last_image_stamp = s
+        previous = self.stamps.last_image
+        verdict = self.stamps.check_image(s)
+        if verdict == IMAGE_JUMPED_BACK:
+            self._reset(f"image time jumped back by {previous - s:.3f} s")
+            self.stamps.check_image(s)
+        elif verdict == IMAGE_NOT_AFTER:
+            self._error("out_of_order", f"image stamp {s:.3f} s not after the previous one, {previous:.3f} s")
+            return
+        self.diag_image_age.tick(s)
         self._feed_prisms()
         if not self._ensure_pipeline():
             return
@@ -529,10 +565,11 @@ class AbsOrientNode:
             result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
         except Exception as e:  # the pipeline promises not to raise; a live robot must not stop if it does
             self._error("pipeline_exceptions", f"pipeline failed on the image at {s:.3f} s: {type(e).__name__}: {e}")
-            if self.counts["pipeline_exceptions"] == 1:
+            if self.health.counts["pipeline_exceptions"] == 1:
                 self.rospy.logerr("abs_orient: first pipeline failure, with traceback:\n" + traceback.format_exc())
             return
-        self.counts["processed"] += 1
+        self.health.count("processed")
+        self.diag_images.tick()
         if result.error:
             corrupt = self.pipeline.stats.get("bad_images", 0) > bad_before
             self._error("bad_images" if corrupt else "frame_errors", result.error)
@@ -540,15 +577,14 @@ class AbsOrientNode:
             self.initialised = result.initialised
         unknown = result.tracking.rejected_unknown if result.tracking is not None else 0
         if unknown:
-            self.counts["unknown_ids"] += unknown
+            self.health.count("unknown_ids", unknown)
         self._publish(result, stamp, odom_T_base)
-        self.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        self.health.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
         self._save_state(time.monotonic())
         self._feed_selfcheck(result, odom_T_base)
         self._estimate_time_offset(s, odom_T_base, result)
-        for stage, ms in result.timings.items():
-            self.stage_ms[stage] = self.stage_ms.get(stage, 0.0) + ms
-        self.stage_ms["tf wait"] = self.stage_ms.get("tf wait", 0.0) + tf_wait_ms
+        self.health.add_stages(result.timings)
+        self.health.add_stages({"tf wait": tf_wait_ms})
 
     def _estimate_time_offset(self, s: float, odom_T_base: np.ndarray, result: FrameResult) -> None:
         """Feed the live estimator (camera clock ``s``); start an estimate when one is due; switch to a
@@ -572,38 +608,38 @@ class AbsOrientNode:
         self.last_result = result
         self.pub_detections.publish(cv.observations_msg(result.observations, stamp, c.camera_frame))
         if result.map_T_odom is not None:
-            self._send_map_odom(cv.stamp_to_sec(stamp), result.map_T_odom)
+            self._send_map_odom(self.stamps.for_estimate(cv.stamp_to_sec(stamp)), result.map_T_odom)
         if result.fused_yaw is not None and any(r.accepted for r in result.observations):
             # the frame's own marker yaw (not the filtered one, which already used the odometry)
             self.pub_orientation.publish(cv.orientation_msg(result.fused_yaw, result.fused_yaw_sigma, odom_T_base,
                                                             stamp, c.map_frame))
-            self.counts["frames_with_yaw"] += 1
+            self.health.count("frames_with_yaw")
         prism_pose = cv.prism_pose_msg(result, stamp, c.map_frame)
         if prism_pose is not None:
             self.pub_prism_pose.publish(prism_pose)
         pose = cv.pose_msg(result, stamp, c.map_frame)
         if pose is not None:
             self.pub_pose.publish(pose)
-        seen = tuple(sorted({r.id for r in result.observations if r.accepted}))
-        if seen != self.seen_ids:
-            self.seen_ids = seen
-            self.pub_markers.publish(cv.marker_array(self.marker_map, stamp, seen))
+        if self.health.set_seen(r.id for r in result.observations if r.accepted):
+            self.pub_markers.publish(cv.marker_array(self.marker_map, stamp, self.health.seen_ids))
 
-    def _send_map_odom(self, stamp_sec: float, map_T_odom: np.ndarray) -> None:
-        if stamp_sec in self.sent_tf_stamps:
-            return  # tf2 drops a repeated stamp of an edge (TF_REPEATED_DATA) and complains
-        self.sent_tf_stamps.append(stamp_sec)
-        self.last_tf_stamp = stamp_sec if self.last_tf_stamp is None else max(stamp_sec, self.last_tf_stamp)
+    def _send_map_odom(self, stamp_sec: Optional[float], map_T_odom: np.ndarray) -> None:
+        """Broadcast ``map_T_odom`` at ``stamp_sec`` (s, already future-dated; None: held back by the stamp
+        policy, counted)."""
+        if stamp_sec is None:
+            self.health.count("tf_held_back")
+            return
         if self.config.publish_tf:
             c = self.config
             self.tf_broadcaster.sendTransform(
                 self.cv.matrix_to_transform_stamped(map_T_odom, self.cv.sec_to_stamp(stamp_sec), c.map_frame,
                                                     c.odom_frame))
-            self.counts["tf_published"] += 1
+            self.health.count("tf_published")
+            self.diag_tf.tick()
 
     def _republish_map_odom(self) -> None:
-        """map→odom at the newest odometry stamp when it is 1/tf_rate past the newest one sent (images
-        stalled, dropped or slower than tf_rate): the filter's prediction there."""
+        """The filter's prediction at the newest odometry stamp, when the stamp policy says one is due
+        (images stalled, dropped, late or slower than tf_rate)."""
         if self.pipeline is None or not self.initialised:
             return
         c = self.config
@@ -612,111 +648,30 @@ class AbsOrientNode:
         except self.tf2_ros.TransformException:
             return
         s = self.cv.stamp_to_sec(latest)
-        if self.last_tf_stamp is not None and s < self.last_tf_stamp + 1.0 / c.tf_rate:
+        stamp = self.stamps.republish(s)
+        if stamp is None:
             return
         map_T_odom, _ = self.pipeline.map_T_odom(s - self.time_offset)
-        self._send_map_odom(s, map_T_odom)
-        self.counts["tf_republished"] += 1
+        self._send_map_odom(stamp, map_T_odom)
+        self.health.count("tf_republished")
 
-    def health(self, now_wall: float, now_ros: float) -> Tuple[str, str, Dict[str, object]]:
-        """(level, message, values) of the node for /diagnostics; levels from what happened since the
-        last report (so the status recovers as soon as the input is good again)."""
-        c = self.config
-        delta = {k: v - self._diag_prev.get(k, 0) for k, v in self.counts.items()}
-        dt = max(now_wall - self._diag_wall, 1e-6)
-        received = self.images.received
-        dropped = self.images.dropped
-        lat = np.array(self.latencies_ms) if self.latencies_ms else np.array([np.nan])
-        prism_age = now_ros - self.last_prism_stamp if self.last_prism_stamp is not None else math.inf
-        image_age = now_wall - self.last_image_wall
+    def _pipeline_task(self, stat):
+        """diagnostic_updater task ``pipeline``: :meth:`NodeHealth.report` since the previous update."""
         r = self.last_result
-        values: Dict[str, object] = {
-            "initialised": self.initialised,
-            "markers seen": len(self.seen_ids),
-            "marker ids": " ".join(str(i) for i in self.seen_ids) or "-",
-            "rate [Hz]": delta.get("processed", 0) / dt,
-            "images received": received,
-            "images processed": self.counts["processed"],
-            "images dropped": dropped,
-            "dropped fraction": dropped / received if received else 0.0,
-            "latency median [ms]": float(np.median(lat)),
-            "latency p95 [ms]": float(np.percentile(lat, 95)),
-            "time offset [s]": self.time_offset,
-            "time offset source": self.time_offset_source,
-            "prism age [s]": prism_age,
-            "frames with marker yaw": self.counts["frames_with_yaw"],
-            "unknown marker ids": self.counts["unknown_ids"],
-            "tf failures": self.counts["tf_failures"],
-            "tf NaN": self.counts["tf_nan"],
-            "bad images": self.counts["bad_images"],
-            "frame errors": self.counts["frame_errors"],
-            "pipeline failures": self.counts["pipeline_exceptions"],
-            "parameters refused": self.counts["bad_params"],
-            "resets": self.counts["resets"],
-            "publish_tf": c.publish_tf,
-            "map->odom sent": self.counts["tf_published"],
-            "last error": self.last_error or "-",
-        }
-        est = self.offset_estimator
-        if est is not None:
-            latest = est.latest
-            values["time offset estimate [s]"] = latest.offset if latest is not None else "-"
-            values["time offset estimate sigma [ms]"] = 1e3 * latest.sigma if latest is not None else "-"
-            values["time offset estimate confidence"] = latest.confidence if latest is not None else "-"
-            values["time offset estimate note"] = est.last_error or "-"
-        if r is not None and r.map_T_odom is not None:
-            values["map->odom yaw [deg]"] = math.degrees(float(yaw_of(r.map_T_odom[:3, :3])))
-        n = max(delta.get("processed", 0), 1)
-        for stage, ms in self.stage_ms.items():
-            values[f"stage {stage} [ms]"] = ms / n
-        if self.pipeline is not None:
-            for k, v in sorted(self.pipeline.stats.items()):
-                values["pipeline " + k] = v
-            fs = self.pipeline.filter.stats
-            values["filter waiting reason"] = self.pipeline.waiting_reason or "-"
-            values["filter lock-out recoveries"] = fs.lockout_recoveries
-            values["filter re-initialisations"] = fs.reinitialisations
-            values["filter yaw noise scale"] = fs.noise_scale
-            values["filter restored from a state [s old]"] = fs.restored_age if math.isfinite(fs.restored_age) else "-"
-        problems = []
-        level = "ok"
-        if self.pipeline is None and delta.get("no_static_tf", 0):
-            level = "error"
-            problems.append(f"no static tf {c.base_frame} -> {c.camera_frame}/{c.prism_frame}")
-        if image_age > c.image_timeout:
-            problems.append(f"no image for {image_age:.1f} s")
-        if prism_age > c.prism_timeout:
-            problems.append(("no prism yet" if not self.prisms else "prisms arrive, waiting for the first image")
-                            if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
-        for key, text in (("bad_images", "corrupt images"), ("tf_failures", "tf lookups failed"),
-                          ("tf_nan", "NaN in tf"), ("frame_errors", "frame errors"), ("unknown_ids", "unknown ids"),
-                          ("bad_prism", "bad prism messages"), ("pipeline_exceptions", "pipeline failures"),
-                          ("bad_params", "reconfigured parameters refused"),
-                          ("resets", "time jumped back: reset"), ("state_file", "state file writes failed")):
-            if delta.get(key, 0):
-                problems.append(f"{delta[key]} {text}")
-        if problems and level == "ok":
-            level = "warn"
-        if not problems and not self.initialised:
-            level = "warn"
-            why = self.pipeline.waiting_reason if self.pipeline is not None else "waiting for the static tfs"
-            problems.append(f"initialising: {why}")
-        message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
-        return level, message, values
+        level, message, values = self.health.report(
+            time.monotonic(), self.rospy.get_time(), initialised=self.initialised,
+            image_age_wall=time.monotonic() - self.last_image_wall, last_prism_stamp=self.last_prism_stamp,
+            prisms_waiting=bool(self.prisms), images_received=self.images.received,
+            images_dropped=self.images.dropped, time_offset=self.time_offset,
+            time_offset_source=self.time_offset_source, pipeline=self.pipeline,
+            offset_estimator=self.offset_estimator,
+            map_odom_yaw=float(yaw_of(r.map_T_odom[:3, :3])) if r is not None and r.map_T_odom is not None else None)
+        return self.cv.fill_diagnostic(stat, level, message, values)
 
-    def _publish_diagnostics(self) -> None:
-        now_wall = time.monotonic()
-        level, message, values = self.health(now_wall, self.cv.stamp_to_sec(self.rospy.Time.now()))
-        status = self.cv.diagnostic_status("abs_orient: pipeline", level, message, values,
-                                           hardware_id=self.rospy.get_name())
-        check_level, check_message, check_values = self._selfcheck_status(now_wall)
-        check = self.cv.diagnostic_status("abs_orient: self-check", check_level,
-                                          check_message or "not enough observations yet", check_values,
-                                          hardware_id=self.rospy.get_name())
-        self.pub_diagnostics.publish(self.cv.diagnostic_array(self.rospy.Time.now(), [status, check]))
-        self._diag_prev = dict(self.counts)
-        self._diag_wall = now_wall
-        self.stage_ms.clear()
+    def _selfcheck_task(self, stat):
+        """diagnostic_updater task ``self-check``: the rolling self-checks (time offset, tilt, moved marker)."""
+        level, message, values = self._selfcheck_status(time.monotonic())
+        return self.cv.fill_diagnostic(stat, level, message or "not enough observations yet", values)
 
 
 def reconfigurable_names() -> Tuple[str, ...]:

@@ -18,7 +18,7 @@ from typing import Iterable, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 import rospy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import (
     Point,
     Pose,
@@ -54,8 +54,7 @@ __all__ = [
     "pose_msg",
     "observations_msg",
     "marker_array",
-    "diagnostic_status",
-    "diagnostic_array",
+    "fill_diagnostic",
 ]
 
 UNOBSERVED_VARIANCE = 1.0e6
@@ -277,16 +276,13 @@ def _fmt(value) -> str:
     return str(value)
 
 
-def diagnostic_status(name: str, level: str, message: str, values: Mapping[str, object],
-                      hardware_id: str = "") -> DiagnosticStatus:
-    """One ``DiagnosticStatus``; ``level`` is 'ok', 'warn', 'error' or 'stale'; values are formatted
-    (floats with 4 significant digits) in the mapping's order."""
+def fill_diagnostic(status: DiagnosticStatus, level: str, message: str,
+                    values: Mapping[str, object]) -> DiagnosticStatus:
+    """Set ``status``'s level, message and values (a ``DiagnosticStatus`` or diagnostic_updater's
+    ``DiagnosticStatusWrapper``, which a task fills and returns); ``level`` is 'ok', 'warn', 'error' or
+    'stale'; values are formatted (floats with 4 significant digits) in the mapping's order. Returns it."""
     if level not in _LEVELS:
         raise ValueError(f"diagnostic level {level!r}: expected one of {sorted(_LEVELS)}")
-    return DiagnosticStatus(level=_LEVELS[level], name=name, message=message, hardware_id=hardware_id,
-                            values=[KeyValue(str(k), _fmt(v)) for k, v in values.items()])
-
-
-def diagnostic_array(stamp: rospy.Time, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
-    """A ``/diagnostics`` message of ``statuses``."""
-    return DiagnosticArray(header=_header(stamp, ""), status=list(statuses))
+    status.level, status.message = _LEVELS[level], message
+    status.values = [KeyValue(str(k), _fmt(v)) for k, v in values.items()]
+    return status

@@ -11,9 +11,12 @@ Publishes
   per GeoCOM return code), ``timeouts``, ``duplicates``, ``out_of_order``, ``reconnects``,
   ``relocks``, ``garbage_bytes``, ``stale_replies``, ``clock_offset_s``, ``clock_drift_ppm``,
   ``edm_period_ms``, ``instrument``;
-- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): the same figures as key/values;
-  level OK when locked at ≥ 90 % of ``~rate``, WARN while searching/lost or slower, ERROR while
-  (re)connecting or in the error state (the message is the error).
+- ``/diagnostics`` (diagnostic_updater, 1 Hz, hardware id: the instrument's serial number once known,
+  else ``MS60 <port>``): ``prism tracking`` with the same figures as key/values, level OK when locked
+  at ≥ 90 % of ``~rate``, WARN while searching/lost or slower, ERROR while (re)connecting or in the
+  error state (the message is the error); ``prism positions topic status``, a frequency status expecting
+  ``~rate`` (± 10 %); ``prism stamp offset``, a timestamp status of ROS time minus the prism's stamp
+  (acceptable −0.1 s to ``~timeout``: the instrument's clock fit and its reply time).
 
 Private parameters (each checked; a bad one ends the node with one line and exit status 2):
 ``~port`` pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``), ``~baud``
@@ -36,8 +39,9 @@ import math
 import sys
 from typing import Any, Dict, Tuple
 
+import diagnostic_updater
 import rospy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import String
 
@@ -128,8 +132,8 @@ def stats_to_json(stats: TrackerStats) -> str:
     return json.dumps(d, sort_keys=True)
 
 
-def _diagnostics(stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
-    status = DiagnosticStatus(name="ms60_driver: prism tracking", hardware_id=stats.instrument or "MS60")
+def _diagnostics(status: DiagnosticStatus, stats: TrackerStats, rate_hz: float) -> DiagnosticStatus:
+    """Fill ``status`` (diagnostic_updater's wrapper) from the tracker's figures: the lock state and the link."""
     if stats.state == "error":
         status.level, status.message = DiagnosticStatus.ERROR, stats.error
     elif stats.state in ("connecting", "reconnecting", "stopped"):
@@ -165,7 +169,15 @@ def main() -> None:
         sys.exit(2)
     prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
     status_pub = rospy.Publisher("ms60/status", String, queue_size=5, latch=True)
-    diag_pub = rospy.Publisher("/diagnostics", DiagnosticArray, queue_size=5)
+    updater = diagnostic_updater.Updater()
+    updater.setHardwareID(f"MS60 {config.url}")
+    positions = diagnostic_updater.HeaderlessTopicDiagnostic(
+        "prism positions", updater, diagnostic_updater.FrequencyStatusParam({"min": config.rate_hz,
+                                                                            "max": config.rate_hz}, 0.1, 5))
+    stamp_offset = diagnostic_updater.TimeStampStatus(
+        diagnostic_updater.TimeStampStatusParam(-0.1, config.timeout_s), "prism stamp offset")
+    updater.add(stamp_offset)
+    updater.add("prism tracking", lambda stat: _diagnostics(stat, tracker.stats(), config.rate_hz))
 
     def on_sample(sample: PrismSample) -> None:
         msg = PointStamped()
@@ -174,6 +186,8 @@ def main() -> None:
         msg.header.frame_id = frame_id
         msg.point.x, msg.point.y, msg.point.z = sample.east, sample.north, sample.height
         prism_pub.publish(msg)
+        positions.tick()
+        stamp_offset.tick(sample.stamp_s)
 
     def on_state(state: TrackerState) -> None:
         if state == TrackerState.ERROR:
@@ -188,10 +202,9 @@ def main() -> None:
         if stats.state in ("connecting", "reconnecting"):
             rospy.logwarn_throttle(10.0, f"ms60_driver: no answer from the instrument on {config.url} ({stats.state})")
         status_pub.publish(String(data=stats_to_json(stats)))
-        diag = DiagnosticArray()
-        diag.header.stamp = rospy.Time.now()
-        diag.status = [_diagnostics(stats, config.rate_hz)]
-        diag_pub.publish(diag)
+        if stats.instrument:
+            updater.setHardwareID(stats.instrument)
+        updater.force_update()
 
     rospy.loginfo(f"ms60_driver: {config.url} at {config.baud} baud, {config.rate_hz} Hz, frame {frame_id}")
     tracker.start()

@@ -1,0 +1,153 @@
+"""nodestate: the node's map→odom stamp policy and its health report, with hand-checked numbers (no ROS)."""
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from aruco_abs_orient.nodestate import (
+    IMAGE_JUMPED_BACK,
+    IMAGE_NOT_AFTER,
+    IMAGE_OK,
+    MapOdomStamps,
+    NodeHealth,
+)
+
+
+def test_an_estimate_is_future_dated_by_the_tolerance():
+    p = MapOdomStamps(tolerance=0.1, period=0.05, jump_tolerance=0.5)
+    assert p.for_estimate(10.0) == pytest.approx(10.1)
+    assert p.for_estimate(10.033) == pytest.approx(10.133)
+    assert p.last_sent == pytest.approx(10.133)
+    assert MapOdomStamps(0.0, 0.05, 0.5).for_estimate(10.0) == 10.0   # tolerance 0: stamped at the image time
+
+
+def test_republication_follows_the_odometry_one_period_at_a_time():
+    p = MapOdomStamps(tolerance=0.1, period=0.05, jump_tolerance=0.5)
+    assert p.republish(5.0) == pytest.approx(5.1)     # nothing sent yet: due at once
+    assert p.republish(5.03) is None                  # 5.13 < 5.1 + 0.05
+    assert p.republish(5.05) == pytest.approx(5.15)   # a period later
+    assert p.republish(5.05) is None                  # the same stamp is never sent twice
+    assert p.republish(4.9) is None                   # nor an older one
+
+
+def test_an_image_half_a_second_late_corrects_at_the_next_newer_stamp():
+    """Images 0.5 s late: the odometry (and so the re-published stamps) is ahead of every image time."""
+    p = MapOdomStamps(tolerance=0.1, period=0.05, jump_tolerance=0.5)
+    assert p.for_estimate(10.0) == pytest.approx(10.1)
+    assert p.republish(10.6) == pytest.approx(10.7)
+    assert p.for_estimate(10.1) is None               # 10.2 would go back behind 10.7: held back
+    assert p.held_back == 1 and p.pending
+    assert p.republish(10.6) is None                  # 10.7 again: not after the newest sent
+    assert p.republish(10.62) == pytest.approx(10.72)  # pending: due although less than a period on
+    assert not p.pending
+    assert p.republish(10.65) is None                 # back to one period: 10.75 < 10.72 + 0.05
+    assert p.republish(10.67) == pytest.approx(10.77)
+
+
+def test_image_stamps_jumping_back_or_repeating():
+    p = MapOdomStamps(tolerance=0.1, period=0.05, jump_tolerance=0.5)
+    assert p.check_image(100.0) == IMAGE_OK
+    assert p.check_image(100.0) == IMAGE_NOT_AFTER    # repeated
+    assert p.check_image(99.6) == IMAGE_NOT_AFTER     # 0.4 s back: within the tolerance, skipped
+    assert p.last_image == 100.0
+    assert p.check_image(99.4) == IMAGE_JUMPED_BACK   # 0.6 s back: a clock jump
+    p.for_estimate(100.0)
+    p.reset()
+    assert p.last_image is None and p.last_sent is None
+    assert p.check_image(99.4) == IMAGE_OK            # the new timeline
+    assert p.for_estimate(99.4) == pytest.approx(99.5)
+    assert p.jumped_back(100.0, 99.4) and not p.jumped_back(100.0, 99.6) and not p.jumped_back(None, 0.0)
+
+
+@pytest.mark.parametrize("args,message", [((-0.1, 0.05, 0.5), "transform tolerance"),
+                                          ((0.1, 0.0, 0.5), "re-publication period"),
+                                          ((0.1, 0.05, math.nan), "time jump tolerance")])
+def test_bad_settings_are_refused(args, message):
+    with pytest.raises(ValueError, match=message):
+        MapOdomStamps(*args)
+
+
+@given(st.lists(st.tuples(st.sampled_from(["image", "odom"]), st.floats(0.0, 20.0)), max_size=60),
+       st.floats(0.0, 0.3), st.floats(0.01, 0.2))
+def test_the_stamps_sent_only_go_forward(calls, tolerance, period):
+    """Whatever the order of image and odometry times (late images, a replay at rate 4): a stamp is sent at
+    most once, each is after every one sent before (never an older map->odom for a time already
+    covered), and each is the estimate's own time plus the tolerance."""
+    p = MapOdomStamps(tolerance, period, jump_tolerance=0.5)
+    sent = []
+    for kind, t in calls:
+        stamp = p.for_estimate(t) if kind == "image" else p.republish(t)
+        if stamp is not None:
+            assert stamp == t + tolerance
+            assert not sent or stamp > sent[-1]
+            sent.append(stamp)
+    assert len(sent) + p.held_back <= len(calls)
+
+
+def test_replay_at_rate_4_keeps_the_consumer_covered():
+    """A replay at 4x: odometry at 30 Hz; the node takes 50 ms wall (0.2 s of sim time) per image, so it
+    processes every 6th frame, 0.2 s after its capture, and re-publishes between images. After each
+    loop the newest stamp sent covers the newest odometry by the tolerance, so a consumer's lookup at
+    the odometry's time never extrapolates."""
+    p = MapOdomStamps(tolerance=0.1, period=0.05, jump_tolerance=0.5)
+    sent = []
+    for k in range(1, 50):                    # the node is free again at sim time 0.2 k = frame 6 k
+        image_t = 6 * (k - 1) / 30            # the image it processed was captured 0.2 s before
+        odom_t = 6 * k / 30                   # newest odometry in the tf buffer
+        for stamp in (p.for_estimate(image_t), p.republish(odom_t)):
+            if stamp is not None:
+                assert not sent or stamp > sent[-1]
+                sent.append(stamp)
+        assert p.last_sent >= odom_t + 0.1 - 1e-9
+    assert p.held_back == 48  # each image after the first: its 0.2 s old stamp is the one re-published before
+
+
+# ----------------------------------------------------------------------------------------------- health
+def _report(h, now_wall, **kw):
+    args = dict(initialised=True, image_age_wall=0.1, last_prism_stamp=99.8, prisms_waiting=False,
+                images_received=0, images_dropped=0, time_offset=0.0, time_offset_source="parameter")
+    args.update(kw)
+    return h.report(now_wall, 100.0, **args)
+
+
+def test_health_rates_and_levels_since_the_previous_report():
+    h = NodeHealth(image_timeout=2.0, prism_timeout=1.0, publish_tf=True, start_wall=0.0)
+    h.count("processed", 30)
+    h.set_seen([7, 3, 7])
+    h.latencies_ms.extend([10.0, 20.0, 30.0, 40.0])
+    h.add_stages({"detect": 60.0})
+    h.add_stages({"detect": 30.0})
+    level, message, values = _report(h, 2.0, images_received=40, images_dropped=10)
+    assert (level, message) == ("ok", "tracking 2 marker(s)")
+    assert values["rate [Hz]"] == pytest.approx(15.0)            # 30 processed in 2 s
+    assert values["marker ids"] == "3 7" and values["markers seen"] == 2
+    assert values["dropped fraction"] == pytest.approx(0.25)
+    assert values["latency median [ms]"] == pytest.approx(25.0)
+    assert values["latency p95 [ms]"] == pytest.approx(38.5)     # 30 + 0.85 * 10
+    assert values["prism age [s]"] == pytest.approx(0.2)
+    assert values["stage detect [ms]"] == pytest.approx(3.0)     # 90 ms over 30 frames
+    h.error("tf_failures", "tf odom -> base_link: no data")
+    h.error("tf_failures", "tf odom -> base_link: no data")
+    level, message, values = _report(h, 3.0)
+    assert (level, message) == ("warn", "2 tf lookups failed")
+    assert values["rate [Hz]"] == 0.0 and values["tf failures"] == 2 and "stage detect [ms]" not in values
+    assert values["last error"] == "tf odom -> base_link: no data"
+    level, message, _ = _report(h, 4.0)                           # nothing new: recovered
+    assert (level, message) == ("ok", "tracking 2 marker(s)")
+
+
+def test_health_waiting_stale_inputs_and_an_extra_key():
+    h = NodeHealth(image_timeout=2.0, prism_timeout=1.0, publish_tf=False, start_wall=0.0,
+                   frames=("base_link", "cam", "prism"))
+    level, message, values = _report(h, 1.0, initialised=False, last_prism_stamp=None)
+    assert (level, message) == ("warn", "no prism yet")
+    level, message, _ = _report(h, 2.0, initialised=False)
+    assert (level, message) == ("warn", "initialising: waiting for the static tfs")
+    h.error("no_static_tf", "waiting for the static tf base_link -> cam")
+    level, message, _ = _report(h, 3.0, initialised=False, image_age_wall=2.5, last_prism_stamp=97.0)
+    assert level == "error"
+    assert message == "no static tf base_link -> cam/prism; no image for 2.5 s; no prism for 3.0 s"
+    h.extra_values["tilt source"] = lambda: "imu"
+    _, _, values = _report(h, 4.0)
+    assert values["tilt source"] == "imu" and values["publish_tf"] is False
