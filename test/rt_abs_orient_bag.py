@@ -20,6 +20,12 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      node is killed (SIGKILL) 3 times at random moments; roslaunch respawns it. Each time a new map->odom
      from /abs_orient must arrive within 3 s (wall) of the kill, and no map->odom sent from the first
      pose on may put base_link's heading more than 1° from the truth (5σ of the start-up yaw);
+   - ``--mode consumer`` (``--owner node`` or ``ekf``): a navigation consumer, as costmap_2d: at 40 Hz it
+     looks up ``map → base_link`` at ``rospy.Time.now()`` and at the stamp of a simulated laser scan
+     (25 ms old), each with a 50 ms timeout. From 1 s after the node's first absolute yaw on, ≥ 99.5 % of
+     the lookups succeed, and after the standstill their yaw agrees with the truth (RMSE ≤ 0.3°); the
+     owner's map->odom stamps only go forward (never an older map->odom for a time already covered);
+     ``--duration``: the scenario is the preset re-rendered at that length (cached likewise);
    - ``--mode calibration``: ``calibration:=`` a calibration YAML whose camera is the scenario's TRUE
      mounting turned by +1° about base_link z: the node must take the lever arms from the file, not
      from the bag's /tf_static, so base_link's heading comes out 1° low (mean −1° ± 0.1°), otherwise
@@ -40,7 +46,9 @@ from pathlib import Path
 import numpy as np
 import rospy
 import rostest
+import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from tf2_msgs.msg import TFMessage
 
@@ -52,9 +60,10 @@ ROOT = Path(__file__).resolve().parents[1]
 ARGS = None
 
 
-def scenario(preset: str) -> Path:
-    """Directory with scenario.bag, truth.tum, markers.yaml, hidden.yaml of ``preset`` (cached)."""
-    h = hashlib.sha256(preset.encode())
+def scenario(preset: str, duration: float = 0.0) -> Path:
+    """Directory with scenario.bag, truth.tum, markers.yaml, hidden.yaml of ``preset`` (cached), re-rendered
+    ``duration`` s long when given."""
+    h = hashlib.sha256((preset + (f"/{duration}" if duration else "")).encode())
     pkg = ROOT / "src" / "aruco_abs_orient"
     for p in sorted(pkg.glob("synthetic/*.py")) + [pkg / "camera.py", pkg / "markers.py", pkg / "tum.py"]:
         h.update(p.read_bytes())
@@ -62,7 +71,8 @@ def scenario(preset: str) -> Path:
     if not all((out / f).exists() for f in ("scenario.bag", "truth.tum", "markers.yaml", "hidden.yaml")):
         out.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.monotonic()
-        proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"],
+        extra = ["--duration", str(duration)] if duration else []
+        proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"] + extra,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900)
         if proc.returncode != 0:
             raise RuntimeError(f"scenario generation failed:\n{proc.stdout[-3000:]}")
@@ -131,6 +141,52 @@ class Recorder:
                     self.last_status = f"{s.message} | " + ", ".join(f"{k}: {v}" for k, v in values.items())
 
 
+class Consumer:
+    """costmap_2d's use of tf: at 40 Hz (of ROS time) ``map → base_link`` at ``rospy.Time.now()`` and at a
+    simulated laser scan's stamp (25 ms old: the scan's first ray), each with a 50 ms timeout. Records
+    (kind, stamp s, 4x4 or None). Counting starts with ``since`` (ROS s), set once the node is initialised."""
+
+    def __init__(self, rate: float):
+        self.buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0))
+        self.listener = tf2_ros.TransformListener(self.buffer)
+        self.rate = rate
+        self.lookups = []          # (kind, stamp s, 4x4 or None)
+        self.first_yaw = None      # ROS s of the node's first abs_orient/orientation
+        self.stop = threading.Event()
+        rospy.Subscriber("abs_orient/orientation", PoseWithCovarianceStamped, self._on_yaw, queue_size=10)
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _on_yaw(self, msg):
+        if self.first_yaw is None:
+            self.first_yaw = rospy.get_time()
+
+    def _lookup(self, stamp):
+        try:
+            tr = self.buffer.lookup_transform("map", "base_link", stamp, rospy.Duration(0.05))
+            return transform_to_matrix(tr.transform)
+        except tf2_ros.TransformException:
+            return None
+
+    def _run(self):
+        while not self.stop.is_set() and not rospy.is_shutdown():
+            time.sleep(0.025 / self.rate)  # 40 Hz of ROS time
+            now = rospy.Time.now()
+            if self.first_yaw is None or now.to_sec() < self.first_yaw + 1.0:
+                continue  # the node is not initialised yet
+            scan = now - rospy.Duration(0.025)
+            for kind, stamp in (("now", now), ("scan", scan)):
+                self.lookups.append((kind, stamp.to_sec(), self._lookup(stamp)))
+
+
+def stamps_only_go_forward(rec: "Recorder"):
+    """Problems: map->odom stamps (in arrival order) that are not after the previous one, except where the
+    clock jumped back by more than 0.5 s (a new timeline: the node resets)."""
+    with rec.lock:
+        stamps = [t for t, _ in rec.map_odom]
+    return [(a, b) for a, b in zip(stamps, stamps[1:]) if not b > a and b > a - 0.5]
+
+
 def _series(pairs):
     pairs = sorted(pairs, key=lambda x: x[0])
     t = np.array([p[0] for p in pairs])
@@ -159,7 +215,7 @@ def rmse_deg(e) -> float:
 class BagRun(unittest.TestCase):
     def setUp(self):
         rospy.init_node("rt_abs_orient_bag")
-        self.dir = Path(ARGS.scenario) if ARGS.scenario else scenario(ARGS.preset)
+        self.dir = Path(ARGS.scenario) if ARGS.scenario else scenario(ARGS.preset, ARGS.duration)
         self.truth = read_tum(str(self.dir / "truth.tum"))
         self.offset = time_offset_of(self.dir)
         self.rec = Recorder()
@@ -235,6 +291,31 @@ class BagRun(unittest.TestCase):
         self.report("EKF position RMSE after the standstill", pos_rmse, ARGS.max_pos_rmse, "m")
         self.assertLessEqual(rmse_deg(yaw_err), ARGS.max_yaw_rmse_deg)
         self.assertLessEqual(pos_rmse, ARGS.max_pos_rmse)
+
+    def check_consumer(self):
+        consumer = Consumer(ARGS.rate)
+        self.launch(use_ekf=ARGS.owner == "ekf")
+        consumer.stop.set()
+        owner = "/ekf_map" if ARGS.owner == "ekf" else "/abs_orient"
+        self.assertEqual(self.rec.map_odom_publishers, {owner}, f"map->odom owner; the node said: {self.rec.last_status}")
+        self.assertEqual(stamps_only_go_forward(self.rec), [], "a map->odom stamp went back")
+        looked = consumer.lookups
+        self.assertGreater(len(looked), 40 * 0.8 * (self.truth.stamps[-1] - self.truth.stamps[0] - 10),
+                           f"too few lookups ({len(looked)}): the node initialised late? {self.rec.last_status}")
+        for kind in ("now", "scan"):
+            ok = [T is not None for k, _, T in looked if k == kind]
+            self.report(f"{ARGS.owner} owner: lookups at {kind} that succeeded ({len(ok)})",
+                        100.0 * float(np.mean(ok)), 99.5, "%")
+            self.assertGreaterEqual(np.mean(ok), 0.995, f"lookups at {kind}: {len(ok) - sum(ok)} of {len(ok)} failed")
+        good = [(t, T) for _, t, T in looked if T is not None and t - self.offset >= self.t_still]
+        t_true = np.array([t for t, _ in good]) - self.offset
+        _, q, valid = self.truth.interpolate(t_true)
+        est = yaw_of(np.array([T for _, T in good])[valid][:, :3, :3])
+        e = wrap_angle(est - yaw_of(quat_to_matrix(q[valid])))
+        self.assertGreater(valid.sum(), 100)
+        self.report(f"{ARGS.owner} owner: yaw RMSE of the lookups after the standstill", rmse_deg(e),
+                    ARGS.max_yaw_rmse_deg, "deg")
+        self.assertLessEqual(rmse_deg(e), ARGS.max_yaw_rmse_deg)
 
     def check_calibration(self):
         import yaml
@@ -324,11 +405,13 @@ class BagRun(unittest.TestCase):
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration", "chaos"), required=True)
+    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration", "chaos", "consumer"), required=True)
     ap.add_argument("--preset", default="ci")
+    ap.add_argument("--duration", type=float, default=0.0, help="s: the preset re-rendered this long (0: as is)")
+    ap.add_argument("--owner", choices=("node", "ekf"), default="node", help="consumer mode: who owns map->odom")
     ap.add_argument("--scenario", help="use this generated scenario directory instead of generating --preset")
     ap.add_argument("--rate", type=float, default=1.0, help="playback rate")
     ap.add_argument("--max-yaw-rmse-deg", type=float, default=0.3)
     ap.add_argument("--max-pos-rmse", type=float, default=0.03)
     ARGS, rest = ap.parse_known_args(rospy.myargv()[1:])
-    rostest.rosrun("aruco_abs_orient", f"rt_abs_orient_bag_{ARGS.mode}", BagRun, [sys.argv[0]] + rest)
+    rostest.rosrun("aruco_abs_orient", f"rt_abs_orient_bag_{ARGS.mode}_{ARGS.owner}", BagRun, [sys.argv[0]] + rest)

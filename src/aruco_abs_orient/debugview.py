@@ -1,0 +1,132 @@
+"""The node's debug image: a 360° frame with what the pipeline made of it drawn on it (no ROS).
+
+:func:`debug_frame` downscales the equirect frame to at most ``max_width`` px and draws, in the colours of
+:data:`COLOURS`:
+- each detected marker's outline (its corner bearings) with its id, green when accepted, red when rejected
+  with the reason;
+- the predicted position of every marker of the map (from the frame's corrected pose), a yellow circle
+  with the id;
+- the ±180° seam (the image's left and right edges, where detection rolls the frame) and the horizon of
+  ``map`` (the great circle level in map, a curve when the camera is tilted; the image's middle row
+  without a pose).
+
+All pixel positions come from bearings through :class:`aruco_abs_orient.camera.Equirect` (the only
+pixel↔bearing code), at the output size, so nothing here depends on the input's resolution. Colours are
+BGR. Unit-tested on a rendered frame (``test/unit/test_debugview.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterable, Optional, Tuple
+
+import cv2
+import numpy as np
+
+from .camera import Equirect
+from .markers import MarkerMap
+
+__all__ = ["COLOURS", "debug_frame", "encode_debug_jpeg", "predicted_bearings", "horizon_bearings"]
+
+COLOURS = {"accepted": (0, 200, 0), "rejected": (0, 0, 255), "predicted": (0, 220, 255),
+           "seam": (255, 0, 255), "horizon": (255, 160, 0)}
+"""BGR colour of each kind of drawing."""
+
+
+def predicted_bearings(marker_map: MarkerMap, map_T_camera: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """(ids (n,), unit bearings (n, 3) in the camera frame) of the map's markers seen from ``map_T_camera``
+    (4×4, m)."""
+    T = np.asarray(map_T_camera, dtype=float)
+    ids = np.array([m.id for m in marker_map], dtype=int)
+    if not len(ids):
+        return ids, np.zeros((0, 3))
+    d = (np.array([m.position for m in marker_map], dtype=float) - T[:3, 3]) @ T[:3, :3]
+    return ids, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def horizon_bearings(map_R_camera: Optional[np.ndarray], n: int = 721) -> np.ndarray:
+    """(n, 3) unit bearings in the camera frame of the horizon of ``map`` (level in map), ordered around the
+    circle; with ``map_R_camera`` None (no pose yet) the camera's own horizon (elevation 0)."""
+    up = np.array([0.0, 0.0, 1.0]) if map_R_camera is None else np.asarray(map_R_camera, dtype=float)[2, :]
+    up = up / np.linalg.norm(up)
+    e1 = np.cross(up, [0.0, 1.0, 0.0])
+    if np.linalg.norm(e1) < 1e-6:  # camera looking straight up or down: any other axis
+        e1 = np.cross(up, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    theta = np.linspace(0.0, 2.0 * math.pi, n)
+    return np.outer(np.cos(theta), e1) + np.outer(np.sin(theta), e2)
+
+
+def _polyline(img: np.ndarray, cam: Equirect, bearings: np.ndarray, colour, thickness: int,
+              closed: bool) -> None:
+    """Draw the path through ``bearings``; a segment that crosses the seam is drawn on both sides."""
+    u, v = cam.bearing_to_pixel(bearings)
+    if closed:
+        u, v = np.append(u, u[:1]), np.append(v, v[:1])
+    w = cam.width
+    for a_u, a_v, b_u, b_v in zip(u[:-1], v[:-1], u[1:], v[1:]):
+        b_u = float(cam.unwrap_u(b_u, a_u))
+        shifts = [0.0] + ([-w] if max(a_u, b_u) > w - 0.5 else []) + ([w] if min(a_u, b_u) < -0.5 else [])
+        for shift in shifts:
+            cv2.line(img, (int(round(a_u + shift)), int(round(a_v))), (int(round(b_u + shift)), int(round(b_v))),
+                     colour, thickness, cv2.LINE_AA)
+
+
+def _label(img: np.ndarray, text: str, at: Tuple[float, float], colour, scale: float) -> None:
+    x = int(min(max(at[0], 0), img.shape[1] - 10))
+    y = int(min(max(at[1], 12), img.shape[0] - 4))
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+
+
+def debug_frame(image: np.ndarray, observations: Iterable, marker_map: Optional[MarkerMap] = None,
+                map_T_camera: Optional[np.ndarray] = None, max_width: int = 1920) -> np.ndarray:
+    """The annotated frame: BGR uint8, ``min(W, max_width)`` wide (2:1).
+
+    ``image``: the equirect frame, grey (H, W) or BGR (H, W, 3), any 2:1 size; ``observations``: the
+    frame's ``pipeline.ObservationResult`` (``.observation`` with ``.corners``/``.centre`` bearings and
+    ``.id``, ``.accepted``, ``.reason``); ``marker_map`` and ``map_T_camera`` (4×4, m; None before
+    initialisation) for the predicted positions and the horizon.
+    """
+    img = np.asarray(image)
+    if img.ndim not in (2, 3) or img.shape[1] != 2 * img.shape[0]:
+        raise ValueError(f"debug image: expected a 2:1 equirect frame, got shape {img.shape}")
+    if max_width < 2:
+        raise ValueError(f"debug image: max_width must be at least 2 px, got {max_width}")
+    width = min(img.shape[1], int(max_width) // 2 * 2)
+    if width != img.shape[1]:
+        img = cv2.resize(img, (width, width // 2), interpolation=cv2.INTER_AREA)
+    out = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+    cam = Equirect(width, width // 2)
+    scale = max(0.4, width / 3840.0)
+    thick = max(1, int(round(width / 960)))
+    # seam and horizon first: the markers are drawn over them
+    for u in (0, width - 1):
+        for v0 in range(0, width // 2, 16):
+            cv2.line(out, (u, v0), (u, v0 + 8), COLOURS["seam"], thick)
+    _label(out, "seam +-180 deg", (4, 16), COLOURS["seam"], scale)
+    R = None if map_T_camera is None else np.asarray(map_T_camera, dtype=float)[:3, :3]
+    _polyline(out, cam, horizon_bearings(R), COLOURS["horizon"], thick, closed=False)
+    if marker_map is not None and map_T_camera is not None:
+        ids, bearings = predicted_bearings(marker_map, map_T_camera)
+        u, v = cam.bearing_to_pixel(bearings)
+        for i, x, y in zip(ids, u, v):
+            cv2.circle(out, (int(round(x)), int(round(y))), 6 * thick, COLOURS["predicted"], thick, cv2.LINE_AA)
+            _label(out, str(i), (x + 7 * thick, y + 14 * thick), COLOURS["predicted"], scale)
+    for r in observations:
+        o = r.observation
+        colour = COLOURS["accepted"] if r.accepted else COLOURS["rejected"]
+        _polyline(out, cam, np.asarray(o.corners, dtype=float), colour, thick + 1, closed=True)
+        u, v = cam.bearing_to_pixel(np.asarray(o.corners, dtype=float))
+        text = f"id {o.id}" if r.accepted else f"id {o.id}: {r.reason or 'rejected'}"
+        _label(out, text, (float(np.min(u)), float(np.min(v)) - 6), colour, scale)
+    return out
+
+
+def encode_debug_jpeg(frame: np.ndarray, quality: int = 80) -> bytes:
+    """JPEG bytes of a debug frame (for ``sensor_msgs/CompressedImage``)."""
+    ok, buf = cv2.imencode(".jpg", frame, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
+    if not ok:
+        raise ValueError(f"debug image: JPEG encoding failed for shape {frame.shape}")
+    return buf.tobytes()
