@@ -10,9 +10,14 @@ scene of the rostests (test/rt_abs_orient_scene.py: four markers 2.5–4 m away,
   clock, reported on /diagnostics: median and p95 over its last 600 frames);
 - end-to-end latency: image published here → ``abs_orient/detections`` with that stamp received here
   (adds two local transports and the JPEG hand-over);
-- dropped fraction: images the node replaced in its one-slot mailbox before processing them.
+- dropped fraction: images the node replaced in its one-slot mailbox before processing them;
+- the debug image's cost per processed frame (the node's ``stage debug image [ms]``): nobody subscribes to
+  ``~debug_image`` (the default: one check of the subscriber count), or, with ``--debug-subscriber``, this
+  process subscribes (then a frame is drawn and JPEG-encoded at ``~debug_rate`` Hz; the cost of one drawn
+  frame is the mean per processed frame times the processing rate over the drawing rate).
 
     source tools/env.sh && python bench/node_latency.py --width 3840 --fps 30 --duration 30
+    source tools/env.sh && python bench/node_latency.py --width 3840 --fps 30 --duration 30 --debug-subscriber
 
 Prints one table; exit status 0. Bounded: everything it starts is stopped at the end.
 """
@@ -30,6 +35,8 @@ def main(argv=None) -> int:
     ap.add_argument("--width", type=int, default=3840, help="equirect width in px (height = width/2)")
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--duration", type=float, default=30.0, help="s of measurement after initialisation")
+    ap.add_argument("--debug-subscriber", action="store_true",
+                    help="subscribe to the node's ~debug_image while measuring (its cost when someone looks)")
     args = ap.parse_args(argv)
     return run_with_node(run, args)
 
@@ -39,7 +46,15 @@ def run(args, ros) -> int:
     print(f"rendered {args.width}x{args.width // 2} scene in {render_s:.1f} s "
           f"({len(frames['good']) / 1e3:.0f} kB JPEG)", flush=True)
     feed, mon = start_feed(ros, frames, base_T_prism, args.fps)
+    debug_images = []
+    if args.debug_subscriber:
+        import rospy
+        from sensor_msgs.msg import CompressedImage
+
+        rospy.Subscriber("/abs_orient/debug_image/compressed", CompressedImage, lambda m: debug_images.append(len(m.data)),
+                         queue_size=2, buff_size=1 << 24)
     time.sleep(2.0)  # let the tracker settle, then measure
+    debug_before = len(debug_images)
     start_vals = dict(mon.values)
     mon.recording = True
     time.sleep(args.duration)
@@ -63,6 +78,16 @@ def run(args, ros) -> int:
     print(f"  end-to-end (publish here -> detections here): median {np.median(e2e):.1f} ms, "
           f"p95 {np.percentile(e2e, 95):.1f} ms, n = {len(mon.e2e_ms)}")
     print(f"  processing rate {float(end_vals['rate [Hz]']):.1f} Hz; budget 50 ms at 30 fps")
+    debug_ms = float(end_vals.get("stage debug image [ms]", "nan"))
+    if args.debug_subscriber:
+        drawn = len(debug_images) - debug_before
+        per_drawn = debug_ms * float(end_vals["rate [Hz]"]) / (drawn / args.duration) if drawn else float("nan")
+        print(f"  debug image, subscribed: {debug_ms:.2f} ms per processed frame (last second); {drawn} drawn in "
+              f"{args.duration:g} s ({drawn / args.duration:.1f} Hz, "
+              f"{np.mean(debug_images[debug_before:]) / 1e3 if drawn else float('nan'):.0f} kB), "
+              f"about {per_drawn:.1f} ms per drawn frame")
+    else:
+        print(f"  debug image, nobody subscribed: {debug_ms:.3f} ms per processed frame (last second; budget 2 ms)")
     return 0
 
 

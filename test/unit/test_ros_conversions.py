@@ -245,3 +245,19 @@ def test_diagnostic_status_levels_and_values():
                                                         ("offset", "nan")]
     with pytest.raises(ValueError, match="diagnostic level 'bad'"):
         cv.fill_diagnostic(wrapper, "bad", "", {})
+
+
+def test_bearing_rays_run_from_the_camera_to_each_accepted_marker():
+    """A marker at az +90°, el 30°, 4 m away: its ray ends at 4·(cos 30° cos 90°, cos 30° sin 90°, sin 30°)
+    = (0, 3.464, 2.0) m in the camera frame; a rejected marker gets no ray; no range: 3 m."""
+    rays = cv.rays_marker_array([_observation(3, math.pi / 2, math.pi / 6, 0.0, 0.01, True, range=4.0),
+                                 _observation(8, 0.0, 0.0, 0.0, 0.01, False),
+                                 _observation(5, math.pi, 0.0, 0.0, 0.01, True)], rospy.Time(7), "cam")
+    lines, *texts = rays.markers
+    assert lines.type == lines.LINE_LIST and lines.header.frame_id == "cam" and lines.header.stamp == rospy.Time(7)
+    ends = [(p.x, p.y, p.z) for p in lines.points]
+    np.testing.assert_allclose(ends, [(0, 0, 0), (0, 4 * math.cos(math.pi / 6), 2.0), (0, 0, 0), (-3.0, 0, 0)],
+                               atol=1e-9)
+    assert [t.text for t in texts] == ["3", "5"]
+    empty = cv.rays_marker_array([_observation(8, 0.0, 0.0, 0.0, 0.01, False)], rospy.Time(8), "cam")
+    assert [m.action for m in empty.markers] == [empty.markers[0].DELETEALL]

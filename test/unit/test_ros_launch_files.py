@@ -108,3 +108,19 @@ def test_ekf_launch_loads_the_package_config():
 def test_abs_orient_launch_requires_markers():
     with pytest.raises(roslaunch.core.RLException, match="markers"):
         load("abs_orient.launch")
+
+
+@pytest.mark.parametrize("name,args", [("live.launch", {"use_ms60": "false"}), ("postprocess.launch", {"bag": "/b.bag"})])
+def test_rviz_starts_with_the_package_config_only_when_asked(name, args):
+    assert ("rviz", "rviz") not in nodes(load(name, markers="/m.yaml", **args))
+    rviz = nodes(load(name, markers="/m.yaml", rviz="true", **args))[("rviz", "rviz")]
+    config = rviz.args.split("-d ", 1)[1].strip()
+    assert config == str(ROOT / "rviz" / "abs_orient.rviz") and Path(config).is_file()
+
+
+def test_the_ekf_future_dates_map_odom_as_the_node_does():
+    """cfg/ekf.yaml's transform_time_offset = abs_orient's ~transform_tolerance: whichever owns map->odom, a
+    consumer sees it valid equally far ahead."""
+    ekf = load("ekf.launch").params["/ekf_map/transform_time_offset"].value
+    node = load("abs_orient.launch", markers="/m.yaml").params["/abs_orient/transform_tolerance"].value
+    assert ekf == node == 0.1

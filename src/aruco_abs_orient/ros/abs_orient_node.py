@@ -15,10 +15,14 @@ Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry th
   accepted it (its gate drops false ids);
 - ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
   arm removed; ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
-  ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``/diagnostics`` through diagnostic_updater (hardware
-id: the camera frame): the ``pipeline`` status (:class:`aruco_abs_orient.nodestate.NodeHealth`), the
-``self-check``, frequency statuses of images processed, prism positions and map→odom sent, timestamp
-statuses of the image age and the prism stamp offset.
+  ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``abs_orient/rays`` (``MarkerArray``: a line
+  from the camera to each accepted marker of the frame, in the camera frame); ``~debug_image/compressed``
+  (``CompressedImage``, JPEG: image_transport's compressed transport of ``~debug_image``, only while
+  someone subscribes and at most ``~debug_rate`` Hz: the frame at ≤ ``~debug_width`` px with the
+  detections, the predicted markers, the seam and the horizon drawn by :mod:`aruco_abs_orient.debugview`);
+  ``/diagnostics`` through diagnostic_updater (hardware id: the camera frame): the ``pipeline`` status
+  (:class:`aruco_abs_orient.nodestate.NodeHealth`), the ``self-check``, frequency statuses of images
+  processed, prism positions and map→odom sent, timestamp statuses of the image age and the prism stamp offset.
 
 Time. ``~time_offset`` (s): camera stamps = true (total-station) time + offset; the pipeline works in
 total-station time (``stamp − offset``), the published messages keep the image stamp. ``map → odom``
@@ -57,6 +61,8 @@ from typing import Deque, Dict, Optional, Tuple
 import numpy as np
 
 from ..calibration import CalibrationError, load_calibration
+from ..debugview import debug_frame, encode_debug_jpeg
+from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
 from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomStamps, NodeHealth
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
@@ -101,6 +107,8 @@ class NodeConfig:
     - ``expected_image_rate``, ``expected_prism_rate``: Hz, the rates the frequency statuses of images
       processed and prism positions expect (± ``rate_tolerance``, a fraction); map→odom's expects
       ``tf_rate`` to ``max(tf_rate, expected_image_rate)``.
+    - ``debug_rate``: Hz, most ``~debug_image`` frames per second (only drawn while subscribed);
+      ``debug_width``: px, their largest width.
     - ``max_image_age``: s, an image older than this when processed (ROS time) → its timestamp status errs;
       the prism stamp offset's limit is ``prism_timeout``.
     - ``state_file``: JSON file where the map→odom filter's state is kept (written at most once a second);
@@ -128,6 +136,8 @@ class NodeConfig:
     expected_prism_rate: float = 20.0
     rate_tolerance: float = 0.5
     max_image_age: float = 0.5
+    debug_rate: float = 2.0
+    debug_width: float = 1920.0
     state_file: str = ""
     state_max_age: float = 10.0
     map_frame: str = "map"
@@ -161,11 +171,13 @@ class NodeConfig:
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
-                     "image_timeout", "state_max_age", "expected_image_rate", "expected_prism_rate", "max_image_age"):
+                     "image_timeout", "state_max_age", "expected_image_rate", "expected_prism_rate", "max_image_age", "debug_rate"):
             if getattr(config, name) <= 0:
                 raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
         if config.transform_tolerance < 0:
             raise NodeConfigError(f"~transform_tolerance: expected a number of s >= 0, got {config.transform_tolerance!r}")
+        if not 16 <= config.debug_width <= 16384:
+            raise NodeConfigError(f"~debug_width: expected 16 to 16384 px, got {config.debug_width!r}")
         if not 0 <= config.rate_tolerance < 1:
             raise NodeConfigError(f"~rate_tolerance: expected a fraction in [0, 1), got {config.rate_tolerance!r}")
         return config
@@ -272,6 +284,10 @@ class AbsOrientNode:
         self.pub_pose = rospy.Publisher("abs_orient/pose", PoseStamped, queue_size=10)
         self.pub_detections = rospy.Publisher("abs_orient/detections", MarkerObservations, queue_size=10)
         self.pub_markers = rospy.Publisher("abs_orient/markers", MarkerArray, queue_size=1, latch=True)
+        self.pub_rays = rospy.Publisher("abs_orient/rays", MarkerArray, queue_size=1)
+        self.pub_debug = rospy.Publisher("~debug_image/compressed", CompressedImage, queue_size=1)
+        self._debug_wall = -math.inf
+        self._rays_shown = False
 
         # counters and state (main thread only, except the mailbox and the prism deque)
         self.images = Mailbox()
@@ -580,6 +596,9 @@ class AbsOrientNode:
             self.health.count("unknown_ids", unknown)
         self._publish(result, stamp, odom_T_base)
         self.health.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        debug_start = time.perf_counter()
+        self._publish_debug(msg, image, result)
+        self.health.add_stages({"debug image": 1e3 * (time.perf_counter() - debug_start)})
         self._save_state(time.monotonic())
         self._feed_selfcheck(result, odom_T_base)
         self._estimate_time_offset(s, odom_T_base, result)
@@ -620,8 +639,29 @@ class AbsOrientNode:
         pose = cv.pose_msg(result, stamp, c.map_frame)
         if pose is not None:
             self.pub_pose.publish(pose)
+        if result.observations or self._rays_shown:
+            self.pub_rays.publish(cv.rays_marker_array(result.observations, stamp, c.camera_frame))
+            self._rays_shown = bool(result.observations)
         if self.health.set_seen(r.id for r in result.observations if r.accepted):
             self.pub_markers.publish(cv.marker_array(self.marker_map, stamp, self.health.seen_ids))
+
+    def _publish_debug(self, msg, image, result: FrameResult) -> None:
+        """``~debug_image`` of this frame when someone subscribes and ``1/~debug_rate`` s (wall) passed."""
+        c = self.config
+        now = time.monotonic()
+        if self.pub_debug.get_num_connections() == 0 or now - self._debug_wall < 1.0 / c.debug_rate:
+            return
+        self._debug_wall = now
+        try:
+            frame = decode_jpeg(image) if isinstance(image, bytes) else image
+            map_T_camera = (result.map_T_base @ self.pipeline.base_T_camera if result.map_T_base is not None
+                            else None)
+            jpeg = encode_debug_jpeg(debug_frame(frame, result.observations, self.marker_map, map_T_camera,
+                                                 int(c.debug_width)))
+        except (DetectionError, ValueError) as e:
+            self._error("debug_image", f"~debug_image: {e}")
+            return
+        self.pub_debug.publish(self.cv.compressed_image(jpeg, msg.header.stamp, c.camera_frame))
 
     def _send_map_odom(self, stamp_sec: Optional[float], map_T_odom: np.ndarray) -> None:
         """Broadcast ``map_T_odom`` at ``stamp_sec`` (s, already future-dated; None: held back by the stamp

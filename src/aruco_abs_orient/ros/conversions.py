@@ -29,6 +29,7 @@ from geometry_msgs.msg import (
     TransformStamped,
     Vector3,
 )
+from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker as VizMarker
 from visualization_msgs.msg import MarkerArray
@@ -54,6 +55,8 @@ __all__ = [
     "pose_msg",
     "observations_msg",
     "marker_array",
+    "rays_marker_array",
+    "compressed_image",
     "fill_diagnostic",
 ]
 
@@ -264,6 +267,44 @@ def marker_array(marker_map: MarkerMap, stamp: rospy.Time, seen_ids: Iterable[in
         text.color = _TEXT
         out.markers.extend([cube, text])
     return out
+
+
+_RAY_ACCEPTED = ColorRGBA(0.1, 0.9, 0.2, 0.9)
+
+
+def rays_marker_array(observations, stamp: rospy.Time, camera_frame: str = "camera",
+                      default_length: float = 3.0, namespace: str = "bearing_rays") -> MarkerArray:
+    """rviz bearing rays of a frame's accepted markers: one LINE_LIST in ``camera_frame`` from the camera's
+    origin along each accepted marker's centre bearing, as long as its range estimate (m; ``default_length``
+    when unknown), and the id as text at its end. An empty frame gives a DELETEALL (the rays vanish)."""
+    out = MarkerArray()
+    accepted = [r for r in observations if r.accepted]
+    if not accepted:
+        out.markers.append(VizMarker(header=_header(stamp, camera_frame), ns=namespace, action=VizMarker.DELETEALL))
+        return out
+    lines = VizMarker(header=_header(stamp, camera_frame), ns=namespace, id=0, type=VizMarker.LINE_LIST,
+                      action=VizMarker.ADD)
+    lines.pose.orientation.w = 1.0
+    lines.scale.x = 0.02
+    lines.color = _RAY_ACCEPTED
+    for r in accepted:
+        length = float(r.range) if math.isfinite(r.range) and r.range > 0 else default_length
+        end = np.asarray(r.observation.centre, dtype=float) * length
+        lines.points.extend([Point(0.0, 0.0, 0.0), Point(*(float(x) for x in end))])
+        text = VizMarker(header=_header(stamp, camera_frame), ns=namespace + "_ids", id=int(r.id),
+                         type=VizMarker.TEXT_VIEW_FACING, action=VizMarker.ADD, text=str(r.id))
+        text.pose.position = Point(*(float(x) for x in end))
+        text.pose.orientation.w = 1.0
+        text.scale.z = 0.2
+        text.color = _TEXT
+        out.markers.append(text)
+    out.markers.insert(0, lines)
+    return out
+
+
+def compressed_image(jpeg: bytes, stamp: rospy.Time, frame_id: str) -> CompressedImage:
+    """``sensor_msgs/CompressedImage`` of JPEG bytes."""
+    return CompressedImage(header=_header(stamp, frame_id), format="jpeg", data=jpeg)
 
 
 _LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": DiagnosticStatus.ERROR,
