@@ -51,8 +51,8 @@ def run(args, ros) -> int:
         import rospy
         from sensor_msgs.msg import CompressedImage
 
-        rospy.Subscriber("/abs_orient/debug_image/compressed", CompressedImage, lambda m: debug_images.append(len(m.data)),
-                         queue_size=2, buff_size=1 << 24)
+        rospy.Subscriber("/abs_orient/debug_image/compressed", CompressedImage,
+                         lambda m: debug_images.append(len(m.data)), queue_size=2, buff_size=1 << 24)
     time.sleep(2.0)  # let the tracker settle, then measure
     debug_before = len(debug_images)
     start_vals = dict(mon.values)

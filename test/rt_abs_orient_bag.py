@@ -297,7 +297,8 @@ class BagRun(unittest.TestCase):
         self.launch(use_ekf=ARGS.owner == "ekf")
         consumer.stop.set()
         owner = "/ekf_map" if ARGS.owner == "ekf" else "/abs_orient"
-        self.assertEqual(self.rec.map_odom_publishers, {owner}, f"map->odom owner; the node said: {self.rec.last_status}")
+        self.assertEqual(self.rec.map_odom_publishers, {owner},
+                         f"map->odom owner; the node said: {self.rec.last_status}")
         self.assertEqual(stamps_only_go_forward(self.rec), [], "a map->odom stamp went back")
         looked = consumer.lookups
         self.assertGreater(len(looked), 40 * 0.8 * (self.truth.stamps[-1] - self.truth.stamps[0] - 10),

@@ -97,9 +97,9 @@ class MapOdomStamps:
         when ``newest_odometry + tolerance`` is a period past the newest stamp sent, or merely after it
         while a held-back correction is pending (or when nothing was sent yet)."""
         stamp = newest_odometry + self.tolerance
-        if self.last_sent is not None:
-            if stamp <= self.last_sent or (not self.pending and stamp < self.last_sent + self.period):
-                return None
+        if self.last_sent is not None and (
+                stamp <= self.last_sent or (not self.pending and stamp < self.last_sent + self.period)):
+            return None
         self._sent(stamp)
         return stamp
 
@@ -156,7 +156,7 @@ class NodeHealth:
 
     def set_seen(self, ids: Iterable[int]) -> bool:
         """The accepted ids of the newest frame; True when they changed."""
-        seen = tuple(sorted(set(int(i) for i in ids)))
+        seen = tuple(sorted({int(i) for i in ids}))
         changed = seen != self.seen_ids
         self.seen_ids = seen
         return changed

@@ -105,8 +105,8 @@ def test_replay_at_rate_4_keeps_the_consumer_covered():
 
 # ----------------------------------------------------------------------------------------------- health
 def _report(h, now_wall, **kw):
-    args = dict(initialised=True, image_age_wall=0.1, last_prism_stamp=99.8, prisms_waiting=False,
-                images_received=0, images_dropped=0, time_offset=0.0, time_offset_source="parameter")
+    args = {"initialised": True, "image_age_wall": 0.1, "last_prism_stamp": 99.8, "prisms_waiting": False,
+            "images_received": 0, "images_dropped": 0, "time_offset": 0.0, "time_offset_source": "parameter"}
     args.update(kw)
     return h.report(now_wall, 100.0, **args)
 

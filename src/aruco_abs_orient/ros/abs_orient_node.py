@@ -16,10 +16,11 @@ Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry th
 - ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
   arm removed; ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
   ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``abs_orient/rays`` (``MarkerArray``: a line
-  from the camera to each accepted marker of the frame, in the camera frame); ``~debug_image/compressed``
-  (``CompressedImage``, JPEG: image_transport's compressed transport of ``~debug_image``, only while
-  someone subscribes and at most ``~debug_rate`` Hz: the frame at ≤ ``~debug_width`` px with the
-  detections, the predicted markers, the seam and the horizon drawn by :mod:`aruco_abs_orient.debugview`);
+  from the camera to each accepted marker of the frame, in the camera frame); ``~debug_image``
+  (``Image`` bgr8) and ``~debug_image/compressed`` (``CompressedImage``, JPEG: image_transport's compressed
+  transport of it), each only while someone subscribes to it, at most ``~debug_rate`` Hz: the frame at
+  ≤ ``~debug_width`` px with the detections, the predicted markers, the seam and the horizon drawn by
+  :mod:`aruco_abs_orient.debugview`);
   ``/diagnostics`` through diagnostic_updater (hardware id: the camera frame): the ``pipeline`` status
   (:class:`aruco_abs_orient.nodestate.NodeHealth`), the ``self-check``, frequency statuses of images
   processed, prism positions and map→odom sent, timestamp statuses of the image age and the prism stamp offset.
@@ -171,11 +172,13 @@ class NodeConfig:
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
-                     "image_timeout", "state_max_age", "expected_image_rate", "expected_prism_rate", "max_image_age", "debug_rate"):
+                     "image_timeout", "state_max_age", "expected_image_rate", "expected_prism_rate", "max_image_age",
+                     "debug_rate"):
             if getattr(config, name) <= 0:
                 raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
         if config.transform_tolerance < 0:
-            raise NodeConfigError(f"~transform_tolerance: expected a number of s >= 0, got {config.transform_tolerance!r}")
+            raise NodeConfigError(f"~transform_tolerance: expected a number of s >= 0, "
+                                  f"got {config.transform_tolerance!r}")
         if not 16 <= config.debug_width <= 16384:
             raise NodeConfigError(f"~debug_width: expected 16 to 16384 px, got {config.debug_width!r}")
         if not 0 <= config.rate_tolerance < 1:
@@ -286,6 +289,7 @@ class AbsOrientNode:
         self.pub_markers = rospy.Publisher("abs_orient/markers", MarkerArray, queue_size=1, latch=True)
         self.pub_rays = rospy.Publisher("abs_orient/rays", MarkerArray, queue_size=1)
         self.pub_debug = rospy.Publisher("~debug_image/compressed", CompressedImage, queue_size=1)
+        self.pub_debug_raw = rospy.Publisher("~debug_image", Image, queue_size=1)
         self._debug_wall = -math.inf
         self._rays_shown = False
 
@@ -646,22 +650,27 @@ class AbsOrientNode:
             self.pub_markers.publish(cv.marker_array(self.marker_map, stamp, self.health.seen_ids))
 
     def _publish_debug(self, msg, image, result: FrameResult) -> None:
-        """``~debug_image`` of this frame when someone subscribes and ``1/~debug_rate`` s (wall) passed."""
+        """``~debug_image`` (raw, compressed) of this frame when someone subscribes to either and
+        ``1/~debug_rate`` s (wall) passed since the last one."""
         c = self.config
         now = time.monotonic()
-        if self.pub_debug.get_num_connections() == 0 or now - self._debug_wall < 1.0 / c.debug_rate:
+        jpeg_wanted, raw_wanted = self.pub_debug.get_num_connections(), self.pub_debug_raw.get_num_connections()
+        if not (jpeg_wanted or raw_wanted) or now - self._debug_wall < 1.0 / c.debug_rate:
             return
         self._debug_wall = now
         try:
-            frame = decode_jpeg(image) if isinstance(image, bytes) else image
+            grey = decode_jpeg(image) if isinstance(image, bytes) else image
             map_T_camera = (result.map_T_base @ self.pipeline.base_T_camera if result.map_T_base is not None
                             else None)
-            jpeg = encode_debug_jpeg(debug_frame(frame, result.observations, self.marker_map, map_T_camera,
-                                                 int(c.debug_width)))
+            frame = debug_frame(grey, result.observations, self.marker_map, map_T_camera, int(c.debug_width))
+            jpeg = encode_debug_jpeg(frame) if jpeg_wanted else b""
         except (DetectionError, ValueError) as e:
             self._error("debug_image", f"~debug_image: {e}")
             return
-        self.pub_debug.publish(self.cv.compressed_image(jpeg, msg.header.stamp, c.camera_frame))
+        if jpeg_wanted:
+            self.pub_debug.publish(self.cv.compressed_image(jpeg, msg.header.stamp, c.camera_frame))
+        if raw_wanted:
+            self.pub_debug_raw.publish(self.cv.bgr_image(frame, msg.header.stamp, c.camera_frame))
 
     def _send_map_odom(self, stamp_sec: Optional[float], map_T_odom: np.ndarray) -> None:
         """Broadcast ``map_T_odom`` at ``stamp_sec`` (s, already future-dated; None: held back by the stamp

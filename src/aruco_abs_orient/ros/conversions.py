@@ -29,7 +29,7 @@ from geometry_msgs.msg import (
     TransformStamped,
     Vector3,
 )
-from sensor_msgs.msg import CompressedImage
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker as VizMarker
 from visualization_msgs.msg import MarkerArray
@@ -57,6 +57,7 @@ __all__ = [
     "marker_array",
     "rays_marker_array",
     "compressed_image",
+    "bgr_image",
     "fill_diagnostic",
 ]
 
@@ -305,6 +306,16 @@ def rays_marker_array(observations, stamp: rospy.Time, camera_frame: str = "came
 def compressed_image(jpeg: bytes, stamp: rospy.Time, frame_id: str) -> CompressedImage:
     """``sensor_msgs/CompressedImage`` of JPEG bytes."""
     return CompressedImage(header=_header(stamp, frame_id), format="jpeg", data=jpeg)
+
+
+def bgr_image(frame: np.ndarray, stamp: rospy.Time, frame_id: str) -> Image:
+    """``sensor_msgs/Image`` (bgr8) of an (H, W, 3) uint8 BGR array."""
+    a = np.ascontiguousarray(frame, dtype=np.uint8)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ConversionError(f"image: expected an (H, W, 3) BGR array, got shape {a.shape}")
+    h, w = a.shape[:2]
+    return Image(header=_header(stamp, frame_id), height=h, width=w, encoding="bgr8", is_bigendian=0,
+                 step=3 * w, data=a.tobytes())
 
 
 _LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": DiagnosticStatus.ERROR,
