@@ -31,7 +31,9 @@ from typing import Deque, Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
 
-__all__ = ["MapOdomStamps", "NodeHealth", "IMAGE_OK", "IMAGE_JUMPED_BACK", "IMAGE_NOT_AFTER"]
+from .transforms import make_T, rot_z, wrap_angle, yaw_of
+
+__all__ = ["MapOdomStamps", "MapOdomPrediction", "NodeHealth", "IMAGE_OK", "IMAGE_JUMPED_BACK", "IMAGE_NOT_AFTER"]
 
 IMAGE_OK = "ok"
 IMAGE_JUMPED_BACK = "jumped back"
@@ -106,6 +108,31 @@ class MapOdomStamps:
     def _sent(self, stamp: float) -> None:
         self.last_sent = stamp
         self.pending = False
+
+
+class MapOdomPrediction:
+    """The filter's map→odom prediction as a function of time, for a thread that must not wait for the filter.
+
+    The map→odom filter (``correction``) predicts its state linearly in time (yaw offset plus a drift rate,
+    a translation), so two of its predictions, ``map_T_odom_0`` at ``t0`` and ``map_T_odom_1`` at ``t1``
+    (4×4, rotations about z, s), give every other one: yaw and translation interpolated or extrapolated
+    linearly. The node's re-publication timer uses it while the image thread holds the filter.
+    """
+
+    def __init__(self, t0: float, map_T_odom_0: np.ndarray, t1: float, map_T_odom_1: np.ndarray):
+        if not t1 > t0:
+            raise ValueError(f"map->odom prediction: t1 ({t1}) must be after t0 ({t0})")
+        A, B = np.asarray(map_T_odom_0, dtype=float), np.asarray(map_T_odom_1, dtype=float)
+        self.t0 = float(t0)
+        self.yaw0 = float(yaw_of(A[:3, :3]))
+        self.p0 = A[:3, 3].copy()
+        self.yaw_rate = float(wrap_angle(yaw_of(B[:3, :3]) - self.yaw0)) / (t1 - t0)   # rad/s
+        self.p_rate = (B[:3, 3] - self.p0) / (t1 - t0)                                  # m/s
+
+    def at(self, t: float) -> np.ndarray:
+        """map→odom (4×4) predicted at time ``t`` (s)."""
+        dt = float(t) - self.t0
+        return make_T(rot_z(self.yaw0 + self.yaw_rate * dt), self.p0 + self.p_rate * dt)
 
 
 # ------------------------------------------------------------------------------------------------ health

@@ -1,17 +1,22 @@
-"""nodestate: the node's map→odom stamp policy and its health report, with hand-checked numbers (no ROS)."""
+"""nodestate: the node's map→odom stamp policy, its prediction and its health report, with hand-checked
+numbers and the real map→odom filter (no ROS)."""
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from aruco_abs_orient.correction import MapOdomFilter
 from aruco_abs_orient.nodestate import (
     IMAGE_JUMPED_BACK,
     IMAGE_NOT_AFTER,
     IMAGE_OK,
+    MapOdomPrediction,
     MapOdomStamps,
     NodeHealth,
 )
+from aruco_abs_orient.transforms import make_T, rot_z, yaw_of
 
 
 def test_an_estimate_is_future_dated_by_the_tolerance():
@@ -151,3 +156,27 @@ def test_health_waiting_stale_inputs_and_an_extra_key():
     h.extra_values["tilt source"] = lambda: "imu"
     _, _, values = _report(h, 4.0)
     assert values["tilt source"] == "imu" and values["publish_tf"] is False
+
+
+# ------------------------------------------------------------------------------------------------ prediction
+def test_prediction_by_hand():
+    A = make_T(rot_z(3.1), [1.0, 2.0, 0.5])
+    B = make_T(rot_z(-3.1), [1.2, 2.0, 0.5])            # 2π − 6.2 = 0.0832 rad later: across ±π, wrapped
+    p = MapOdomPrediction(10.0, A, 12.0, B)
+    half = p.at(11.0)
+    assert float(yaw_of(half[:3, :3])) == pytest.approx(3.1 + (2 * math.pi - 6.2) / 2)
+    np.testing.assert_allclose(half[:3, 3], [1.1, 2.0, 0.5])
+    np.testing.assert_allclose(p.at(14.0)[:3, 3], [1.4, 2.0, 0.5])   # extrapolated
+    with pytest.raises(ValueError, match="t1"):
+        MapOdomPrediction(1.0, A, 1.0, B)
+
+
+def test_prediction_reproduces_the_filters_own():
+    """Two predictions of the real map->odom filter (a state with a yaw drift rate) give all its others."""
+    f = MapOdomFilter(np.array([-0.05, 0.0, 0.7]))
+    snap = {"t": 100.0, "x": [0.4, 3.0, -2.0, 0.1, math.radians(0.1) / 60], "P": (np.eye(5) * 1e-4).tolist(),
+            "odom_pos": [1.0, 1.0, 0.0], "noise_scale": 1.0}
+    assert f.restore(snap, 100.5, max_age=10.0) == ""
+    p = MapOdomPrediction(100.5, f.map_T_odom(100.5)[0], 101.5, f.map_T_odom(101.5)[0])
+    for t in (100.9, 102.0, 105.0):
+        np.testing.assert_allclose(p.at(t), f.map_T_odom(t)[0], atol=1e-12)

@@ -65,7 +65,7 @@ from ..calibration import CalibrationError, load_calibration
 from ..debugview import debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
-from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomStamps, NodeHealth
+from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
@@ -276,6 +276,8 @@ class AbsOrientNode:
         self._pending_for_pipeline: Dict[str, object] = {}  # waiting for the pipeline to exist
         self._throttle = _Throttle()
         self.stamps = MapOdomStamps(config.transform_tolerance, 1.0 / config.tf_rate, config.time_jump_tolerance)
+        self._tf_lock = threading.Lock()  # the stamp policy and the prediction: image thread and tf timer
+        self._prediction: Optional[MapOdomPrediction] = None  # of the filter, total-station time
         self.health = NodeHealth(config.image_timeout, config.prism_timeout, config.publish_tf, time.monotonic(),
                                  (config.base_frame, config.camera_frame, config.prism_frame))
 
@@ -377,13 +379,14 @@ class AbsOrientNode:
     def run(self) -> None:
         """Process images until shutdown (the calling thread is the worker)."""
         period = 1.0 / self.config.tf_rate
+        timer = self.rospy.Timer(self.rospy.Duration(period / 2), self._republish_map_odom, reset=True)
         while not self.rospy.is_shutdown():
             item = self.images.take(timeout=period)
             self._apply_params()
             if item is not None:
                 self._process(*item)
-            self._republish_map_odom()
             self.updater.update()
+        timer.shutdown()
 
     def _apply_params(self) -> None:
         with self._param_lock:
@@ -444,7 +447,9 @@ class AbsOrientNode:
             self.pipeline.reset()
         self.tf_buffer.clear()  # static transforms survive a clear
         self.last_prism_stamp = None
-        self.stamps.reset()
+        with self._tf_lock:
+            self.stamps.reset()
+            self._prediction = None
         self.last_result = None
         self.initialised = False
         if self.offset_estimator is not None:
@@ -497,6 +502,9 @@ class AbsOrientNode:
             self.rospy.loginfo(f"abs_orient: not starting from {c.state_file}: {why}")
             return
         self.initialised = True
+        prediction = self._prediction_from(now)  # the state predicted to now: map->odom goes out at once
+        with self._tf_lock:
+            self._prediction = prediction
         self.rospy.loginfo(f"abs_orient: started from the map->odom state in {c.state_file} "
                            f"({self.pipeline.filter.stats.restored_age:.2f} s old)")
 
@@ -557,11 +565,13 @@ class AbsOrientNode:
         stamp = msg.header.stamp
         s = cv.stamp_to_sec(stamp)
         self.last_image_wall = time.monotonic()
-        previous = self.stamps.last_image
-        verdict = self.stamps.check_image(s)
+        with self._tf_lock:
+            previous = self.stamps.last_image
+            verdict = self.stamps.check_image(s)
         if verdict == IMAGE_JUMPED_BACK:
             self._reset(f"image time jumped back by {previous - s:.3f} s")
-            self.stamps.check_image(s)
+            with self._tf_lock:
+                self.stamps.check_image(s)
         elif verdict == IMAGE_NOT_AFTER:
             self._error("out_of_order", f"image stamp {s:.3f} s not after the previous one, {previous:.3f} s")
             return
@@ -631,7 +641,10 @@ class AbsOrientNode:
         self.last_result = result
         self.pub_detections.publish(cv.observations_msg(result.observations, stamp, c.camera_frame))
         if result.map_T_odom is not None:
-            self._send_map_odom(self.stamps.for_estimate(cv.stamp_to_sec(stamp)), result.map_T_odom)
+            prediction = self._prediction_from(result.stamp)
+            with self._tf_lock:
+                self._prediction = prediction
+                self._send_map_odom(self.stamps.for_estimate(cv.stamp_to_sec(stamp)), result.map_T_odom)
         if result.fused_yaw is not None and any(r.accepted for r in result.observations):
             # the frame's own marker yaw (not the filtered one, which already used the odometry)
             self.pub_orientation.publish(cv.orientation_msg(result.fused_yaw, result.fused_yaw_sigma, odom_T_base,
@@ -672,9 +685,13 @@ class AbsOrientNode:
         if raw_wanted:
             self.pub_debug_raw.publish(self.cv.bgr_image(frame, msg.header.stamp, c.camera_frame))
 
+    def _prediction_from(self, t: float) -> MapOdomPrediction:
+        """The filter's prediction from time ``t`` (s, total-station time) on, for the tf timer."""
+        return MapOdomPrediction(t, self.pipeline.map_T_odom(t)[0], t + 1.0, self.pipeline.map_T_odom(t + 1.0)[0])
+
     def _send_map_odom(self, stamp_sec: Optional[float], map_T_odom: np.ndarray) -> None:
         """Broadcast ``map_T_odom`` at ``stamp_sec`` (s, already future-dated; None: held back by the stamp
-        policy, counted)."""
+        policy, counted). Called with ``_tf_lock`` held."""
         if stamp_sec is None:
             self.health.count("tf_held_back")
             return
@@ -686,23 +703,24 @@ class AbsOrientNode:
             self.health.count("tf_published")
             self.diag_tf.tick()
 
-    def _republish_map_odom(self) -> None:
-        """The filter's prediction at the newest odometry stamp, when the stamp policy says one is due
-        (images stalled, dropped, late or slower than tf_rate)."""
-        if self.pipeline is None or not self.initialised:
-            return
+    def _republish_map_odom(self, _event=None) -> None:
+        """rospy.Timer at 2·~tf_rate (its own thread, so an image being processed never delays it): the filter's
+        prediction at the newest odometry stamp, when the stamp policy says one is due (images stalled,
+        dropped, late or slower than tf_rate)."""
         c = self.config
         try:
             latest = self.tf_buffer.get_latest_common_time(c.odom_frame, c.base_frame)
         except self.tf2_ros.TransformException:
             return
         s = self.cv.stamp_to_sec(latest)
-        stamp = self.stamps.republish(s)
-        if stamp is None:
-            return
-        map_T_odom, _ = self.pipeline.map_T_odom(s - self.time_offset)
-        self._send_map_odom(stamp, map_T_odom)
-        self.health.count("tf_republished")
+        with self._tf_lock:
+            if self._prediction is None:  # not initialised (or just reset)
+                return
+            stamp = self.stamps.republish(s)
+            if stamp is None:
+                return
+            self._send_map_odom(stamp, self._prediction.at(s - self.time_offset))
+            self.health.count("tf_republished")
 
     def _pipeline_task(self, stat):
         """diagnostic_updater task ``pipeline``: :meth:`NodeHealth.report` since the previous update."""
