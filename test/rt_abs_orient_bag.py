@@ -28,6 +28,13 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      truth (RMSE ≤ 0.3°, or ≤ 1.1 × the owner's own estimate's RMSE over the same window when that is
      worse); the owner's map->odom stamps only go forward (never an older map->odom for a time covered);
      ``--duration``: the scenario is the preset re-rendered at that length (cached likewise);
+   - ``--mode consumer_bad``: the same consumer with bad input, one after another: the bag replayed at rate 4
+     (all of it: at 4x the node needs the standstill to start); the images relayed 0.5 s late (on the
+     bag's clock, to ``late/camera/image/compressed``); the bag looped (the clock jumps back by 20 s); the
+     last two from 12 s into the bag (the node starts while driving).
+     In each, the node's map->odom stamps never go back within a timeline (never an older map->odom for
+     a time already covered), and every run of failed lookups after initialisation (the jump's
+     included: the node resets and starts again) ends within 1 s of ROS time;
    - ``--mode calibration``: ``calibration:=`` a calibration YAML whose camera is the scenario's TRUE
      mounting turned by +1° about base_link z: the node must take the lever arms from the file, not
      from the bag's /tf_static, so base_link's heading comes out 1° low (mean −1° ± 0.1°), otherwise
@@ -193,6 +200,7 @@ class Consumer:
         self.lookups = []          # (kind, stamp s, 4x4 or None)
         self.failures = []         # (kind, stamp s, None, tf2's message)
         self.first_yaw = None      # ROS s of the node's first abs_orient/orientation
+        self.counting = False
         self.stop = threading.Event()
         rospy.Subscriber("abs_orient/orientation", PoseWithCovarianceStamped, self._on_yaw, queue_size=10)
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -217,10 +225,62 @@ class Consumer:
             next_tick = max(next_tick + period, time.monotonic())  # a late tick is not made up for
             time.sleep(max(0.0, next_tick - time.monotonic()))
             now = rospy.Time.now()
-            if self.first_yaw is None or now.to_sec() < self.first_yaw + 1.0:
-                continue  # the node is not initialised yet
+            if not self.counting:  # until the node is initialised; then for good (a clock jump included)
+                self.counting = self.first_yaw is not None and now.to_sec() >= self.first_yaw + 1.0
+                continue
             self._lookup("now", now)
             self._lookup("scan", now - rospy.Duration(0.025))
+
+
+class LateImages:
+    """Relays ``camera/image/compressed`` to ``late/camera/image/compressed`` ``delay`` s (of the bag's clock)
+    after it arrived: images that reach the node half a second late, as from an overloaded camera driver."""
+
+    def __init__(self, delay: float):
+        from sensor_msgs.msg import CompressedImage
+
+        self.delay = delay
+        self.queue = []
+        self.lock = threading.Lock()
+        self.done = threading.Event()
+        self.pub = rospy.Publisher("late/camera/image/compressed", CompressedImage, queue_size=30)
+        self.sub = rospy.Subscriber("camera/image/compressed", CompressedImage, self._on_image, queue_size=30,
+                                    buff_size=1 << 26)
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _on_image(self, msg):
+        with self.lock:
+            self.queue.append((rospy.get_time() + self.delay, msg))
+
+    def _run(self):
+        while not self.done.is_set() and not rospy.is_shutdown():
+            time.sleep(0.002)
+            now = rospy.get_time()
+            with self.lock:
+                due = [m for t, m in self.queue if t <= now]
+                self.queue = [(t, m) for t, m in self.queue if t > now]
+            for m in due:
+                self.pub.publish(m)
+
+    def stop(self):
+        self.done.set()
+        self.sub.unregister()
+
+
+def failure_runs(results):
+    """[(first, last)] ROS s of each run of consecutive failures in ``results`` [(stamp s, succeeded)] (in the
+    order looked up); a run still open at the end ends at the last lookup."""
+    runs, first, last = [], None, None
+    for t, ok in results:
+        if not ok:
+            first = t if first is None else first
+            last = t
+        elif first is not None:
+            runs.append((first, t))  # recovered at t
+            first = None
+    if first is not None:
+        runs.append((first, last))
+    return runs
 
 
 def stamps_only_go_forward(rec: "Recorder"):
@@ -264,19 +324,20 @@ class BagRun(unittest.TestCase):
         self.offset = time_offset_of(self.dir)
         self.rec = Recorder()
         self.t_still = standstill_end(self.truth)
+        self.rate = ARGS.rate
 
     def launch(self, use_ekf: bool, loop: bool = False, calibration: str = "", start: float = 0.0,
-               during=None, bag: Path = None):
+               during=None, bag: Path = None, extra=()):
         """Run postprocess.launch to the end of the bag (default: the scenario's; with ``loop``: to the end of
         its second pass); ``during()`` runs in a thread meanwhile."""
         args = ["roslaunch", "aruco_abs_orient", "postprocess.launch", f"bag:={bag or self.dir / 'scenario.bag'}",
                 f"markers:={self.dir / 'markers.yaml'}", f"time_offset:={self.offset}",
-                f"use_ekf:={str(use_ekf).lower()}", f"rate:={ARGS.rate}", f"loop:={str(loop).lower()}",
-                f"calibration:={calibration}", f"start:={start}"]
+                f"use_ekf:={str(use_ekf).lower()}", f"rate:={self.rate}", f"loop:={str(loop).lower()}",
+                f"calibration:={calibration}", f"start:={start}"] + list(extra)
         log_path = Path(os.environ.get("ROS_HOME", "/tmp")) / f"postprocess_{ARGS.mode}.log"
         duration = self.truth.stamps[-1] - self.truth.stamps[0]
         end_stamp = self.truth.stamps[-1] + self.offset - 0.5  # camera clock, near the bag's end
-        deadline = time.monotonic() + (2 if loop else 1) * duration / ARGS.rate + 60
+        deadline = time.monotonic() + (2 if loop else 1) * (duration - start) / self.rate + 60
         with open(str(log_path), "w") as log:
             proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
             if during is not None:
@@ -379,6 +440,43 @@ class BagRun(unittest.TestCase):
         self.report(f"{ARGS.owner} owner: yaw RMSE of the lookups after the standstill", rmse_deg(e), limit, "deg")
         self.assertLessEqual(rmse_deg(e), limit)
 
+    def check_consumer_bad(self):
+        bag = with_odometry_at(self.dir, 50.0)
+        start = 12.0
+        problems = []
+        for case in ("rate4", "late", "jump"):
+            while True:  # the previous case's /tf still queued here would reach a new recorder too (rospy)
+                n = self.rec.received
+                time.sleep(1.0)
+                if self.rec.received == n:
+                    break
+            self.rec = Recorder()
+            self.rate = 4.0 if case == "rate4" else 1.0
+            consumer = Consumer(self.rate)
+            relay = LateImages(0.5) if case == "late" else None
+            extra = ["image_topic:=late/camera/image"] if case == "late" else []
+            self.launch(use_ekf=False, loop=case == "jump", start=0.0 if case == "rate4" else start, bag=bag,
+                        extra=extra)
+            consumer.stop.set()
+            if relay is not None:
+                relay.stop()
+            back = stamps_only_go_forward(self.rec)
+            if back:
+                problems.append(f"{case}: map->odom stamps went back: {back[:3]}")
+            end = self.truth.stamps[-1] + self.offset
+            runs = failure_runs([(t, T is not None) for k, t, T in consumer.lookups if k == "now" and t <= end])
+            longest = max((b - a for a, b in runs), default=0.0)
+            ok = [T is not None for k, t, T in consumer.lookups if t <= end]
+            self.report(f"{case}: longest run of failed lookups at now ({len(runs)} runs, {100 * np.mean(ok):.2f} % "
+                        f"of {len(ok)} succeeded)", longest, 1.0, "s")
+            if not ok or longest >= 1.0:
+                spans = [(round(a, 2), round(b, 2)) for a, b in runs]
+                problems.append(f"{case}: {len(ok)} lookups, failure runs {spans}; "
+                                f"the node said: {self.rec.last_status}")
+            if case == "jump" and self.rec.resets < 1:
+                problems.append(f"jump: the node did not reset; it said: {self.rec.last_status}")
+        self.assertEqual(problems, [])
+
     def check_calibration(self):
         import yaml
 
@@ -467,7 +565,8 @@ class BagRun(unittest.TestCase):
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration", "chaos", "consumer"), required=True)
+    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration", "chaos", "consumer", "consumer_bad"),
+                    required=True)
     ap.add_argument("--preset", default="ci")
     ap.add_argument("--duration", type=float, default=0.0, help="s: the preset re-rendered this long (0: as is)")
     ap.add_argument("--owner", choices=("node", "ekf"), default="node", help="consumer mode: who owns map->odom")
