@@ -3,15 +3,16 @@
 #   make test    all tests: unit tests and rostests, one pytest run
 #   make bench   the benchmarks (full-size figures)
 #   make lint    ruff, catkin_lint, vermin (Python 3.8 for everything but offline/ and synthetic/)
+#   make screenshot  rviz headless during a replay -> doc/images/rviz.png (installs rviz, xvfb on demand)
 SHELL := /bin/bash
 .DEFAULT_GOAL := help
 ENV := source tools/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: help setup test demo bench lint clean
+.PHONY: help setup test demo bench lint screenshot clean
 
 help:
-	@sed -n '2,6p' Makefile | sed 's/^# //'
+	@sed -n '2,7p' Makefile | sed 's/^# //'
 
 setup:
 	@bash tools/setup.sh
@@ -24,6 +25,9 @@ demo: setup
 
 bench: setup
 	@$(ENV) bash tools/bench.sh
+
+screenshot: setup
+	@$(ENV) bash tools/screenshot.sh
 
 lint: setup
 	@$(ENV) ruff check . && \
