@@ -218,7 +218,7 @@ class Consumer:
         except tf2_ros.TransformException as e:
             self.lookups.append((kind, stamp.to_sec(), None))
             # whose fault: the odometry (the robot's own input, late here) or map->odom (the owner)
-            cause = "map->odom" if self.buffer.can_transform("odom", "base_link", stamp) else "odometry"
+            cause = "odometry" if self.buffer.can_transform("map", "odom", stamp) else "map->odom"
             self.failures.append((kind, stamp.to_sec(), cause, str(e)[-160:]))
 
     def _run(self):
@@ -480,8 +480,8 @@ class BagRun(unittest.TestCase):
             self.report(f"{case}: lookups at now that failed for want of odometry (left out)",
                         len([1 for k, _ in late_odometry if k == "now"]), math.inf, "")
             ok = [T is not None for k, t, T in consumer.lookups if t <= end]
-            self.report(f"{case}: longest run of lookups at now failed for want of map->odom ({len(runs)} runs, {100 * np.mean(ok):.2f} % "
-                        f"of {len(ok)} succeeded)", longest, 1.0, "s")
+            self.report(f"{case}: longest run of lookups at now failed for want of map->odom ({len(runs)} runs, "
+                        f"{100 * np.mean(ok):.2f} % of {len(ok)} succeeded)", longest, 1.0, "s")
             if not ok or longest >= 1.0:
                 spans = [(round(a, 2), round(b, 2)) for a, b in runs]
                 problems.append(f"{case}: {len(ok)} lookups, failure runs {spans}; "
