@@ -40,7 +40,7 @@ NOETIC_VERSIONS = {"python": "3.8", "numpy": "1.17.4", "cv2": "4.2.0", "yaml": "
 #: the core unit tests run on those versions: everything ROS-free but the docs and the renderer's own
 #: test (which checks the renderer with OpenCV ≥ 4.7's ArucoDetector; detection covers the renderer on 4.2)
 CORE_TESTS = ["camera", "transforms", "markers", "tum", "detection", "tracking", "solver", "correction",
-              "startup_anywhere",
+              "startup_anywhere", "nodestate", "debugview",
               "timesync", "calibration", "evaluation", "geocom_protocol", "geocom_client", "geocom_clock",
               "geocom_tracker", "geocom_sim_cli", "synthetic_scenario", "synthetic_bag", "offline"]
 #: the only reasons a test may skip there: it needs ROS, or geocompy (the independent GeoCOM client of the
