@@ -364,6 +364,9 @@ class BagRun(unittest.TestCase):
         with self.rec.lock:
             stamps = [s for s, _ in self.rec.odom_base]
         jumps = [i for i in range(1, len(stamps)) if stamps[i] < stamps[i - 1] - 0.5]
+        if jumps and stamps[-1] >= end_stamp:
+            rospy.loginfo("second pass done: jumped back from %.3f to %.3f (of %d), now at %.3f", stamps[jumps[0] - 1],
+                          stamps[jumps[0]], len(stamps), stamps[-1])
         return bool(jumps) and stamps[-1] >= end_stamp
 
     def report(self, name, value, limit, unit):
@@ -447,7 +450,7 @@ class BagRun(unittest.TestCase):
         bag = with_odometry_at(self.dir, 50.0)
         start = 12.0
         problems = []
-        for case in ("rate4", "late", "jump"):
+        for case in ARGS.cases.split(","):
             while True:  # the previous case's /tf still queued here would reach a new recorder too (rospy)
                 n = self.rec.received
                 time.sleep(1.0)
@@ -583,6 +586,7 @@ if __name__ == "__main__":
     ap.add_argument("--preset", default="ci")
     ap.add_argument("--duration", type=float, default=0.0, help="s: the preset re-rendered this long (0: as is)")
     ap.add_argument("--owner", choices=("node", "ekf"), default="node", help="consumer mode: who owns map->odom")
+    ap.add_argument("--cases", default="rate4,late,jump", help="consumer_bad mode: which bad inputs")
     ap.add_argument("--scenario", help="use this generated scenario directory instead of generating --preset")
     ap.add_argument("--rate", type=float, default=1.0, help="playback rate")
     ap.add_argument("--max-yaw-rmse-deg", type=float, default=0.3)

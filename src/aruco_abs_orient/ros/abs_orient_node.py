@@ -385,8 +385,17 @@ class AbsOrientNode:
             self._apply_params()
             if item is not None:
                 self._process(*item)
-            self.updater.update()
+            self._update_diagnostics()
         timer.shutdown()
+
+    def _update_diagnostics(self) -> None:
+        """diagnostic_updater's periodic publication; after the clock jumped back (a looped bag) it would wait
+        for the old timeline's next report time, and its frequency windows would span the jump: both restart."""
+        if self.rospy.Time.now() < self.updater.last_time:
+            self.updater.last_time = self.rospy.Time.now()
+            for diag in (self.diag_images, self.diag_prisms, self.diag_tf):
+                diag.clear_window()
+        self.updater.update()
 
     def _apply_params(self) -> None:
         with self._param_lock:
