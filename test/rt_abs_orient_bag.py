@@ -33,9 +33,12 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      bag's clock, to ``late/camera/image/compressed``); the bag looped (the clock jumps back by 20 s); the
      last two from 12 s into the bag (the node starts while driving).
      In each, the node's map->odom stamps never go back within a timeline (never an older map->odom for
-     a time already covered), and every run of lookups failed for want of map->odom after initialisation
-     (the jump's included: the node resets and starts again) ends within 1 s of ROS time (lookups that
-     failed because odometry->base_link itself had not arrived are counted and left out);
+     a time already covered); map->odom as it arrives here is never behind the odometry as it arrives for
+     1 s or more (``uncovered_runs``); and, with images late and with the jump (the node resets and starts
+     again), every run of lookups failed for want of map->odom after initialisation ends within 1 s of ROS
+     time (lookups that failed because odometry->base_link itself had not arrived are counted and left
+     out). At rate 4 the lookups are reported only: on a loaded 2-core machine this process's own tf
+     buffer falls seconds behind the replay;
    - ``--mode calibration``: ``calibration:=`` a calibration YAML whose camera is the scenario's TRUE
      mounting turned by +1° about base_link z: the node must take the lever arms from the file, not
      from the bag's /tf_static, so base_link's heading comes out 1° low (mean −1° ± 0.1°), otherwise
@@ -286,6 +289,27 @@ def failure_runs(results):
     return runs
 
 
+def uncovered_runs(rec: "Recorder", end: float):
+    """failure_runs of the odometry messages (stamps ≤ ``end``) that arrived here when the newest map->odom
+    received before them was stamped earlier: what a consumer looking up the odometry's newest time could not
+    find, judged on the two streams as they arrived (both through this process: its own lag cancels out).
+    From the first map->odom on; a jump back of the odometry starts a new timeline."""
+    with rec.lock:
+        events = sorted([(a, 1, t) for (t, _), a in zip(rec.odom_base, rec.arrival["odom_base"])]
+                        + [(a, 0, t) for (t, _), a in zip(rec.map_odom, rec.arrival["map_odom"])])
+    newest, last_odom, results = None, None, []
+    for _, is_odom, t in events:
+        if not is_odom:
+            newest = t if newest is None else max(newest, t)
+            continue
+        if last_odom is not None and t < last_odom - 0.5:
+            newest = None
+        last_odom = t
+        if newest is not None and t <= end:
+            results.append((t, newest >= t))
+    return failure_runs(results)
+
+
 def stamps_only_go_forward(rec: "Recorder"):
     """Problems: map->odom stamps (in arrival order) that are not after the previous one, except where the
     clock jumped back by more than 0.5 s (a new timeline: the node resets)."""
@@ -485,7 +509,16 @@ class BagRun(unittest.TestCase):
             ok = [T is not None for k, t, T in consumer.lookups if t <= end]
             self.report(f"{case}: longest run of lookups at now failed for want of map->odom ({len(runs)} runs, "
                         f"{100 * np.mean(ok):.2f} % of {len(ok)} succeeded)", longest, 1.0, "s")
-            if not ok or longest >= 1.0:
+            streams = uncovered_runs(self.rec, end)
+            stream_longest = max((b - a for a, b in streams), default=0.0)
+            self.report(f"{case}: longest run of odometry arriving ahead of map->odom ({len(streams)} runs)",
+                        stream_longest, 1.0, "s")
+            if stream_longest >= 1.0:
+                problems.append(f"{case}: odometry ahead of map->odom for {stream_longest:.2f} s: "
+                                f"{[(round(a, 2), round(b, 2)) for a, b in streams]}")
+            # at rate 4 on a loaded machine this process's own tf buffer lags (the lookups are reported):
+            # the streams above judge the owner there
+            if not ok or (longest >= 1.0 and case != "rate4"):
                 spans = [(round(a, 2), round(b, 2)) for a, b in runs]
                 problems.append(f"{case}: {len(ok)} lookups, failure runs {spans}; "
                                 f"the node said: {self.rec.last_status}")
