@@ -39,8 +39,8 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
-from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
-from .markers import ARUCO_DICTIONARIES
+from ..camera import Equirect, GnomonicView, angle_between, bearing_to_azel
+from ..markers import ARUCO_DICTIONARIES
 
 __all__ = [
     "DetectionError",

@@ -21,8 +21,6 @@ from aruco_abs_orient.detection import (
     DetectionError,
     DetectorParams,
     MarkerDetector,
-    _rotations_onto,
-    _straddles_seam,
     decode_jpeg,
     decode_marker,
     decode_markers,
@@ -33,9 +31,10 @@ from aruco_abs_orient.detection import (
     sphere_centre_bearing,
     to_grey,
 )
+from aruco_abs_orient.detection.detector import _rotations_onto, _straddles_seam
 from aruco_abs_orient.synthetic.render import encode_jpeg, facing_marker, render_equirect
 
-SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
+SRC = os.path.join(os.path.dirname(__file__), "..", "..", "..", "src")
 DEG = math.pi / 180.0
 
 

@@ -42,7 +42,7 @@ from typing import Deque, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .tum import sorted_series
+from ..tum import sorted_series
 
 __all__ = [
     "TimeSyncError",
