@@ -64,6 +64,7 @@ import numpy as np
 from ..calibration import CalibrationError, load_calibration
 from ..debugview import debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, decode_jpeg
+from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
 from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
@@ -78,7 +79,7 @@ RECONFIGURABLE_NODE_PARAMS = ("time_offset",)
 """Node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)."""
 
 
-class NodeConfigError(ValueError):
+class NodeConfigError(ConfigurationError, ValueError):
     """A node parameter with a bad value: names the parameter."""
 
 
