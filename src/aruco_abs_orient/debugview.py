@@ -60,17 +60,20 @@ def horizon_bearings(map_R_camera: Optional[np.ndarray], n: int = 721) -> np.nda
 
 def _polyline(img: np.ndarray, cam: Equirect, bearings: np.ndarray, colour, thickness: int,
               closed: bool) -> None:
-    """Draw the path through ``bearings``; a segment that crosses the seam is drawn on both sides."""
+    """Draw the path through ``bearings``: made continuous across the seam (each column unwrapped next to
+    the previous one), then drawn shifted by −W, 0 and +W (OpenCV clips what falls outside)."""
     u, v = cam.bearing_to_pixel(bearings)
     if closed:
         u, v = np.append(u, u[:1]), np.append(v, v[:1])
+    u = np.asarray(u, dtype=float)
+    steps = np.asarray(cam.unwrap_u(u[1:], u[:-1]), dtype=float) - u[:-1]   # each within W/2
+    u = np.concatenate([u[:1], u[0] + np.cumsum(steps)])
     w = cam.width
-    for a_u, a_v, b_u, b_v in zip(u[:-1], v[:-1], u[1:], v[1:]):
-        b_u = float(cam.unwrap_u(b_u, a_u))
-        shifts = [0.0] + ([-w] if max(a_u, b_u) > w - 0.5 else []) + ([w] if min(a_u, b_u) < -0.5 else [])
-        for shift in shifts:
-            cv2.line(img, (int(round(a_u + shift)), int(round(a_v))), (int(round(b_u + shift)), int(round(b_v))),
-                     colour, thickness, cv2.LINE_AA)
+    for shift in (-w, 0, w):
+        if np.max(u) + shift < 0 or np.min(u) + shift > w - 1:
+            continue
+        pts = np.round(np.stack([u + shift, v], axis=1)).astype(np.int32)
+        cv2.polylines(img, [pts], False, colour, thickness, cv2.LINE_8)  # anti-aliased: 5x slower
 
 
 def _label(img: np.ndarray, text: str, at: Tuple[float, float], colour, scale: float) -> None:

@@ -295,6 +295,7 @@ class AbsOrientNode:
         self.pub_debug_raw = rospy.Publisher("~debug_image", Image, queue_size=1)
         self._debug_wall = -math.inf
         self._rays_shown = False
+        self._debug_reduce = 1  # JPEG DCT reduction for ~debug_image (learnt from the first frame's width)
 
         # counters and state (main thread only, except the mailbox and the prism deque)
         self.images = Mailbox()
@@ -682,7 +683,10 @@ class AbsOrientNode:
             return
         self._debug_wall = now
         try:
-            grey = decode_jpeg(image) if isinstance(image, bytes) else image
+            grey = decode_jpeg(image, self._debug_reduce) if isinstance(image, bytes) else image
+            # the next JPEG decoded already reduced in the DCT (2, 4, 8) as far as ~debug_width allows
+            full = grey.shape[1] * self._debug_reduce
+            self._debug_reduce = max((r for r in (1, 2, 4, 8) if full // r >= c.debug_width), default=1)
             map_T_camera = (result.map_T_base @ self.pipeline.base_T_camera if result.map_T_base is not None
                             else None)
             frame = debug_frame(grey, result.observations, self.marker_map, map_T_camera, int(c.debug_width))
