@@ -30,8 +30,8 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      ``--duration``: the scenario is the preset re-rendered at that length (cached likewise);
    - ``--mode consumer_bad``: the same consumer with bad input, one after another: the bag replayed at rate 4
      (all of it: at 4x the node needs the standstill to start); the images relayed 0.5 s late (on the
-     bag's clock, to ``late/camera/image/compressed``); the bag looped (the clock jumps back by 20 s); the
-     last two from 12 s into the bag (the node starts while driving).
+     bag's clock, to ``late/camera/image/compressed``) from 17 s into the bag; the bag looped from 22 s
+     (the clock jumps back by 10 s); the last two start while driving.
      In each, the node's map->odom stamps never go back within a timeline (never an older map->odom for
      a time already covered); map->odom as it arrives here is never behind the odometry as it arrives for
      1 s or more (``uncovered_runs``); and, with images late and with the jump (the node resets and starts
@@ -472,7 +472,7 @@ class BagRun(unittest.TestCase):
 
     def check_consumer_bad(self):
         bag = with_odometry_at(self.dir, 50.0)
-        start = 12.0
+        starts = {"rate4": 0.0, "late": 17.0, "jump": 22.0}  # s into the bag: at 4x the node needs the standstill
         problems = []
         for case in ARGS.cases.split(","):
             while True:  # the previous case's /tf still queued here would reach a new recorder too (rospy)
@@ -485,8 +485,7 @@ class BagRun(unittest.TestCase):
             consumer = Consumer(self.rate)
             relay = LateImages(0.5) if case == "late" else None
             extra = ["image_topic:=late/camera/image"] if case == "late" else []
-            self.launch(use_ekf=False, loop=case == "jump", start=0.0 if case == "rate4" else start, bag=bag,
-                        extra=extra)
+            self.launch(use_ekf=False, loop=case == "jump", start=starts[case], bag=bag, extra=extra)
             consumer.stop.set()
             if relay is not None:
                 relay.stop()
