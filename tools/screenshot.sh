@@ -46,8 +46,11 @@ DISPLAY_NUM=$((90 + RANDOM % 100))
 PORT=$((20000 + RANDOM % 20000))
 WORK=$(mktemp -d)
 cleanup() {
-  [[ -n ${LAUNCH_PID:-} ]] && kill -INT -- "-$LAUNCH_PID" 2>/dev/null && sleep 3
-  [[ -n ${LAUNCH_PID:-} ]] && kill -KILL -- "-$LAUNCH_PID" 2>/dev/null
+  set +e  # every step runs, whatever the one before it did
+  if [[ -n ${LAUNCH_PID:-} ]]; then
+    kill -INT -- "-$LAUNCH_PID" 2>/dev/null && sleep 3
+    kill -KILL -- "-$LAUNCH_PID" 2>/dev/null
+  fi
   [[ -n ${XVFB_PID:-} ]] && kill "$XVFB_PID" 2>/dev/null
   rm -rf "$WORK"
 }
