@@ -18,7 +18,8 @@ from ..transforms import make_T, matrix_to_rpy, rpy_to_matrix
 from ..tum import atomic_write_text, read_yaml
 from .model import Calibration, CalibrationError
 
-__all__ = ["CALIBRATION_KEYS", "static_tf_yaml", "write_static_tf_yaml", "launch_snippet", "load_calibration"]
+__all__ = ["CALIBRATION_KEYS", "READOUT_KEY", "static_tf_yaml", "write_static_tf_yaml", "launch_snippet",
+           "load_calibration"]
 
 
 def _camera_tf(calib: Calibration, base_T_camera_nominal) -> Tuple[np.ndarray, np.ndarray]:
@@ -46,6 +47,11 @@ def static_tf_yaml(calib: Calibration, base_T_camera_nominal, base_T_prism) -> s
         f"{calib.n_markers} markers)",
         f"base_link_to_camera: {{xyz: {vec(xyz, 5)}, rpy_deg: {vec(np.degrees(rpy), 5)}}}",
     ]
+    if calib.readout_estimated or calib.readout > 0:
+        sigma = f" ± {1e3 * calib.readout_sigma:.3f}" if calib.readout_estimated else ""
+        lines.insert(-1, f"# rolling shutter: row v of H is captured at the image stamp + (v/H - 1/2) * readout; "
+                         f"readout {1e3 * calib.readout:.3f}{sigma} ms")
+        lines.append(f"{READOUT_KEY}: {1e3 * max(calib.readout, 0.0):.4f}")   # a readout cannot be negative
     if np.any(np.abs(rpy_p) > 0):
         lines.append(f"base_link_to_prism: {{xyz: {vec(Tp[:3, 3], 5)}, rpy_deg: {vec(np.degrees(rpy_p), 5)}}}")
     else:
@@ -75,6 +81,8 @@ def launch_snippet(calib: Calibration, base_T_camera_nominal, base_T_prism, base
 
 #: keys of the calibration YAML → the child frame each one places on base_link
 CALIBRATION_KEYS = {"base_link_to_camera": "camera", "base_link_to_prism": "prism"}
+#: key of the camera's rolling-shutter readout time (milliseconds; optional, 0 = global shutter)
+READOUT_KEY = "camera_readout_ms"
 
 
 def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
@@ -86,7 +94,8 @@ def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
 
 
 def load_calibration(path: str) -> Dict[str, np.ndarray]:
-    """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres).
+    """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres) and
+    ``"readout"``: the camera's rolling-shutter readout time (s, a 0-d array; 0 without ``camera_readout_ms``).
     Raises CalibrationError naming the file and the key."""
     data = read_yaml(path, CalibrationError)
     if not isinstance(data, dict):
@@ -100,4 +109,9 @@ def load_calibration(path: str) -> Dict[str, np.ndarray]:
         xyz = _vector(entry, "xyz", where)
         rpy = np.radians(_vector(entry, "rpy_deg", where, default=[0.0, 0.0, 0.0]))
         out[child] = make_T(rpy_to_matrix(*rpy), xyz)
+    readout = data.get(READOUT_KEY, 0.0)
+    if (not isinstance(readout, (int, float)) or isinstance(readout, bool) or not math.isfinite(readout)
+            or not 0.0 <= readout < 1000.0):
+        raise CalibrationError(f"{path}: {READOUT_KEY}: expected milliseconds in [0, 1000), got {readout!r}")
+    out["readout"] = np.array(1e-3 * float(readout))
     return out

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, NamedTuple, Tuple
+from typing import Dict, NamedTuple, Optional, Tuple
 
 import numpy as np
 
@@ -21,7 +21,10 @@ from ..markers import MarkerMap
 from ..transforms import make_T, rpy_to_matrix
 from ..tum import Trajectory
 
-__all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", "Unknowns"]
+__all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", "Unknowns", "N_GLOBALS"]
+
+#: length of the vector of global unknowns x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ)
+N_GLOBALS = 8
 
 
 class CalibrationError(ValueError):
@@ -49,6 +52,7 @@ class CalibrationParams:
     - ``max_boresight_sigma_deg``, ``max_lever_sigma``, ``max_time_offset_sigma``: a boresight angle
       (degrees) / lever-arm axis (m) / time offset (s) with a larger 1-σ is not determined:
       :class:`CalibrationError`.
+    - ``max_readout_sigma``: a rolling-shutter readout time (s) with a larger 1-σ is not determined.
     - ``max_iterations``: Gauss-Newton iterations per stage.
     """
 
@@ -69,6 +73,7 @@ class CalibrationParams:
     max_boresight_sigma_deg: float = 0.1
     max_lever_sigma: float = 0.02
     max_time_offset_sigma: float = 0.005
+    max_readout_sigma: float = 0.005
     max_iterations: int = 30
 
     def validate(self) -> None:
@@ -98,6 +103,9 @@ class Calibration:
     - ``time_offset_delta`` (s): the residual time offset found (0 when not estimated): the camera
       stamps are total-station time + (the offset given + it); ``time_offset_sigma`` (s, NaN when not
       estimated); ``time_offset_estimated``.
+    - ``readout`` (s): the rolling-shutter readout time used (estimated, or the one given; 0 = global
+      shutter): row v of an H-row image is captured at the frame stamp + (v/H − ½)·readout;
+      ``readout_sigma`` (s, NaN when not estimated); ``readout_estimated``.
     """
 
     boresight_rpy: np.ndarray
@@ -125,6 +133,9 @@ class Calibration:
     time_offset_delta: float = 0.0
     time_offset_sigma: float = float("nan")
     time_offset_estimated: bool = False
+    readout: float = 0.0
+    readout_sigma: float = float("nan")
+    readout_estimated: bool = False
 
     @property
     def boresight_matrix(self) -> np.ndarray:
@@ -160,6 +171,9 @@ class Calibration:
         if self.time_offset_estimated:
             out["time_offset_delta_ms"] = round(1e3 * self.time_offset_delta, 3)
             out["time_offset_sigma_ms"] = round(1e3 * self.time_offset_sigma, 3)
+        if self.readout_estimated:
+            out["readout_ms"] = round(1e3 * self.readout, 3)
+            out["readout_sigma_ms"] = round(1e3 * self.readout_sigma, 3)
         if self.lever_arm_estimated:
             out["lever_arm_delta_mm"] = [round(1e3 * float(x), 3) for x in self.lever_arm_delta]
             out["lever_arm_sigma_mm"] = [round(1e3 * float(x), 3) for x in self.lever_arm_sigma]
@@ -177,6 +191,9 @@ class Recording:
     - ``prism_times`` (K,) s, ``prism_positions`` (K, 3) m in map: the prism track (total-station
       stamps + the time offset).
     - ``marker_map``: the surveyed markers; ``base_T_camera`` (nominal) and ``base_T_prism``: 4×4.
+    - ``obs_rows`` (N,): (v/H − ½) of each observation's image row (``pipeline.row_fraction``; None:
+      all 0, the middle row); with a rolling-shutter readout ρ an observation is captured at
+      ``obs_times + obs_rows · ρ``.
     """
 
     obs_times: np.ndarray
@@ -189,6 +206,7 @@ class Recording:
     marker_map: MarkerMap
     base_T_camera: np.ndarray
     base_T_prism: np.ndarray
+    obs_rows: Optional[np.ndarray] = None
 
 
 class Unknowns(NamedTuple):
@@ -196,7 +214,9 @@ class Unknowns(NamedTuple):
 
     lever_arm: bool = False
     time_offset: bool = False
+    readout: bool = False
 
     def free(self) -> Tuple[int, ...]:
-        """Indices of the free globals in x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ)."""
-        return (0, 1, 2) + ((3, 4, 5) if self.lever_arm else ()) + ((6,) if self.time_offset else ())
+        """Indices of the free globals in x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ)."""
+        return ((0, 1, 2) + ((3, 4, 5) if self.lever_arm else ()) + ((6,) if self.time_offset else ())
+                + ((7,) if self.readout else ()))

@@ -65,15 +65,16 @@ import numpy as np
 from ..timesync import TimeSyncError, heading_from_track
 from ..transforms import quat_to_matrix, rot_z, rpy_to_matrix, wrap_angle, yaw_of
 from ..tum import Trajectory
-from .model import CalibrationError, CalibrationParams, Recording
+from .model import N_GLOBALS, CalibrationError, CalibrationParams, Recording
 
 __all__ = ["Problem", "Setup", "setup_problem"]
 
 
 class _Observed(NamedTuple):
-    """The usable observations, interpolated to their times: unit bearings u (N, 3), marker positions M
-    (N, 3) m, prism P (N, 3) m and its velocity V (N, 3) m/s in map, odom_R_base (N, 3, 3), 1-σ (N,) rad,
-    times t (N,) s."""
+    """The usable observations, interpolated to their (row) times: unit bearings u (N, 3), marker
+    positions M (N, 3) m, prism P (N, 3) m and its velocity V (N, 3) m/s in map, odom_R_base (N, 3, 3),
+    1-σ (N,) rad, times t (N,) s, image rows (v/H − ½) (N,) and the odometry's body rotation rate
+    ω (N, 3) rad/s."""
 
     u: np.ndarray
     M: np.ndarray
@@ -82,6 +83,8 @@ class _Observed(NamedTuple):
     R_odom: np.ndarray
     sigma: np.ndarray
     t: np.ndarray
+    rows: np.ndarray
+    omega: np.ndarray
 
 
 class _Mounting(NamedTuple):
@@ -103,12 +106,15 @@ class _Track(NamedTuple):
 class Problem:
     """Marker observations and heading constraints with everything interpolated to their times.
 
-    The global unknowns are the 7-vector x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ) (rad, m, s), of
-    which ``_solve`` frees a subset; the knot values d of δ(t) are always free."""
+    The global unknowns are the vector x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ) (rad, m, s, s),
+    of which ``_solve`` frees a subset; the knot values d of δ(t) are always free. Δρ changes the
+    rolling-shutter readout the observations were interpolated with: an observation on row fraction f
+    moves in time by f·Δρ (its odometry rotation by ω f Δρ, its prism by V f Δρ)."""
 
     def __init__(self, obs: _Observed, mounting: _Mounting, track: _Track, heading, knots: np.ndarray,
                  params: CalibrationParams):
         self.u, self.M, self.P, self.V, self.R_odom, self.sigma = obs.u, obs.M, obs.P, obs.V, obs.R_odom, obs.sigma
+        self.rows, self.omega = obs.rows, obs.omega
         self.R_bc, self.t_cam, self.t_prism = mounting
         self.track, self.params = track, params
         self.knots = knots
@@ -138,9 +144,14 @@ class Problem:
         return (1.0 - a) * d[i] + a * d[i + 1]
 
     def camera_to_marker(self, x, delta) -> np.ndarray:
-        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P + V Δτ) − (t_cam + Δl − t_prism)."""
+        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P + V Δτ − V f Δρ) − (t_cam +
+        Δl − t_prism), map_R_base = Rz(δ) odom_R_base exp([ω f Δρ]×)."""
         R = rot_z(delta) @ self.R_odom                                   # map_R_base (N, 3, 3)
-        return np.einsum("nji,nj->ni", R, self.M - self.P + self.V * x[6]) - (self.t_cam + x[3:6] - self.t_prism)
+        g = self.M - self.P + self.V * x[6]
+        if x[7] != 0.0:
+            R = R @ _rotations(self.omega * (self.rows * x[7])[:, None])
+            g = g - self.V * (self.rows * x[7])[:, None]
+        return np.einsum("nji,nj->ni", R, g) - (self.t_cam + x[3:6] - self.t_prism)
 
     def predict(self, x, delta) -> np.ndarray:
         """Predicted unit bearings (N, 3) in the camera frame."""
@@ -153,6 +164,28 @@ class Problem:
     def heading_residuals(self, x, d) -> np.ndarray:
         """δ(t) − (travel heading at t − Δτ − odometry yaw), linearised in Δτ (rad)."""
         return wrap_angle(self.delta_at(d, self.i_head, self.a_head) - self.yaw_head + self.rate_head * x[6])
+
+
+def _rotations(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) of rotation vectors ``w`` (N, 3) rad (Rodrigues)."""
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-12
+    k = w / np.where(small, 1.0, theta)[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(theta)[:, None, None], (1.0 - np.cos(theta))[:, None, None]
+    return np.eye(3) + s * K + c * (K @ K)
+
+
+def _body_rates(odom: Trajectory, t: np.ndarray, h: float = 0.02) -> np.ndarray:
+    """The odometry's body rotation rate ω (N, 3) rad/s at times ``t``: odom_R_base(t + s) ≈
+    odom_R_base(t) exp([ω s]×), from the poses h s either side (zero where they are missing)."""
+    _, q0, ok0 = odom.interpolate(t - h)
+    _, q1, ok1 = odom.interpolate(t + h)
+    A = np.einsum("nji,njk->nik", quat_to_matrix(q0), quat_to_matrix(q1))   # R0ᵀ R1
+    w = 0.5 * np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0], A[:, 1, 0] - A[:, 0, 1]], axis=1)
+    return np.where((ok0 & ok1)[:, None], w / (2 * h), 0.0)
 
 
 def _knot_weights(knots: np.ndarray, t: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -260,6 +293,7 @@ class _Checked(NamedTuple):
     prism_positions: np.ndarray
     base_T_camera: np.ndarray
     base_T_prism: np.ndarray
+    rows: np.ndarray
 
 
 def _checked(rec: Recording) -> _Checked:
@@ -283,15 +317,20 @@ def _checked(rec: Recording) -> _Checked:
         raise CalibrationError(f"only {len(tp)} prism positions: the calibration needs the prism track")
     if len(rec.odom.stamps) < 2:
         raise CalibrationError("fewer than 2 odometry poses: the calibration needs odom→base_link")
-    return _Checked(t, ids, u, sig, tp, pp, Tc, Tp)
+    rows = np.zeros(n) if rec.obs_rows is None else _as_array(rec.obs_rows, (), "obs_rows", n)
+    if not np.all(np.abs(rows) <= 0.5):
+        raise CalibrationError("obs_rows: expected image row fractions v/H − ½ in [−0.5, 0.5]")
+    return _Checked(t, ids, u, sig, tp, pp, Tc, Tp, rows)
 
 
-def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float) -> Setup:
-    """The problem of ``rec`` with the prism stamps moved by ``time_shift`` (s): the usable observations
-    (id in the map, finite, prism and odometry at the time), the heading constraints and the knots.
-    Raises CalibrationError when too few observations or too little driving remain (saying which)."""
+def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float, readout: float = 0.0) -> Setup:
+    """The problem of ``rec`` with the prism stamps moved by ``time_shift`` (s) and each observation at its
+    row's capture time with the rolling-shutter ``readout`` (s): the usable observations (id in the map,
+    finite, prism and odometry at the time), the heading constraints and the knots. Raises
+    CalibrationError when too few observations or too little driving remain (saying which)."""
     c = _checked(rec)
-    t, ids, u, sig = c.t, c.ids, c.u, c.sigma
+    ids, u, sig, rows = c.ids, c.u, c.sigma, c.rows
+    t = c.t + rows * readout
     n = len(t)
     order = np.argsort(c.prism_times, kind="stable")
     tp, pp = c.prism_times[order] + time_shift, c.prism_positions[order]
@@ -350,8 +389,10 @@ def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float) 
     V = np.zeros((len(idx), 3))
     V[:, 0] = np.where(trk.valid, trk.speed * np.cos(trk.heading), 0.0)
     V[:, 1] = np.where(trk.valid, trk.speed * np.sin(trk.heading), 0.0)
-    obs = _Observed(u[idx] / norm[idx, None], M, P[idx], V, quat_to_matrix(q_odom[idx]), sig[idx], t[idx])
+    omega = _body_rates(rec.odom, t[idx]) if np.any(rows[idx]) else np.zeros((len(idx), 3))
+    obs = _Observed(u[idx] / norm[idx, None], M, P[idx], V, quat_to_matrix(q_odom[idx]), sig[idx], t[idx],
+                    rows[idx], omega)
     pb = Problem(obs, mounting, track, heading, knots, params)
-    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(7), np.zeros(len(idx))), axis=1), 1e-3)
+    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(N_GLOBALS), np.zeros(len(idx))), axis=1), 1e-3)
     pb.sigma = np.sqrt(pb.sigma ** 2 + (sM ** 2 + params.prism_sigma ** 2) / rng ** 2)
     return Setup(pb, idx, keep, ids, skipped)

@@ -22,7 +22,7 @@ import numpy as np
 from ..markers import MarkerMap
 from ..solver import yaw_consensus
 from ..tum import Trajectory
-from .model import Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
+from .model import N_GLOBALS, Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
 from .problem import Problem, setup_problem
 
 __all__ = ["calibrate", "calibrate_recording"]
@@ -33,7 +33,7 @@ def _cauchy(e: np.ndarray, k: float) -> np.ndarray:
 
 
 class _Solution:
-    """Globals x (7,) = (roll, pitch, yaw, Δl (3), Δτ) and the knot values d of δ(t)."""
+    """Globals x (N_GLOBALS,) = (roll, pitch, yaw, Δl (3), Δτ, Δρ) and the knot values d of δ(t)."""
 
     def __init__(self, x, d):
         self.x, self.d = x, d
@@ -94,7 +94,7 @@ def _solve(pb: Problem, sol: _Solution, free: Tuple[int, ...], weights: _Weights
         # Jacobians: globals and δ by central differences (the model is cheap and vectorised)
         Jg = np.empty(r.shape + (n_glob,))
         for j, g in enumerate(free):
-            step = np.zeros(7)
+            step = np.zeros(N_GLOBALS)
             step[g] = h
             Jg[:, :, j] = (pb.residuals(x + step, delta) - pb.residuals(x - step, delta)) / (2 * h)
         c = (pb.residuals(x, delta + h) - pb.residuals(x, delta - h)) / (2 * h)   # ∂r/∂δ
@@ -195,7 +195,8 @@ def _fit(pb: Problem, sol: _Solution, free: Tuple[int, ...], params: Calibration
 
 def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_times, prism_positions,
               marker_map: MarkerMap, base_T_camera, base_T_prism, *, estimate_lever_arm: bool = False,
-              estimate_time_offset: bool = False, params: Optional[CalibrationParams] = None) -> Calibration:
+              estimate_time_offset: bool = False, params: Optional[CalibrationParams] = None,
+              obs_rows=None, readout: float = 0.0, estimate_readout: bool = False) -> Calibration:
     """Boresight (and optionally lever arm) of the camera from all marker observations of a recording.
 
     Args:
@@ -214,6 +215,11 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
             (one more unknown; linearised, so the offset given should be within ~0.1 s, as
             ``timesync.estimate_offset`` gives it).
         params: :class:`CalibrationParams`.
+        obs_rows: (N,) each observation's image row as v/H − ½ (``pipeline.row_fraction``; None: 0).
+        readout: the camera's rolling-shutter readout time (s; 0 = global shutter): an observation is
+            captured at obs_times + obs_rows · readout.
+        estimate_readout: also estimate the readout (one more unknown, starting from ``readout``):
+            needs turns with markers above and below the horizon.
 
     Raises:
         CalibrationError: malformed inputs, or a recording that cannot determine the calibration (no
@@ -221,57 +227,67 @@ def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_time
             the limits) — the message says which and why.
     """
     rec = Recording(obs_times, obs_ids, bearings, sigmas, odom, prism_times, prism_positions, marker_map,
-                    base_T_camera, base_T_prism)
-    return calibrate_recording(rec, Unknowns(bool(estimate_lever_arm), bool(estimate_time_offset)), params)
+                    base_T_camera, base_T_prism, obs_rows)
+    unknowns = Unknowns(bool(estimate_lever_arm), bool(estimate_time_offset), bool(estimate_readout))
+    return calibrate_recording(rec, unknowns, params, readout)
 
 
 def calibrate_recording(rec: Recording, unknowns: Optional[Unknowns] = None,
-                        params: Optional[CalibrationParams] = None) -> Calibration:
+                        params: Optional[CalibrationParams] = None, readout: float = 0.0) -> Calibration:
     """:func:`calibrate` of a :class:`~.model.Recording` with the ``unknowns`` freed (default: the
-    boresight only)."""
+    boresight only); ``readout`` (s): the rolling-shutter readout time, fixed, or the start of its
+    estimate."""
+    if not (math.isfinite(readout) and 0.0 <= readout < 1.0):
+        raise CalibrationError(f"readout: expected seconds in [0, 1), got {readout!r}")
     unknowns = unknowns or Unknowns()
     params = params or CalibrationParams()
     params.validate()
-    cal = _calibrate_once(rec, unknowns, params, 0.0)
-    shift = cal.time_offset_delta
-    for _ in range(4):  # Δτ is linearised: move the prism clock by it and solve again until it is ≪ 1 ms
-        if abs(cal.time_offset_delta) < 2e-4:
+    cal = _calibrate_once(rec, unknowns, params, 0.0, readout)
+    shift, readout = cal.time_offset_delta, readout + cal.readout
+    for _ in range(4):  # Δτ, Δρ are linearised: move the clocks by them and solve again until they are ≪ 1 ms
+        if abs(cal.time_offset_delta) < 2e-4 and abs(cal.readout) < 2e-4:
             break
-        cal = _calibrate_once(rec, unknowns, params, shift)
+        cal = _calibrate_once(rec, unknowns, params, shift, readout)
         shift += cal.time_offset_delta
-    cal.time_offset_delta = shift
+        readout += cal.readout
+    cal.time_offset_delta, cal.readout = shift, readout
     return cal
 
 
 def _check_determined(sd: np.ndarray, unknowns: Unknowns, params: CalibrationParams) -> None:
-    """CalibrationError naming the parameters whose 1-σ ``sd`` (7,) exceeds its limit."""
+    """CalibrationError naming the parameters whose 1-σ ``sd`` (N_GLOBALS,) exceeds its limit."""
     bad = [name for name, s in zip(("roll", "pitch", "yaw"), sd[:3])
            if not s <= math.radians(params.max_boresight_sigma_deg)]
     if unknowns.lever_arm:
         bad += [f"lever arm {name}" for name, s in zip("xyz", sd[3:6]) if not s <= params.max_lever_sigma]
     if unknowns.time_offset and not sd[6] <= params.max_time_offset_sigma:
         bad.append("time offset")
+    if unknowns.readout and not sd[7] <= params.max_readout_sigma:
+        bad.append("readout time")
     if bad:
         raise CalibrationError(
             "the recording does not determine the boresight " + ", ".join(bad) + " (1-σ "
             + ", ".join(f"{math.degrees(s):.3f}°" for s in sd[:3])
             + (", " + ", ".join(f"{1e3 * s:.1f} mm" for s in sd[3:6]) if unknowns.lever_arm else "")
             + (f", {1e3 * sd[6]:.1f} ms" if unknowns.time_offset else "")
-            + f"; limits {params.max_boresight_sigma_deg}°, {1e3 * params.max_lever_sigma:.0f} mm and "
-            f"{1e3 * params.max_time_offset_sigma:.0f} ms): record markers in more directions and at several "
-            "ranges while driving")
+            + (f", readout {1e3 * sd[7]:.1f} ms" if unknowns.readout else "")
+            + f"; limits {params.max_boresight_sigma_deg}°, {1e3 * params.max_lever_sigma:.0f} mm, "
+            f"{1e3 * params.max_time_offset_sigma:.0f} ms and readout {1e3 * params.max_readout_sigma:.0f} ms): "
+            "record markers in more directions, at several ranges and elevations, while driving and turning")
 
 
-def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParams, time_shift: float) -> Calibration:
-    """One linearised solve of :func:`calibrate` with the prism stamps moved by ``time_shift`` (s)."""
-    setup = setup_problem(rec, params, time_shift)
+def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParams, time_shift: float,
+                    readout: float) -> Calibration:
+    """One linearised solve of :func:`calibrate` with the prism stamps moved by ``time_shift`` (s) and the
+    observations at their row times with the rolling-shutter ``readout`` (s)."""
+    setup = setup_problem(rec, params, time_shift, readout)
     pb, idx = setup.problem, setup.index
     n = len(setup.usable)
     # start: δ constant, the robust mean of the heading constraints
     yh, sh = pb.yaw_head, pb.sigma_head
     sub = np.linspace(0, len(yh) - 1, min(len(yh), 2000)).astype(int)
     d0 = yaw_consensus(yh[sub], sh[sub], floor=math.radians(2.0))[0]
-    start = _Solution(np.zeros(7), np.full(len(pb.knots), d0))
+    start = _Solution(np.zeros(N_GLOBALS), np.full(len(pb.knots), d0))
     # before: the nominal transform, δ(t) fitted
     before = _fit(pb, start, (), params).sol
     pb.refine_heading(before.d)
@@ -280,7 +296,7 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
     sol = fit.sol
 
     cov = fit.Hinv[:len(free), :len(free)]
-    sd = np.full(7, np.nan)
+    sd = np.full(N_GLOBALS, np.nan)
     sd[list(free)] = np.sqrt(np.maximum(np.diag(cov), 0.0))
     _check_determined(sd, unknowns, params)
 
@@ -324,4 +340,7 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
         time_offset_delta=float(sol.x[6]),
         time_offset_sigma=float(sd[6]),
         time_offset_estimated=bool(unknowns.time_offset),
+        readout=float(sol.x[7]),
+        readout_sigma=float(sd[7]),
+        readout_estimated=bool(unknowns.readout),
     )
