@@ -56,7 +56,7 @@ class CalibrationParams:
     - ``max_iterations``: Gauss-Newton iterations per stage.
     """
 
-    knot_spacing: float = 5.0
+    knot_spacing: float = 1.0
     drift_sigma_deg: float = 1.0
     heading_smooth: float = 0.25
     heading_step: float = 0.25
