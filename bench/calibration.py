@@ -92,21 +92,23 @@ def honesty(a) -> int:
     the yaw error, its σ and error/σ, and the fraction within 2.5 σ."""
     from aruco_abs_orient.calibration import CalibrationParams, calibrate
     from aruco_abs_orient.synthetic.feed import marker_observations
-    from aruco_abs_orient.synthetic.scenario import Scenario
+    from aruco_abs_orient.synthetic.scenario import Scenario, ScenarioConfig
     from aruco_abs_orient.tum import Trajectory
 
     noise = math.radians(a.noise_deg)
     params = CalibrationParams(knot_spacing=a.knot_spacing) if a.knot_spacing else CalibrationParams()
     print(f"\nboresight-yaw honesty: preset {a.preset}, {a.duration or PRESETS[a.preset].duration:g} s, every "
           f"{a.every}. frame, bearing noise {a.noise_deg}°, prism noise {1e3 * a.prism_noise:.1f} mm, readout "
-          f"{1e3 * a.readout:.0f} ms, knots every {params.knot_spacing:g} s")
+          f"{1e3 * a.readout:.0f} ms, knots every {params.knot_spacing:g} s" + "".join(f", {x}" for x in a.set))
     print(f"  {'seed':>4s} {'yaw err (deg)':>14s} {'σ (deg)':>9s} {'err/σ':>7s} {'readout (ms)':>13s} {'σ':>6s}")
     ratios, rerr = [], []
     for seed in range(a.seed, a.seed + a.seeds):
         changes = {"seed": seed, "boresight_deg": a.boresight_deg, "prism_noise": a.prism_noise}
         if a.duration:
             changes["duration"] = a.duration
-        sc = Scenario(dataclasses.replace(PRESETS[a.preset], **changes))
+        base = dict(PRESETS[a.preset].to_dict(), **changes)
+        base.update({k: v for x in a.set for k, v in yaml.safe_load(x).items()})
+        sc = Scenario(ScenarioConfig.from_dict(base, source="--set"))
         off = sc.config.camera_time_offset
         frames = sc.frame_times[::a.every]
         ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(seed), readout=a.readout)
@@ -149,6 +151,8 @@ def main(argv=None) -> int:
     g.add_argument("--noise-deg", type=float, default=0.03, help="bearing noise, deg per axis")
     g.add_argument("--prism-noise", type=float, default=0.003, help="prism noise, m per axis")
     g.add_argument("--readout", type=float, default=0.0, help="rolling-shutter readout, s (estimated when > 0)")
+    g.add_argument("--set", action="append", default=[], metavar="FIELD: VALUE",
+                   help="a scenario field, YAML, e.g. --set 'marker_height: [0.0, 3.0]' (repeatable)")
     g.add_argument("--knot-spacing", type=float, default=0.0, help="δ(t) knots, s (default: CalibrationParams')")
     a = ap.parse_args(argv)
     if a.honesty:
