@@ -95,7 +95,9 @@ class Calibration:
       bearings with the nominal and with the calibrated transform (δ(t) fitted in both), over the
       observations kept; ``residual_median_before`` / ``_after`` likewise (rad).
     - ``heading_rms`` (rad): RMS of the track-heading residuals kept.
-    - ``variance_factors``: a-posteriori variance factors of the groups ('markers', 'heading').
+    - ``variance_factors``: a-posteriori variance factors of the groups ('markers', 'heading'), and the
+      inflation of their variances for the residuals' correlation in time ('markers_correlation',
+      'heading_correlation', ≥ 1: ``solve.correlation_factor``), included in ``cov`` and the σ.
     - counts: ``n_observations`` given, ``n_used`` kept, ``n_markers`` distinct ids kept, ``n_heading``
       heading constraints kept, ``moving_time`` (s) they cover, ``skipped`` reason → count.
     - ``used`` (N,) bool over the input observations; ``residuals_before`` / ``residuals_after`` (N,)

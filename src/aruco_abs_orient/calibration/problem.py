@@ -114,7 +114,7 @@ class Problem:
     def __init__(self, obs: _Observed, mounting: _Mounting, track: _Track, heading, knots: np.ndarray,
                  params: CalibrationParams):
         self.u, self.M, self.P, self.V, self.R_odom, self.sigma = obs.u, obs.M, obs.P, obs.V, obs.R_odom, obs.sigma
-        self.rows, self.omega = obs.rows, obs.omega
+        self.rows, self.omega, self.t = obs.rows, obs.omega, obs.t
         self.R_bc, self.t_cam, self.t_prism = mounting
         self.track, self.params = track, params
         self.knots = knots

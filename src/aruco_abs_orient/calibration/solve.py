@@ -190,7 +190,41 @@ def _fit(pb: Problem, sol: _Solution, free: Tuple[int, ...], params: Calibration
         scale_h *= math.sqrt(max(f_h, 1e-6))
         if done:
             break
+    # the residuals are correlated in time (the VO's yaw walk between knots, the smoothed track heading, a
+    # platform that wanders): n correlated residuals weigh like n / c independent ones. Inflate each
+    # group's σ by √c, c from the residuals' own autocorrelation, so the covariance stays honest.
+    delta = pb.delta_at(sol.d, pb.i_obs, pb.a_obs)
+    order = np.argsort(pb.t, kind="stable")
+    r_o = pb.residuals(sol.x, delta)[order][mask_o[order] > 0] / pb.sigma[order][mask_o[order] > 0, None]
+    c_o = correlation_factor(r_o)
+    c_h = correlation_factor((pb.heading_residuals(sol.x, sol.d) / pb.sigma_head)[mask_h > 0, None]) if n_h else 1.0
+    vf.update({"markers_correlation": c_o, "heading_correlation": c_h})
+    if c_o > 1.0 or c_h > 1.0:
+        weights = _Weights(mask_o, mask_h, False, scale_o * math.sqrt(c_o), scale_h * math.sqrt(c_h))
+        sol, Hinv, it2 = _solve(pb, sol, free, weights, params)
+        it += it2
     return _Fit(sol, Hinv, mask_o.astype(bool), mask_h.astype(bool), vf, it)
+
+
+def correlation_factor(series: np.ndarray, max_lag: int = 200) -> float:
+    """Variance inflation 1 + 2 Σ ρ_k (≥ 1) of the mean of a time-ordered series (n, c) of residuals: ρ_k
+    its lag-k autocorrelation (the columns pooled), summed while positive (the initial positive sequence),
+    up to ``max_lag`` or n/10 lags."""
+    x = np.asarray(series, dtype=float)
+    n = len(x)
+    if n < 20:
+        return 1.0
+    x = x - x.mean(axis=0)
+    var = float(np.sum(x * x))
+    if var <= 0.0:
+        return 1.0
+    total = 0.0
+    for k in range(1, min(max_lag, n // 10) + 1):
+        rho = float(np.sum(x[k:] * x[:-k])) / var
+        if rho <= 0.0:
+            break
+        total += rho
+    return 1.0 + 2.0 * total
 
 
 def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_times, prism_positions,
