@@ -28,6 +28,7 @@ import numpy as np
 from .camera import Equirect
 from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
+from .errors import ConfigurationError
 from .markers import MarkerMap
 from .solver import SolverError, fuse_yaws, yaw_from_marker
 from .tracking import MarkerTracker, TrackingStats
@@ -52,7 +53,7 @@ def row_fraction(bearings, height: int) -> np.ndarray:
     return v / h - 0.5
 
 
-class PipelineError(ValueError):
+class PipelineError(ConfigurationError, ValueError):
     """Bad pipeline configuration (lever arms, parameters): names the field."""
 
 

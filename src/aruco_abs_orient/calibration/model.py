@@ -17,6 +17,7 @@ from typing import Dict, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from ..errors import GeometryError
 from ..markers import MarkerMap
 from ..transforms import make_T, rpy_to_matrix
 from ..tum import Trajectory
@@ -27,7 +28,7 @@ __all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", 
 N_GLOBALS = 8
 
 
-class CalibrationError(ValueError):
+class CalibrationError(GeometryError, ValueError):
     """The recording cannot determine the calibration, or the inputs are malformed; the message says why."""
 
 
