@@ -15,6 +15,7 @@ by the Δτ found and solves again until it is ≪ 1 ms.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Dict, NamedTuple, Optional, Tuple
 
 import numpy as np
@@ -191,8 +192,10 @@ def _fit(pb: Problem, sol: _Solution, free: Tuple[int, ...], params: Calibration
         if done:
             break
     # the residuals are correlated in time (the VO's yaw walk between knots, the smoothed track heading, a
-    # platform that wanders): n correlated residuals weigh like n / c independent ones. Inflate each
-    # group's σ by √c, c from the residuals' own autocorrelation, so the covariance stays honest.
+    # platform that wanders): n correlated residuals weigh like n / c independent ones. The covariance is
+    # taken with each group's σ inflated by √c, c from the residuals' own autocorrelation, so it stays
+    # honest; the estimate keeps the weights above (re-weighting the groups by c made it worse on the
+    # bench: markers seen together in one frame correlate more than the track headings).
     delta = pb.delta_at(sol.d, pb.i_obs, pb.a_obs)
     order = np.argsort(pb.t, kind="stable")
     r_o = pb.residuals(sol.x, delta)[order][mask_o[order] > 0] / pb.sigma[order][mask_o[order] > 0, None]
@@ -201,8 +204,7 @@ def _fit(pb: Problem, sol: _Solution, free: Tuple[int, ...], params: Calibration
     vf.update({"markers_correlation": c_o, "heading_correlation": c_h})
     if c_o > 1.0 or c_h > 1.0:
         weights = _Weights(mask_o, mask_h, False, scale_o * math.sqrt(c_o), scale_h * math.sqrt(c_h))
-        sol, Hinv, it2 = _solve(pb, sol, free, weights, params)
-        it += it2
+        Hinv = _solve(pb, sol, free, weights, replace(params, max_iterations=1))[1]
     return _Fit(sol, Hinv, mask_o.astype(bool), mask_h.astype(bool), vf, it)
 
 
