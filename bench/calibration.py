@@ -84,6 +84,29 @@ def evaluate(out_dir: str, truth_path: str, min_count: int):
     return rmse, bias, mean_bias, int(ok.sum())
 
 
+def wandering(base, amplitude: float, wavelength: float):
+    """The generator's Scenario class with a platform that wanders sideways by ±``amplitude`` m (a sine of
+    ``wavelength`` m along the loop), heading along its actual path (non-holonomic: base_link x is the
+    direction of travel), so the prism track, the VO and the camera all see the wander."""
+
+    class Wandering(base):
+        def _wander(self, theta):
+            a, b = self.config.track_radii
+            phase = 2.0 * math.pi * np.asarray(theta, dtype=float) * 0.5 * (a + b) / wavelength
+            return amplitude * np.sin(phase), amplitude * np.cos(phase) * 2.0 * math.pi / wavelength
+
+        def _track_point(self, theta):
+            p = super()._track_point(theta)
+            psi = super()._yaw_on_track(theta)
+            w, _ = self._wander(theta)
+            return p + np.stack([-np.sin(psi) * w, np.cos(psi) * w, np.zeros_like(w)], axis=-1)
+
+        def _yaw_on_track(self, theta):
+            return super()._yaw_on_track(theta) + np.arctan(self._wander(theta)[1])
+
+    return Wandering
+
+
 def honesty(a) -> int:
     """Issue 17: is the boresight yaw's σ honest? Over ``--seeds`` seeds of the generator's world with
     exact bearings (``synthetic.feed``: no rendering) + ``--noise-deg`` detection noise, a
@@ -99,7 +122,8 @@ def honesty(a) -> int:
     params = CalibrationParams(knot_spacing=a.knot_spacing) if a.knot_spacing else CalibrationParams()
     print(f"\nboresight-yaw honesty: preset {a.preset}, {a.duration or PRESETS[a.preset].duration:g} s, every "
           f"{a.every}. frame, bearing noise {a.noise_deg}°, prism noise {1e3 * a.prism_noise:.1f} mm, readout "
-          f"{1e3 * a.readout:.0f} ms, knots every {params.knot_spacing:g} s" + "".join(f", {x}" for x in a.set))
+          f"{1e3 * a.readout:.0f} ms, knots every {params.knot_spacing:g} s, lateral wander ±{1e3 * a.wander:.0f} mm / "
+          f"{a.wander_length:g} m" + "".join(f", {x}" for x in a.set))
     print(f"  {'seed':>4s} {'yaw err (deg)':>14s} {'σ (deg)':>9s} {'err/σ':>7s} {'readout (ms)':>13s} {'σ':>6s}")
     ratios, rerr = [], []
     for seed in range(a.seed, a.seed + a.seeds):
@@ -108,7 +132,8 @@ def honesty(a) -> int:
             changes["duration"] = a.duration
         base = dict(PRESETS[a.preset].to_dict(), **changes)
         base.update({k: v for x in a.set for k, v in yaml.safe_load(x).items()})
-        sc = Scenario(ScenarioConfig.from_dict(base, source="--set"))
+        world = wandering(Scenario, a.wander, a.wander_length) if a.wander > 0 else Scenario
+        sc = world(ScenarioConfig.from_dict(base, source="--set"))
         off = sc.config.camera_time_offset
         frames = sc.frame_times[::a.every]
         ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(seed), readout=a.readout)
@@ -153,6 +178,9 @@ def main(argv=None) -> int:
     g.add_argument("--readout", type=float, default=0.0, help="rolling-shutter readout, s (estimated when > 0)")
     g.add_argument("--set", action="append", default=[], metavar="FIELD: VALUE",
                    help="a scenario field, YAML, e.g. --set 'marker_height: [0.0, 3.0]' (repeatable)")
+    g.add_argument("--wander", type=float, default=0.0, metavar="M",
+                   help="lateral wander of the platform, ± m (e.g. 0.01)")
+    g.add_argument("--wander-length", type=float, default=3.0, metavar="M", help="its wavelength along the track")
     g.add_argument("--knot-spacing", type=float, default=0.0, help="δ(t) knots, s (default: CalibrationParams')")
     a = ap.parse_args(argv)
     if a.honesty:
