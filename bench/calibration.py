@@ -21,6 +21,14 @@ Then, in one run:
 
 Scenarios are cached in ``--work`` (re-rendered only with ``--force``).
 
+``--honesty`` (issue 17) runs another section instead, without rendering: over ``--seeds`` seeds of the
+generator's world (``synthetic.feed``'s exact bearings + noise; ``--wander`` a platform weaving sideways,
+``--readout`` a rolling shutter, ``--set``/``--param`` scenario and calibration fields) the table of the
+boresight yaw's error, σ and error/σ (and the readout), and the share within 2.5 σ. Measured (12 seeds,
+demo preset, 60 s, every 3rd frame): σ 0.011–0.015°, error RMS 0.006°, largest 0.012°, 100 % within 2.5 σ;
+weaving ±1 cm every 1 m: σ 0.025–0.045°, error RMS 0.032°, largest 0.057° (2.1 σ); a 30 ms readout on a
+6 × 4 m loop with markers 0–3 m high, every frame: readout error RMS 0.5 ms, largest 1.1 ms (σ 0.6–1.7 ms).
+
 Measured (demo preset, 60 s, 30 fps, 3840×1920, seed 3, every 3rd image, 2 cores): boresight error
 0.0070° (−0.0017, −0.0022, −0.0064 rpy; σ 0.0007, 0.0008, 0.0081); time offset 396.4 ms from the VO
 heading, refined to 366.86 ± 0.35 ms (truth 367.0); heading RMSE naive 0.756°, calibrated 0.0203°,
@@ -119,11 +127,13 @@ def honesty(a) -> int:
     from aruco_abs_orient.tum import Trajectory
 
     noise = math.radians(a.noise_deg)
-    params = CalibrationParams(knot_spacing=a.knot_spacing) if a.knot_spacing else CalibrationParams()
+    params = CalibrationParams(**{k: v for x in a.param for k, v in yaml.safe_load(x).items()})
+    if a.knot_spacing:
+        params.knot_spacing = a.knot_spacing
     print(f"\nboresight-yaw honesty: preset {a.preset}, {a.duration or PRESETS[a.preset].duration:g} s, every "
           f"{a.every}. frame, bearing noise {a.noise_deg}°, prism noise {1e3 * a.prism_noise:.1f} mm, readout "
           f"{1e3 * a.readout:.0f} ms, knots every {params.knot_spacing:g} s, lateral wander ±{1e3 * a.wander:.0f} mm / "
-          f"{a.wander_length:g} m" + "".join(f", {x}" for x in a.set))
+          f"{a.wander_length:g} m" + "".join(f", {x}" for x in a.set + a.param))
     print(f"  {'seed':>4s} {'yaw err (deg)':>14s} {'σ (deg)':>9s} {'err/σ':>7s} {'readout (ms)':>13s} {'σ':>6s}")
     ratios, rerr = [], []
     for seed in range(a.seed, a.seed + a.seeds):
@@ -181,6 +191,8 @@ def main(argv=None) -> int:
     g.add_argument("--wander", type=float, default=0.0, metavar="M",
                    help="lateral wander of the platform, ± m (e.g. 0.01)")
     g.add_argument("--wander-length", type=float, default=3.0, metavar="M", help="its wavelength along the track")
+    g.add_argument("--param", action="append", default=[], metavar="FIELD: VALUE",
+                   help="a CalibrationParams field, YAML, e.g. --param 'heading_smooth: 0.1' (repeatable)")
     g.add_argument("--knot-spacing", type=float, default=0.0, help="δ(t) knots, s (default: CalibrationParams')")
     a = ap.parse_args(argv)
     if a.honesty:
