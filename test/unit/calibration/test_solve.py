@@ -9,107 +9,19 @@ The estimator sees only the nominal mounting.
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
-import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from aruco_abs_orient.calibration import (
-    CalibrationError,
-    CalibrationParams,
-    calibrate,
-    launch_snippet,
-    load_calibration,
-    static_tf_yaml,
-    write_static_tf_yaml,
-)
-from aruco_abs_orient.markers import Marker, MarkerMap
+from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, calibrate
 from aruco_abs_orient.solver import yaw_from_marker
-from aruco_abs_orient.transforms import make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
+from aruco_abs_orient.transforms import matrix_to_rpy, wrap_angle
 from aruco_abs_orient.tum import Trajectory
 
-NOMINAL_CAMERA = make_T(rpy_to_matrix(0.0, 0.0, math.radians(90.0)), [0.10, 0.0, 0.45])
-PRISM = make_T(None, [-0.05, 0.0, 0.62])
-SIGMA_BEARING = math.radians(0.03)
-PRISM_SIGMA = 0.003
-
-
-def _marker_map() -> MarkerMap:
-    rng = np.random.default_rng(7)
-    markers = []
-    for i, ang in enumerate(np.linspace(0, 2 * math.pi, 10, endpoint=False)):
-        r = 7.0 + 2.0 * (i % 3)
-        markers.append(Marker(i, np.array([r * math.cos(ang), r * math.sin(ang), 0.8 + rng.uniform(0, 1.5)]),
-                              0.19, 0.001))
-    return MarkerMap(markers)
-
-
-def simulate(boresight_rpy=(0.0, 0.0, 0.0), lever_delta=(0.0, 0.0, 0.0), duration=60.0, fps=5.0,
-             speed=0.8, drive=True, seed=0, outliers=0):
-    """A recording: (obs_times, ids, bearings, sigmas, odom, prism_t, prism_p, true map_R_base at frames)."""
-    rng = np.random.default_rng(seed)
-    mmap = _marker_map()
-    B = rpy_to_matrix(*boresight_rpy)
-    R_bc = B @ NOMINAL_CAMERA[:3, :3]
-    t_cam = NOMINAL_CAMERA[:3, 3] + np.asarray(lever_delta, dtype=float)
-    t_prism = PRISM[:3, 3]
-
-    def pose(t):
-        """Ground-truth base_link pose: a rounded-square loop (straights and turns) of radius ~4 m."""
-        s = speed * t if drive else 0.0
-        # path parametrised by arc length on an ellipse-like curve
-        phi = s / 4.0
-        x, y = 4.0 * math.cos(phi) + 0.8 * math.cos(3 * phi), 3.0 * math.sin(phi)
-        dx = -4.0 * math.sin(phi) - 2.4 * math.sin(3 * phi)
-        dy = 3.0 * math.cos(phi)
-        yaw = math.atan2(dy, dx) if drive else 0.7
-        roll = math.radians(1.5) * math.sin(0.7 * t)
-        pitch = math.radians(1.0) * math.cos(0.5 * t)
-        return np.array([x, y, 0.0]), rpy_to_matrix(roll, pitch, yaw)
-
-    # VO: tilt exact, yaw offset δ(t) = drifting
-    def delta(t):
-        return 0.4 + math.radians(0.05) * t + math.radians(0.5) * math.sin(t / 17.0)
-
-    tp = np.arange(0.0, duration, 0.05)
-    pp = []
-    for t in tp:
-        p, R = pose(t)
-        pp.append(p + R @ t_prism + rng.normal(0, PRISM_SIGMA, 3))
-    odom_t = np.arange(0.0, duration, 0.02)
-    odom_T = []
-    for t in odom_t:
-        p, R = pose(t)
-        odom_T.append(make_T(rot_z(-delta(t)) @ R, rot_z(-delta(t)) @ p))
-    odom = Trajectory.from_transforms(odom_t, np.array(odom_T))
-    times, ids, bearings, sigmas = [], [], [], []
-    for t in np.arange(1.0, duration - 1.0, 1.0 / fps):
-        p, R = pose(t)
-        C = p + R @ t_cam
-        for m in mmap:
-            v = (R @ R_bc).T @ (m.position - C)
-            rng_m = np.linalg.norm(v)
-            if rng_m > 10.0:
-                continue
-            u = v / rng_m + rng.normal(0, SIGMA_BEARING, 3)
-            times.append(t)
-            ids.append(m.id)
-            bearings.append(u / np.linalg.norm(u))
-            sigmas.append(SIGMA_BEARING)
-    bearings = np.array(bearings)
-    for k in rng.choice(len(bearings), outliers, replace=False):  # false ids / reflections
-        b = rng.normal(size=3)
-        bearings[k] = b / np.linalg.norm(b)
-    return (np.array(times), np.array(ids), bearings, np.array(sigmas), odom, tp, np.array(pp), mmap)
-
-
-def run(rec, **kw):
-    t, ids, b, s, odom, tp, pp, mmap = rec
-    return calibrate(t, ids, b, s, odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM, **kw)
+from .common import NOMINAL_CAMERA, PRISM, SIGMA_BEARING, run, simulate
 
 
 def test_half_degree_boresight_recovered_to_the_no_error_level():
@@ -208,44 +120,6 @@ def test_malformed_inputs():
                   params=CalibrationParams(knot_spacing=0.0))
 
 
-def test_yaml_round_trip_through_static_tfs(tmp_path):
-    truth = np.radians([0.3, -0.2, 0.5])
-    cal = run(simulate(truth, duration=40.0, seed=4))
-    path = tmp_path / "calibration.yaml"
-    write_static_tf_yaml(str(path), cal, NOMINAL_CAMERA, PRISM)
-    text = path.read_text()
-    assert text.startswith("# written by aruco-abs-orient calibrate\n")
-    loaded = load_calibration(str(path))
-    true_T = make_T(rpy_to_matrix(*truth) @ NOMINAL_CAMERA[:3, :3], NOMINAL_CAMERA[:3, 3])
-    dR = loaded["camera"][:3, :3].T @ true_T[:3, :3]
-    assert math.degrees(math.acos(min(1.0, (np.trace(dR) - 1) / 2))) < 0.04
-    np.testing.assert_allclose(loaded["camera"][:3, 3], NOMINAL_CAMERA[:3, 3], atol=1e-5)
-    np.testing.assert_allclose(loaded["prism"], PRISM, atol=1e-6)
-    data = yaml.safe_load(text)
-    assert set(data) == {"base_link_to_camera", "base_link_to_prism"}
-    assert static_tf_yaml(cal, NOMINAL_CAMERA, PRISM) == text
-
-
-def test_readout_written_and_read_back(tmp_path):
-    """A calibration with a readout writes camera_readout_ms; load_calibration gives it back in s (0 when
-    absent, as in the file of test_yaml_round_trip_through_static_tfs); a bad value names the key."""
-    cal = run(simulate(np.radians([0.3, -0.2, 0.5]), duration=40.0, seed=4))
-    cal.readout, cal.readout_sigma, cal.readout_estimated = 0.0287, 0.0009, True
-    path = tmp_path / "calibration.yaml"
-    write_static_tf_yaml(str(path), cal, NOMINAL_CAMERA, PRISM)
-    data = yaml.safe_load(path.read_text())
-    assert data["camera_readout_ms"] == pytest.approx(28.7)
-    assert float(load_calibration(str(path))["readout"]) == pytest.approx(0.0287)
-    assert cal.report_dict()["readout_ms"] == pytest.approx(28.7)
-    del data["camera_readout_ms"]
-    path.write_text(yaml.safe_dump(data))
-    assert float(load_calibration(str(path))["readout"]) == 0.0
-    data["camera_readout_ms"] = -3
-    path.write_text(yaml.safe_dump(data))
-    with pytest.raises(CalibrationError, match="camera_readout_ms"):
-        load_calibration(str(path))
-
-
 @pytest.mark.parametrize("readout, seed", [(0.0, 0), (0.015, 1), (0.030, 2)])
 def test_readout_recovered_from_feed_observations(readout, seed):
     """Issue 17: bearings of the generator's world taken at their rows' capture times with a 0/15/30 ms
@@ -272,19 +146,6 @@ def test_readout_recovered_from_feed_observations(readout, seed):
     assert "readout_ms" in cal.report_dict()
     yaw_err = cal.boresight_rpy[2] - matrix_to_rpy(sc.base_T_camera_true[:3, :3])[2]
     assert abs(yaw_err) < 3 * cal.boresight_sigma[2], (math.degrees(yaw_err), math.degrees(cal.boresight_sigma[2]))
-
-
-def test_launch_snippet_uses_tf2_argument_order():
-    cal = run(simulate(np.radians([0.3, -0.2, 0.5]), duration=40.0, seed=6))
-    text = launch_snippet(cal, NOMINAL_CAMERA, PRISM)
-    line = next(x for x in text.splitlines() if 'name="camera_tf"' in x)
-    args = line.split('args="')[1].split('"')[0].split()
-    assert args[6:] == ["base_link", "camera"]
-    x, y, z, yaw, pitch, roll = (float(a) for a in args[:6])
-    # rebuild with tf2's convention (yaw about z, then pitch about y, then roll about x)
-    R = rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
-    np.testing.assert_allclose(R, cal.apply(NOMINAL_CAMERA)[:3, :3], atol=1e-5)
-    np.testing.assert_allclose([x, y, z], NOMINAL_CAMERA[:3, 3], atol=1e-6)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -349,110 +210,3 @@ def test_time_offset_of_generator_scenarios_within_5ms(offset):
                     sc.prism.stamps + coarse, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
                     sc.base_T_prism, estimate_time_offset=True)
     assert abs(coarse + cal.time_offset_delta - offset) < 0.005, (coarse - offset, cal.time_offset_delta)
-
-
-# ----------------------------------------------------------------------------- end to end: rendered bag, CLI
-
-def _cli(argv):
-    import argparse
-
-    from aruco_abs_orient.offline.calibrate import add_parser
-
-    parser = argparse.ArgumentParser(prog="aruco-abs-orient")
-    add_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["calibrate"] + [str(a) for a in argv])
-    return args.func(args)
-
-
-def _scenario(out, **changes):
-    import dataclasses
-
-    from aruco_abs_orient.synthetic.bag import generate
-    from aruco_abs_orient.synthetic.scenario import PRESETS
-
-    config = dataclasses.replace(PRESETS["tiny"], **changes)
-    generate(config, str(out), progress=False, workers=1)
-    return yaml.safe_load((out / "hidden.yaml").read_text())
-
-
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory):
-    """A small rendered recording (960×480, 4 fps, 12 s, 1 s standstill) with a 0.5° boresight error."""
-    out = tmp_path_factory.mktemp("calib_scenario")
-    hidden = _scenario(out, duration=12.0, fps=4.0, standstill=1.0, accel_time=1.0, boresight_deg=0.5,
-                       n_markers=6)
-    return out, hidden
-
-
-@pytest.fixture(scope="module")
-def calibrated(rendered, tmp_path_factory):
-    """`calibrate` run once on the rendered recording: (output YAML path, its JSON report line, exit code)."""
-    import contextlib
-    import io
-
-    out, hidden = rendered
-    yaml_path = tmp_path_factory.mktemp("calibrated") / "calibration.yaml"
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed):
-        code = _cli([out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset",
-                     hidden["camera_time_offset"], "--out", yaml_path, "--quiet"])
-    return yaml_path, printed.getvalue(), code
-
-
-def test_cli_recovers_the_rendered_boresight(rendered, calibrated):
-    _, hidden = rendered
-    yaml_path, printed, code = calibrated
-    assert code == 0, printed
-    report = json.loads(printed.splitlines()[0])
-    loaded = load_calibration(str(yaml_path))
-    true_T = np.array(hidden["base_T_camera_true"])
-    dR = loaded["camera"][:3, :3].T @ true_T[:3, :3]
-    angle = math.degrees(math.acos(min(1.0, (np.trace(dR) - 1) / 2)))
-    # a 0.5° error, from ~50 frames of 960 px: within 0.1° (the full-size figure is in bench/calibration.py)
-    assert angle < 0.1, (angle, report)
-    assert report["residual_rms_after_deg"] < 0.3 * report["residual_rms_before_deg"]
-    np.testing.assert_allclose(loaded["prism"], np.array(hidden["base_T_prism"]), atol=1e-5)
-
-
-def test_cli_writes_a_launch_file_roslaunch_loads(calibrated):
-    """The launch file beside the calibration is one roslaunch loads (standalone or <include>d), with both
-    static tfs (needs ROS's roslaunch: not on a bare Python 3.8 stack)."""
-    pytest.importorskip("roslaunch", reason="needs ROS's roslaunch")
-    import roslaunch.config
-    import roslaunch.xmlloader
-
-    yaml_path, _, code = calibrated
-    assert code == 0
-    loaded = load_calibration(str(yaml_path))
-    config = roslaunch.config.ROSLaunchConfig()
-    roslaunch.xmlloader.XmlLoader().load(str(yaml_path.parent / "calibration.launch"), config, verbose=False)
-    tfs = {n.name: n.args.split() for n in config.nodes if n.type == "static_transform_publisher"}
-    assert sorted(tfs) == ["camera_tf", "prism_tf"] and tfs["camera_tf"][-2:] == ["base_link", "camera"]
-    np.testing.assert_allclose([float(x) for x in tfs["camera_tf"][:3]], loaded["camera"][:3, 3], atol=1e-6)
-
-
-def test_cli_refuses_a_recording_without_motion(tmp_path, capsys):
-    out = tmp_path / "still"
-    out.mkdir()
-    _scenario(out, duration=3.0, fps=2.0, speed=0.0, boresight_deg=0.5)
-    code = _cli([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "c.yaml", "--quiet"])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 1
-    assert len(err) == 1 and "cannot calibrate" in err[0] and "drives" in err[0]
-    assert not (tmp_path / "c.yaml").exists()
-
-
-def test_cli_bad_input_is_one_line(rendered, tmp_path, capsys):
-    out, _ = rendered
-    cases = [
-        ([tmp_path / "missing.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "c.yaml"], "no such bag"),
-        ([out / "scenario.bag", "--markers", tmp_path / "none.yaml", "--out", tmp_path / "c.yaml"], "cannot read"),
-        ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "no" / "c.yaml"],
-         "not writable"),
-        ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "c.yaml", "--every", "0"],
-         "--every"),
-    ]
-    for argv, words in cases:
-        code = _cli(argv + ["--quiet"])
-        err = capsys.readouterr().err.strip().splitlines()
-        assert code == 2 and len(err) == 1 and words in err[0], (argv, err)
