@@ -272,6 +272,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
         "markers": marker_map.source,
         "time_offset_s": time_offset,
         "lever_arms": "calibration file" if calibration is not None else "bag /tf_static",
+        "readout_ms": 1e3 * pipe.readout,   # the rolling shutter's, from the calibration file (0: global shutter)
         "frames": frames,
         "frames_with_pose": with_pose,
         "no_pose_reason": reason,

@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from aruco_abs_orient.calibration import load_calibration
+from aruco_abs_orient.markers import MarkerMap
 
 
 def _cli(argv):
@@ -115,3 +116,24 @@ def test_cli_bad_input_is_one_line(rendered, tmp_path, capsys):
         code = _cli(argv + ["--quiet"])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and words in err[0], (argv, err)
+
+
+def test_process_takes_the_readout_from_the_calibration_file(rendered, calibrated, tmp_path):
+    """The calibration file's camera_readout_ms reaches process's pipeline (summary.json says which), and
+    a file without one means a global shutter."""
+    from aruco_abs_orient.offline.process import process_bag
+
+    out, hidden = rendered
+    yaml_path = calibrated[0]
+    data = yaml.safe_load(yaml_path.read_text())
+    markers = MarkerMap.load(str(out / "markers.yaml"))
+    for readout_ms in (None, 25.0):
+        if readout_ms is not None:
+            data["camera_readout_ms"] = readout_ms
+        path = tmp_path / f"cal_{readout_ms}.yaml"
+        path.write_text(yaml.safe_dump(data))
+        res_dir = tmp_path / f"out_{readout_ms}"
+        process_bag(str(out / "scenario.bag"), markers, str(res_dir), time_offset=hidden["camera_time_offset"],
+                    calibration=load_calibration(str(path)), progress=False)
+        summary = json.loads((res_dir / "summary.json").read_text())
+        assert summary["readout_ms"] == pytest.approx(readout_ms or 0.0)
