@@ -55,6 +55,10 @@ class CalibrationParams:
       :class:`CalibrationError`.
     - ``max_readout_sigma``: a rolling-shutter readout time (s) with a larger 1-σ is not determined.
     - ``max_iterations``: Gauss-Newton iterations per stage.
+    - ``vo_track_heading``: measure δ(t) by the prism track's direction against the VO's own direction
+      of travel (the prism track its positions and attitude predict, smoothed alike) instead of
+      against the VO's yaw (base_link x taken as the direction of travel): for weaving or crabbing
+      platforms; needs the VO's translation.
     """
 
     knot_spacing: float = 1.0
@@ -76,9 +80,12 @@ class CalibrationParams:
     max_time_offset_sigma: float = 0.005
     max_readout_sigma: float = 0.005
     max_iterations: int = 30
+    vo_track_heading: bool = False
 
     def validate(self) -> None:
         for name, value in self.__dict__.items():
+            if isinstance(value, bool):
+                continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise CalibrationError(f"CalibrationParams.{name}: expected a positive number, got {value!r}")
 

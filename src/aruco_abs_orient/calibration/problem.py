@@ -215,6 +215,24 @@ def _interp_prism(t_prism: np.ndarray, p_prism: np.ndarray, t: np.ndarray, max_g
     return P, valid
 
 
+def _heading_against_vo_track(odom: Trajectory, t_prism, p_prism, t_prism_lever, params: CalibrationParams, tq):
+    """:func:`_heading_constraints` measured against the VO's own direction of travel: the prism track in
+    map and the prism track the VO predicts in odom (its positions + its attitude · the lever arm), both
+    through the same smoothing (``heading_from_track``), so the smoothing's lag in turns and weaving,
+    the lever arm's swing and a crabbing platform cancel; δ = the difference of their directions."""
+    vo_prism = odom.positions + np.einsum("nij,j->ni", odom.rotations, t_prism_lever)
+    try:
+        trk = heading_from_track(t_prism, p_prism, query_t=tq, smooth=params.heading_smooth,
+                                 min_speed=params.min_speed)
+        vo = heading_from_track(odom.stamps, vo_prism, query_t=tq, smooth=params.heading_smooth,
+                                min_speed=params.min_speed)
+    except TimeSyncError as e:
+        raise CalibrationError(f"prism or odometry track: {e}") from None
+    ok = (trk.valid & vo.valid & (np.abs(trk.turn_rate) <= math.radians(params.max_turn_rate_deg)))
+    sigma = math.sqrt(2.0) * params.velocity_sigma / np.maximum(trk.speed, 1e-9)
+    return tq[ok], wrap_angle(trk.heading - vo.heading)[ok], sigma[ok], trk.turn_rate[ok]
+
+
 def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, params: CalibrationParams,
                          delta_rate=None):
     """Times (s), δ-measurements (rad: heading of travel − odometry yaw), σ (rad) and the yaw rate
@@ -227,7 +245,9 @@ def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, para
     t1 = min(float(t_prism[-1]), float(odom.stamps[-1])) - params.heading_smooth
     tq = np.arange(t0, t1, params.heading_step)
     if len(tq) == 0:
-        return tq, tq.copy(), tq.copy()
+        return tq, tq.copy(), tq.copy(), tq.copy()
+    if params.vo_track_heading:
+        return _heading_against_vo_track(odom, t_prism, p_prism, t_prism_lever, params, tq)
     dt = 0.2
     try:
         trk = heading_from_track(t_prism, p_prism, query_t=np.concatenate([tq - dt, tq, tq + dt]),

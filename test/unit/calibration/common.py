@@ -35,8 +35,9 @@ def _marker_map() -> MarkerMap:
 
 
 def simulate(boresight_rpy=(0.0, 0.0, 0.0), lever_delta=(0.0, 0.0, 0.0), duration=60.0, fps=5.0,
-             speed=0.8, drive=True, seed=0, outliers=0):
-    """A recording: (obs_times, ids, bearings, sigmas, odom, prism_t, prism_p, true map_R_base at frames)."""
+             speed=0.8, drive=True, seed=0, outliers=0, crab_deg=0.0):
+    """A recording: (obs_times, ids, bearings, sigmas, odom, prism_t, prism_p, marker map); ``crab_deg``: the
+    platform's x axis turned that far from its direction of travel (a crabbing platform)."""
     rng = np.random.default_rng(seed)
     mmap = _marker_map()
     B = rpy_to_matrix(*boresight_rpy)
@@ -52,7 +53,7 @@ def simulate(boresight_rpy=(0.0, 0.0, 0.0), lever_delta=(0.0, 0.0, 0.0), duratio
         x, y = 4.0 * math.cos(phi) + 0.8 * math.cos(3 * phi), 3.0 * math.sin(phi)
         dx = -4.0 * math.sin(phi) - 2.4 * math.sin(3 * phi)
         dy = 3.0 * math.cos(phi)
-        yaw = math.atan2(dy, dx) if drive else 0.7
+        yaw = math.atan2(dy, dx) + math.radians(crab_deg) if drive else 0.7   # crab: body x off the travel
         roll = math.radians(1.5) * math.sin(0.7 * t)
         pitch = math.radians(1.0) * math.cos(0.5 * t)
         return np.array([x, y, 0.0]), rpy_to_matrix(roll, pitch, yaw)
