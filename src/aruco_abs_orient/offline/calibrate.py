@@ -179,6 +179,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "is the middle row's capture time, row v of H at stamp + (v/H - 1/2)*readout); written "
                         "to the calibration YAML (camera_readout_ms), which process and the node read. Needs "
                         "turns with markers above and below the horizon")
+    p.add_argument("--vo-track-heading", action="store_true",
+                   help="separate the boresight yaw with the VO's own direction of travel instead of its yaw "
+                        "(for a platform that weaves or crabs; needs the VO's translation)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -224,7 +227,9 @@ def run(args: argparse.Namespace) -> int:
     except (MarkerMapError, BagError) as e:
         return _fail(str(e))
     try:
+        params = CalibrationParams(vo_track_heading=True) if args.vo_track_heading else None
         cal = calibrate_bag(args.bag, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
+                            params=params,
                             observations=obs, estimate_time_offset=args.refine_time_offset,
                             estimate_readout=args.readout)
     except CalibrationError as e:
