@@ -43,8 +43,9 @@ NOETIC_VERSIONS = {"python": "3.8", "numpy": "1.17.4", "cv2": "4.2.0", "yaml": "
 CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_tum.py", "detection",
               "test_tracking.py", "test_solver.py", "test_correction.py", "test_startup_anywhere.py",
               "test_nodestate.py", "test_debugview.py", "timesync",
-              "test_calibration.py", "test_evaluation.py", "geocom/test_protocol.py", "geocom/test_client.py",
-              "geocom/test_clock.py", "geocom/test_tracker.py", "geocom/test_sim_cli.py",
+              "calibration", "offline/test_calibrate.py", "test_pipeline_rolling_shutter.py", "test_evaluation.py",
+              "geocom/test_protocol.py", "geocom/test_client.py", "geocom/test_clock.py", "geocom/test_tracker.py",
+              "geocom/test_sim_cli.py",
               "synthetic/test_scenario.py", "synthetic/test_bag.py", "offline/test_process.py", "test_layering.py"]
 #: the only reasons a test may skip there: it needs ROS, or geocompy (the independent GeoCOM client of the
 #: tests needs Python ≥ 3.11: it checks the simulator in the main venv)

@@ -6,6 +6,12 @@ returns a :class:`FrameResult`: the marker observations with the absolute yaw ea
 filtered absolute attitude and pose of base_link, and ``map_T_odom`` with covariances. Prism
 positions are fed as they arrive (``add_prism``). Nothing here imports rospy; Python 3.8.
 
+Rolling shutter (the camera driver's stamp convention): an image's stamp is the capture time of its
+MIDDLE row, and row v of an H-row image is captured at stamp + (v/H − ½)·readout. With a ``readout``
+(s, from the calibration file; 0 = a global shutter) each marker observation gets its row's capture
+time: the prism is interpolated and the tilt taken at that time, and its yaw is referred back to the
+frame stamp with the odometry's yaw rate before fusion and the filter (:func:`row_fraction`).
+
 Units: seconds, metres, radians. Covariances: rad² and m².
 """
 
@@ -19,16 +25,32 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from .camera import Equirect
 from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
 from .solver import SolverError, fuse_yaws, yaw_from_marker
 from .tracking import MarkerTracker, TrackingStats
-from .transforms import matrix_to_rpy, yaw_of
+from .transforms import matrix_to_rpy, wrap_angle, yaw_of
 
 __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationResult", "PipelineError",
-           "PrismBuffer", "all_param_fields"]
+           "PrismBuffer", "all_param_fields", "row_fraction"]
+
+#: longest gap (s) between two frames' odometry poses whose difference gives the rates that move the tilt
+#: and yaw to an observation's row time; beyond it the rates are taken as zero
+ODOM_RATE_MAX_GAP = 0.5
+
+
+def row_fraction(bearings, height: int) -> np.ndarray:
+    """(v/H − ½) of the image row v each camera-frame bearing (…, 3) falls on in an equirect image of
+    ``height`` rows (``camera.Equirect``'s convention): row v is captured at the frame stamp + this ·
+    the readout time (−½ top row, 0 the middle, +½ the bottom)."""
+    h = int(height)
+    if h < 1:
+        raise PipelineError(f"image height: expected a positive number of rows, got {height!r}")
+    _, v = Equirect(2 * h, h).bearing_to_pixel(np.asarray(bearings, dtype=float))
+    return v / h - 0.5
 
 
 class PipelineError(ConfigurationError, ValueError):
@@ -179,16 +201,21 @@ class AbsOrientPipeline:
     """Detection → per-marker yaw → map→odom filter, one image at a time.
 
     ``base_T_camera`` and ``base_T_prism`` are the static lever arms (4×4, from tf_static or a
-    calibration); ``marker_map`` gives ids, positions, sizes and the dictionary.
+    calibration); ``marker_map`` gives ids, positions, sizes and the dictionary; ``readout`` (s) the
+    camera's rolling-shutter readout time (the calibration file's; 0 = global shutter, see the module
+    docstring).
     """
 
     def __init__(self, marker_map: MarkerMap, base_T_camera, base_T_prism,
                  params: Optional[PipelineParams] = None, detector_params: Optional[DetectorParams] = None,
-                 filter_params: Optional[FilterParams] = None):
+                 filter_params: Optional[FilterParams] = None, readout: float = 0.0):
         for name, T in (("base_T_camera", base_T_camera), ("base_T_prism", base_T_prism)):
             T = np.asarray(T, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise PipelineError(f"{name}: expected a finite 4×4 transform")
+        if not (isinstance(readout, (int, float)) and math.isfinite(readout) and 0.0 <= readout < 1.0):
+            raise PipelineError(f"readout: expected a rolling-shutter readout time in [0, 1) s, got {readout!r}")
+        self.readout = float(readout)
         self.marker_map = marker_map
         self.base_T_camera = np.asarray(base_T_camera, dtype=float)
         self.base_T_prism = np.asarray(base_T_prism, dtype=float)
@@ -204,6 +231,7 @@ class AbsOrientPipeline:
         self.tracker = MarkerTracker(self.marker_map, self.detector_params)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
         self.last_stamp: Optional[float] = None
+        self._last_odom: Optional[Tuple[float, np.ndarray]] = None   # (t, roll/pitch/yaw) of the last frame
         self._uninitialised_frames = 0
 
     def _count(self, key: str, n: int = 1) -> None:
@@ -318,16 +346,22 @@ class AbsOrientPipeline:
         res.tracking = tracked.stats
         self._count("rejected_unknown", tracked.stats.rejected_unknown)
         self._count("rejected_tracking_gate", tracked.stats.rejected_gate)
-        return self.process_observations(t, tracked.observations, odom_T_base, res, prism, tracked.gated)
+        return self.process_observations(t, tracked.observations, odom_T_base, res, prism, tracked.gated,
+                                         image_height=grey.shape[0] * int(self.params.jpeg_reduce))
 
     def process_observations(self, t: float, observations: List[MarkerObservation], odom_T_base,
                              res: Optional[FrameResult] = None, prism=None,
-                             gated: Sequence[MarkerObservation] = ()) -> FrameResult:
+                             gated: Sequence[MarkerObservation] = (),
+                             image_height: Optional[int] = None) -> FrameResult:
         """The frame's marker ``observations`` (already detected, ids of the map) at total-station time
         ``t`` (s) with the odometry pose ``odom_T_base`` (4×4): yaws, fusion, filter. :meth:`process_image`
         calls it after detection; tests and other detectors may call it directly (``res`` and the
         interpolated ``prism`` are then made here). ``gated``: markers the tracker found far from their
-        prediction: their yaws are reported (a moved marker shows there) but not used."""
+        prediction: their yaws are reported (a moved marker shows there) but not used. ``image_height``
+        (rows of the full-resolution image): needed with a rolling-shutter ``readout``, for each
+        observation's row time."""
+        if self.readout > 0.0 and image_height is None:
+            raise PipelineError("process_observations: image_height is needed with a rolling-shutter readout")
         if res is None:
             res = FrameResult(stamp=float(t))
             odom_T_base = np.asarray(odom_T_base, dtype=float)
@@ -345,7 +379,9 @@ class AbsOrientPipeline:
             s2 = self.params.prism_sigma ** 2 + extra_sigma ** 2
             prism_cov = np.eye(3) * s2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
-            self._solve_frame(t, res, observations, p, prism_cov, roll, pitch, odom_T_base, gated)
+            rows = self._row_times(t, list(observations) + list(gated), image_height, odom_T_base)
+            self._solve_frame(t, res, observations, p, prism_cov, roll, pitch, odom_T_base, gated, rows)
+        self._last_odom = (float(t), np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float))
         res.timings["solve"] = 1e3 * (time.perf_counter() - clock)
 
         res.initialised = self.filter.initialised
@@ -365,24 +401,55 @@ class AbsOrientPipeline:
         self.last_stamp = float(t)
         return res
 
+    def _row_times(self, t: float, observations, image_height, odom_T_base):
+        """Per observation: None at a global shutter (readout 0: the frame's prism and tilt serve), else
+        (row time − t in s, prism position at the row time or None, roll, pitch at the row time, odometry
+        yaw change from t to the row time) — the tilt and yaw moved at the rates between the previous
+        frame's odometry and this one's (zero when there is none within ``ODOM_RATE_MAX_GAP``)."""
+        if self.readout == 0.0 or not observations:
+            return [None] * len(observations)
+        rpy = np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float)
+        rate = np.zeros(3)
+        if self._last_odom is not None and 0.0 < t - self._last_odom[0] <= ODOM_RATE_MAX_GAP:
+            rate = wrap_angle(rpy - self._last_odom[1]) / (t - self._last_odom[0])
+        dts = row_fraction(np.array([o.centre for o in observations]), image_height) * self.readout
+        q = self.params
+        out = []
+        for dt in dts:
+            prism = self.prism.at(t + float(dt), q.prism_max_gap, q.prism_max_extrapolation)
+            roll, pitch, dyaw = rpy[0] + rate[0] * dt, rpy[1] + rate[1] * dt, rate[2] * dt
+            out.append((float(dt), None if prism is None else prism[0], float(roll), float(pitch), float(dyaw)))
+        return out
+
     def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, roll, pitch,
-                     odom_T_base, gated=()) -> None:
+                     odom_T_base, gated=(), rows=None) -> None:
         """Yaw from each marker (closed form), their fusion (shared prism/tilt errors, false ids
-        dropped), and one filter update with the fused yaw."""
+        dropped), and one filter update with the fused yaw. ``rows``: :meth:`_row_times` per observation
+        (observations, then gated): each marker's yaw at its row time, referred back to ``t``."""
         q = self.params
         estimates = []
         tracker_gated = {id(o) for o in gated}
-        for o in list(observations) + list(gated):
+        everything = list(observations) + list(gated)
+        for o, row in zip(everything, rows or [None] * len(everything)):
             m = self.marker_map[o.id]  # the tracker only returns ids of the map
+            p_o, roll_o, pitch_o, dyaw = prism_p, roll, pitch, 0.0
+            if row is not None:
+                _, p_o, roll_o, pitch_o, dyaw = row
+                if p_o is None:
+                    self._count("no_prism_at_row_time")
+                    res.observations.append(ObservationResult(o, reason="no prism position at its row's time"))
+                    continue
             try:
                 est = yaw_from_marker(
-                    o.centre, m.position, prism_p, float(roll), float(pitch), self.base_T_camera,
+                    o.centre, m.position, p_o, float(roll_o), float(pitch_o), self.base_T_camera,
                     self.base_T_prism[:3, 3], sigma_bearing=o.sigma, prism_cov=prism_cov, marker_sigma=m.sigma,
                     tilt_sigma=math.radians(q.tilt_sigma_deg), lever_sigma=q.lever_sigma, min_range=q.min_range)
             except SolverError as e:
                 self._count("degenerate")
                 res.observations.append(ObservationResult(o, reason=f"geometry: {e}"))
                 continue
+            if dyaw:
+                est = est._replace(yaw=float(wrap_angle(est.yaw - dyaw)))
             r = ObservationResult(o, yaw=est.yaw, yaw_sigma=est.sigma, range=est.range)
             res.observations.append(r)
             if id(o) in tracker_gated:

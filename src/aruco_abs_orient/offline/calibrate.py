@@ -3,7 +3,7 @@
 Reads the bag without ROS (``bagio``): odometry, lever arms and prism in a first pass, then the
 images streamed one by one, each searched whole for the map's markers (``tracking.MarkerTracker``
 without a prediction, so the nominal calibration cannot bias what is found). Every observation
-(time, id, camera-frame bearing, σ) goes to :func:`aruco_abs_orient.calibration.calibrate` with the
+(time, id, camera-frame bearing, σ, image row) goes to :func:`aruco_abs_orient.calibration.calibrate` with the
 odometry trajectory and the prism track moved onto the camera clock (prism stamp + ``time_offset``).
 Writes the static-tf YAML read by ``live.launch``/``postprocess.launch`` and a launch file beside it
 (``calibration.yaml`` → ``calibration.launch``: the same static tfs, to roslaunch or ``<include>``).
@@ -33,6 +33,7 @@ from ..calibration import (
 )
 from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
+from ..pipeline import row_fraction
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
 from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
@@ -43,6 +44,8 @@ __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_pars
 EXAMPLES = """examples:
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
   aruco-abs-orient calibrate run.bag --markers markers.yaml --lever-arm --out calibration.yaml
+  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset --readout \\
+      --out calibration.yaml
   aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset \\
       --out calibration.yaml
   roslaunch aruco_abs_orient live.launch markers:=markers.yaml calibration:=calibration.yaml
@@ -55,12 +58,14 @@ the boresight yaw is separated from the map->odom yaw by the prism track's direc
 class CalibrateResult:
     """Observations of a bag as arrays (see :func:`collect_observations`)."""
 
-    def __init__(self, data: BagData, times, ids, bearings, sigmas, frames: int, skipped: dict):
+    def __init__(self, data: BagData, times, ids, bearings, sigmas, frames: int, skipped: dict, rows=None):
         self.data = data
         self.times = np.asarray(times, dtype=float).reshape(-1)          # s, camera clock
         self.ids = np.asarray(ids, dtype=int).reshape(-1)
         self.bearings = np.asarray(bearings, dtype=float).reshape(-1, 3)  # unit, camera frame
         self.sigmas = np.asarray(sigmas, dtype=float).reshape(-1)        # rad
+        # image row of each, v/H − ½ (pipeline.row_fraction): the rolling shutter's time within the frame
+        self.rows = np.zeros(len(self.times)) if rows is None else np.asarray(rows, dtype=float).reshape(-1)
         self.frames = frames                                              # images searched
         self.skipped = skipped
 
@@ -81,6 +86,7 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
     ids: List[int] = []
     bearings: List[np.ndarray] = []
     sigmas: List[float] = []
+    rows: List[float] = []
     skipped: dict = {}
     frames = 0
     bar = None
@@ -100,30 +106,34 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
                     raise DetectionError("undecodable image message")
                 grey = decode_jpeg(payload) if isinstance(payload, bytes) else payload
                 found = tracker.process(grey, None).observations
+                row = row_fraction(np.array([o.centre for o in found]).reshape(-1, 3), grey.shape[0])
             except DetectionError as e:
                 key = f"bad image: {str(e).split(':')[0]}"
                 skipped[key] = skipped.get(key, 0) + 1
                 continue
-            for o in found:
+            for o, f in zip(found, row):
                 times.append(stamp)
                 ids.append(o.id)
                 bearings.append(o.centre)
                 sigmas.append(o.sigma)
+                rows.append(float(f))
     finally:
         if bar is not None:
             bar.close()
-    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped)
+    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped, rows)
 
 
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
                   progress: bool = True, estimate_lever_arm: bool = False,
                   params: Optional[CalibrationParams] = None, observations: Optional[CalibrateResult] = None,
-                  estimate_time_offset: bool = False) -> Calibration:
+                  estimate_time_offset: bool = False, estimate_readout: bool = False) -> Calibration:
     """Calibrate the camera of ``bag`` against ``marker_map``.
 
     ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign);
     with ``estimate_time_offset`` it is refined (the result's ``time_offset_delta`` is added to it).
     ``observations``: a :func:`collect_observations` result to reuse (detection is the slow part).
+    ``estimate_readout``: also estimate the camera's rolling-shutter readout time (the images' stamps are
+    their middle rows' capture times; row v of H is captured at stamp + (v/H − ½)·readout).
     Raises BagError (unusable bag) or CalibrationError (the recording cannot determine it: why).
     """
     obs = observations or collect_observations(bag, marker_map, topics, progress)
@@ -133,7 +143,8 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
                                "prism positions")
     cal = calibrate(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
                     d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism,
-                    estimate_lever_arm=estimate_lever_arm, estimate_time_offset=estimate_time_offset, params=params)
+                    estimate_lever_arm=estimate_lever_arm, estimate_time_offset=estimate_time_offset, params=params,
+                    obs_rows=obs.rows, estimate_readout=estimate_readout)
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
     return cal
@@ -163,6 +174,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--refine-time-offset", action="store_true",
                    help="also estimate the time offset (1 more unknown), starting from --time-offset (from "
                         "`timesync`, within ~0.2 s); prints the refined value to use with `process`")
+    p.add_argument("--readout", action="store_true",
+                   help="also estimate the camera's rolling-shutter readout time (1 more unknown; the image stamp "
+                        "is the middle row's capture time, row v of H at stamp + (v/H - 1/2)*readout); written "
+                        "to the calibration YAML (camera_readout_ms), which process and the node read. Needs "
+                        "turns with markers above and below the horizon")
+    p.add_argument("--vo-track-heading", action="store_true",
+                   help="separate the boresight yaw with the VO's own direction of travel instead of its yaw "
+                        "(for a platform that weaves or crabs; needs the VO's translation)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -208,8 +227,11 @@ def run(args: argparse.Namespace) -> int:
     except (MarkerMapError, BagError) as e:
         return _fail(str(e))
     try:
+        params = CalibrationParams(vo_track_heading=True) if args.vo_track_heading else None
         cal = calibrate_bag(args.bag, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
-                            observations=obs, estimate_time_offset=args.refine_time_offset)
+                            params=params,
+                            observations=obs, estimate_time_offset=args.refine_time_offset,
+                            estimate_readout=args.readout)
     except CalibrationError as e:
         return _fail(f"{bag_name(args.bag)}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
@@ -221,6 +243,8 @@ def run(args: argparse.Namespace) -> int:
     print(json.dumps(cal.report_dict(), default=float))
     print(f"wrote {args.out}\n      {launch}  (the static tfs: roslaunch it, or "
           f"<include file=\"{os.path.abspath(launch)}\"/>)")
+    if cal.readout_estimated:
+        print(f"rolling-shutter readout: {1e3 * cal.readout:.1f} ms ± {1e3 * cal.readout_sigma:.1f} ms")
     if cal.time_offset_estimated:
         offset = args.time_offset + cal.time_offset_delta
         print(f"time offset refined with the marker bearings: {1e3 * offset:+.1f} ms ± "

@@ -132,7 +132,8 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: flo
 
     ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the
     timesync tool estimates). ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}``
-    (``calibration.load_calibration``) used instead of the bag's /tf_static lever arms. Raises
+    (``calibration.load_calibration``) used instead of the bag's /tf_static lever arms, with its
+    rolling-shutter ``"readout"`` (s) when it has one. Raises
     BagError when the bag cannot be used at all.
     """
     topics = topics or BagTopics()
@@ -180,6 +181,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
     if calibration is not None:
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
+        pipeline_kwargs.setdefault("readout", float(calibration.get("readout", 0.0)))
     pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, params, **pipeline_kwargs)
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
 
@@ -270,6 +272,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
         "markers": marker_map.source,
         "time_offset_s": time_offset,
         "lever_arms": "calibration file" if calibration is not None else "bag /tf_static",
+        "readout_ms": 1e3 * pipe.readout,   # the rolling shutter's, from the calibration file (0: global shutter)
         "frames": frames,
         "frames_with_pose": with_pose,
         "no_pose_reason": reason,

@@ -96,8 +96,10 @@ class NodeConfig:
       use (by more than 5 σ and 20 ms: a forgotten or wrong offset); a good offset is never replaced by
       a coarser one.
     - ``calibration``: calibration YAML of ``aruco-abs-orient calibrate`` whose lever arms replace the
-      static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static); empty:
-      the lever arms come from tf.
+      static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static), and
+      whose ``camera_readout_ms`` (rolling shutter) is used; empty: the lever arms come from tf, global
+      shutter. Stamp convention of the camera driver: an image's stamp is the capture time of its MIDDLE
+      row; row v of H is captured at stamp + (v/H − ½)·readout.
     - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
     - ``transform_tolerance``: s, map→odom estimated at time t is stamped t + this (future-dated, as amcl).
     - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
@@ -485,7 +487,9 @@ class AbsOrientNode:
                 self._error("no_static_tf", f"waiting for the static tf {c.base_frame} -> {child}: {e}")
                 return False
         try:
-            self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame])
+            readout = 0.0 if calibrated is None else float(calibrated.get("readout", 0.0))  # rolling shutter, s
+            self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
+                                              readout=readout)
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
         except PipelineError as e:

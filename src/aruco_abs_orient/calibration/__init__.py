@@ -1,0 +1,27 @@
+"""Boresight, lever-arm and time-offset calibration of the 360° camera from a recording (DESIGN §4.8).
+
+In: a recording's marker observations (time, id, camera-frame bearing, σ), the odometry, the prism
+track, the marker map and the nominal lever arms. Out: the camera's boresight rotation in base_link
+(and optionally its lever arm and the residual time offset) with their σ, written as the static-tf
+YAML the launch files read. The observation model and its observability are described in
+``problem``; the least squares in ``solve``; the files in ``io``; the types in ``model``.
+"""
+
+from .io import CALIBRATION_KEYS, launch_snippet, load_calibration, static_tf_yaml, write_static_tf_yaml
+from .model import Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
+from .solve import calibrate, calibrate_recording
+
+__all__ = [
+    "CalibrationError",
+    "CalibrationParams",
+    "Calibration",
+    "Recording",
+    "Unknowns",
+    "calibrate",
+    "calibrate_recording",
+    "static_tf_yaml",
+    "write_static_tf_yaml",
+    "launch_snippet",
+    "load_calibration",
+    "CALIBRATION_KEYS",
+]

@@ -1,0 +1,232 @@
+"""What the calibration takes and gives: its error, its knobs, the recording it reads and its result.
+
+In: nothing (types only). Out: :class:`CalibrationError`, :class:`CalibrationParams` (the knobs of
+:func:`~aruco_abs_orient.calibration.calibrate`), :class:`Recording` (the observations, odometry,
+prism track, marker map and nominal lever arms of one recording, on one clock), :class:`Unknowns`
+(which parameters beside the boresight are estimated) and :class:`Calibration` (the estimate with
+its σ, residuals and counts; degrees and millimetres in :meth:`Calibration.report_dict`).
+
+Units: metres, radians, seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, NamedTuple, Optional, Tuple
+
+import numpy as np
+
+from ..errors import GeometryError
+from ..markers import MarkerMap
+from ..transforms import make_T, rpy_to_matrix
+from ..tum import Trajectory
+
+__all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", "Unknowns", "N_GLOBALS"]
+
+#: length of the vector of global unknowns x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ)
+N_GLOBALS = 8
+
+
+class CalibrationError(GeometryError, ValueError):
+    """The recording cannot determine the calibration, or the inputs are malformed; the message says why."""
+
+
+@dataclass
+class CalibrationParams:
+    """Knobs of :func:`calibrate`.
+
+    - ``knot_spacing``: spacing (s) of the knots of the piecewise-linear map→odom yaw δ(t).
+    - ``drift_sigma_deg``: 1-σ (degrees) of the change of δ between adjacent knots (weak prior).
+    - ``heading_smooth``: σ (s) of the local quadratic fit of the prism track (``heading_from_track``).
+    - ``heading_step``: spacing (s) of the heading constraints.
+    - ``min_speed``: slowest speed (m/s) whose track heading is used.
+    - ``max_turn_rate_deg``: fastest yaw rate (degrees/s) whose track heading is used.
+    - ``velocity_sigma``: a-priori velocity noise (m/s) of the track; heading σ = it / speed (rad),
+      rescaled by the estimated variance factor.
+    - ``min_moving_time``: least usable driving time (s) to separate the boresight yaw.
+    - ``prism_max_gap``: largest gap (s) between the prism fixes around an observation.
+    - ``prism_sigma``: 1-σ per axis of a prism position (m); enters each bearing as σ / range.
+    - ``min_observations``, ``min_markers``: least usable observations and distinct marker ids.
+    - ``loss_scale``: Cauchy scale (in σ) of the robust stage; ``outlier_gate``: normalised residual
+      beyond which an observation is dropped before the least-squares stage.
+    - ``max_boresight_sigma_deg``, ``max_lever_sigma``, ``max_time_offset_sigma``: a boresight angle
+      (degrees) / lever-arm axis (m) / time offset (s) with a larger 1-σ is not determined:
+      :class:`CalibrationError`.
+    - ``max_readout_sigma``: a rolling-shutter readout time (s) with a larger 1-σ is not determined.
+    - ``max_iterations``: Gauss-Newton iterations per stage.
+    - ``vo_track_heading``: measure δ(t) by the prism track's direction against the VO's own direction
+      of travel (the prism track its positions and attitude predict, smoothed alike) instead of
+      against the VO's yaw (base_link x taken as the direction of travel): for weaving or crabbing
+      platforms; needs the VO's translation.
+    """
+
+    knot_spacing: float = 1.0
+    drift_sigma_deg: float = 1.0
+    heading_smooth: float = 0.25
+    heading_step: float = 0.25
+    min_speed: float = 0.2
+    max_turn_rate_deg: float = 30.0
+    velocity_sigma: float = 0.01
+    min_moving_time: float = 5.0
+    prism_max_gap: float = 0.5
+    prism_sigma: float = 0.005
+    min_observations: int = 20
+    min_markers: int = 2
+    loss_scale: float = 2.0
+    outlier_gate: float = 4.0
+    max_boresight_sigma_deg: float = 0.1
+    max_lever_sigma: float = 0.02
+    max_time_offset_sigma: float = 0.005
+    max_readout_sigma: float = 0.005
+    max_iterations: int = 30
+    vo_track_heading: bool = False
+
+    def validate(self) -> None:
+        for name, value in self.__dict__.items():
+            if isinstance(value, bool):
+                continue
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise CalibrationError(f"CalibrationParams.{name}: expected a positive number, got {value!r}")
+
+
+@dataclass
+class Calibration:
+    """A boresight / lever-arm calibration and how well the recording determined it.
+
+    - ``boresight_rpy`` (3,) rad: roll, pitch, yaw of B (``R_bc = B · R_bc_nominal``, in base_link);
+      ``boresight_sigma`` (3,) rad, 1-σ.
+    - ``lever_arm_delta`` (3,) m: correction of the camera origin in base_link (zero when not estimated);
+      ``lever_arm_sigma`` (3,) m (NaN when not estimated); ``lever_arm_estimated``.
+    - ``cov``: covariance of (roll, pitch, yaw[, Δx, Δy, Δz][, Δτ]) in rad², m², s² (the ones estimated).
+    - ``residual_rms_before`` / ``residual_rms_after`` (rad): RMS angle between observed and predicted
+      bearings with the nominal and with the calibrated transform (δ(t) fitted in both), over the
+      observations kept; ``residual_median_before`` / ``_after`` likewise (rad).
+    - ``heading_rms`` (rad): RMS of the track-heading residuals kept.
+    - ``variance_factors``: a-posteriori variance factors of the groups ('markers', 'heading'), and the
+      inflation of their variances for the residuals' correlation in time ('markers_correlation',
+      'heading_correlation', ≥ 1: ``solve.correlation_factor``), included in ``cov`` and the σ.
+    - counts: ``n_observations`` given, ``n_used`` kept, ``n_markers`` distinct ids kept, ``n_heading``
+      heading constraints kept, ``moving_time`` (s) they cover, ``skipped`` reason → count.
+    - ``used`` (N,) bool over the input observations; ``residuals_before`` / ``residuals_after`` (N,)
+      rad (NaN where unusable).
+    - ``time_offset_delta`` (s): the residual time offset found (0 when not estimated): the camera
+      stamps are total-station time + (the offset given + it); ``time_offset_sigma`` (s, NaN when not
+      estimated); ``time_offset_estimated``.
+    - ``readout`` (s): the rolling-shutter readout time used (estimated, or the one given; 0 = global
+      shutter): row v of an H-row image is captured at the frame stamp + (v/H − ½)·readout;
+      ``readout_sigma`` (s, NaN when not estimated); ``readout_estimated``.
+    """
+
+    boresight_rpy: np.ndarray
+    boresight_sigma: np.ndarray
+    lever_arm_delta: np.ndarray
+    lever_arm_sigma: np.ndarray
+    lever_arm_estimated: bool
+    cov: np.ndarray
+    residual_rms_before: float
+    residual_rms_after: float
+    residual_median_before: float
+    residual_median_after: float
+    heading_rms: float
+    variance_factors: Dict[str, float]
+    n_observations: int
+    n_used: int
+    n_markers: int
+    n_heading: int
+    moving_time: float
+    iterations: int
+    used: np.ndarray
+    residuals_before: np.ndarray
+    residuals_after: np.ndarray
+    skipped: Dict[str, int] = field(default_factory=dict)
+    time_offset_delta: float = 0.0
+    time_offset_sigma: float = float("nan")
+    time_offset_estimated: bool = False
+    readout: float = 0.0
+    readout_sigma: float = float("nan")
+    readout_estimated: bool = False
+
+    @property
+    def boresight_matrix(self) -> np.ndarray:
+        """B (3×3), the rotation in base_link applied on top of the nominal camera mounting."""
+        return rpy_to_matrix(*self.boresight_rpy)
+
+    def apply(self, base_T_camera_nominal) -> np.ndarray:
+        """The calibrated base_T_camera (4×4) from the nominal one."""
+        T = np.asarray(base_T_camera_nominal, dtype=float)
+        return make_T(self.boresight_matrix @ T[:3, :3], T[:3, 3] + self.lever_arm_delta)
+
+    def report_dict(self) -> dict:
+        """The calibration for a report: degrees, millimetres, counts."""
+        deg = [round(math.degrees(float(x)), 5) for x in self.boresight_rpy]
+        out = {
+            "boresight_rpy_deg": deg,
+            "boresight_sigma_deg": [round(math.degrees(float(x)), 5) for x in self.boresight_sigma],
+            "lever_arm_estimated": self.lever_arm_estimated,
+            "residual_rms_before_deg": math.degrees(self.residual_rms_before),
+            "residual_rms_after_deg": math.degrees(self.residual_rms_after),
+            "residual_median_before_deg": math.degrees(self.residual_median_before),
+            "residual_median_after_deg": math.degrees(self.residual_median_after),
+            "heading_rms_deg": math.degrees(self.heading_rms),
+            "variance_factors": dict(self.variance_factors),
+            "observations": self.n_observations,
+            "observations_used": self.n_used,
+            "markers": self.n_markers,
+            "heading_constraints": self.n_heading,
+            "moving_time_s": self.moving_time,
+            "iterations": self.iterations,
+            "skipped": dict(self.skipped),
+        }
+        if self.time_offset_estimated:
+            out["time_offset_delta_ms"] = round(1e3 * self.time_offset_delta, 3)
+            out["time_offset_sigma_ms"] = round(1e3 * self.time_offset_sigma, 3)
+        if self.readout_estimated:
+            out["readout_ms"] = round(1e3 * self.readout, 3)
+            out["readout_sigma_ms"] = round(1e3 * self.readout_sigma, 3)
+        if self.lever_arm_estimated:
+            out["lever_arm_delta_mm"] = [round(1e3 * float(x), 3) for x in self.lever_arm_delta]
+            out["lever_arm_sigma_mm"] = [round(1e3 * float(x), 3) for x in self.lever_arm_sigma]
+        return out
+
+
+@dataclass
+class Recording:
+    """One recording's inputs to the calibration, everything on ONE clock (the camera/VO clock).
+
+    - ``obs_times`` (N,) s: the frame stamp of each marker observation; ``obs_ids`` (N,) marker ids;
+      ``bearings`` (N, 3) marker-centre bearings in the camera frame; ``sigmas`` (N,) rad, their 1-σ
+      per perpendicular axis.
+    - ``odom``: odom_T_base_link over time (tilt and relative yaw).
+    - ``prism_times`` (K,) s, ``prism_positions`` (K, 3) m in map: the prism track (total-station
+      stamps + the time offset).
+    - ``marker_map``: the surveyed markers; ``base_T_camera`` (nominal) and ``base_T_prism``: 4×4.
+    - ``obs_rows`` (N,): (v/H − ½) of each observation's image row (``pipeline.row_fraction``; None:
+      all 0, the middle row); with a rolling-shutter readout ρ an observation is captured at
+      ``obs_times + obs_rows · ρ``.
+    """
+
+    obs_times: np.ndarray
+    obs_ids: np.ndarray
+    bearings: np.ndarray
+    sigmas: np.ndarray
+    odom: Trajectory
+    prism_times: np.ndarray
+    prism_positions: np.ndarray
+    marker_map: MarkerMap
+    base_T_camera: np.ndarray
+    base_T_prism: np.ndarray
+    obs_rows: Optional[np.ndarray] = None
+
+
+class Unknowns(NamedTuple):
+    """Which parameters beside the boresight (roll, pitch, yaw) are estimated."""
+
+    lever_arm: bool = False
+    time_offset: bool = False
+    readout: bool = False
+
+    def free(self) -> Tuple[int, ...]:
+        """Indices of the free globals in x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ)."""
+        return ((0, 1, 2) + ((3, 4, 5) if self.lever_arm else ()) + ((6,) if self.time_offset else ())
+                + ((7,) if self.readout else ()))
