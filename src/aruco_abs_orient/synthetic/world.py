@@ -46,6 +46,7 @@ _CEILING_Z = 4.2  # m
 _MARGIN = 2.0  # m between the outermost marker or track point and a wall
 _TILE = 0.6  # m, floor tiles
 _PANEL = 1.2  # m, wall panels
+_PILLAR_ROW_STEP = 4  # pillars are shaded on every 4th row and interpolated
 _LIGHT_STEP = 4.0  # m between ceiling light panels
 _LIGHT_HALF = (0.6, 0.15)  # m, half length and half width of a light panel
 _INK, _PAPER = 18.0, 235.0  # grey levels of a printed marker's black and white under unit light
@@ -266,9 +267,11 @@ def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarr
         v1 = min(H - 1, int(math.ceil(float(eq.azel_to_pixel(0.0, float(el.min()))[1]) + 3)))
         if u1 - u0 + 1 >= W:
             u0, u1 = 0, W - 1
-        uu, vv = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float))
-        T = map_T_rows[v0:v1 + 1]
-        d = np.einsum("rij,rcj->rci", T[:, :3, :3], eq.pixel_to_bearing(uu, vv))
+        # shaded on every _PILLAR_ROW_STEP-th row and interpolated between (a pillar's edges are near vertical)
+        rows = np.unique(np.r_[np.arange(v0, v1 + 1, _PILLAR_ROW_STEP), v1])
+        uu, vv = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), rows.astype(float))
+        T = map_T_rows[rows]
+        d = np.matmul(eq.pixel_to_bearing(uu, vv), np.swapaxes(T[:, :3, :3], -1, -2))
         ox = T[:, None, 0, 3] - px
         oy = T[:, None, 1, 3] - py
         a = d[..., 0] ** 2 + d[..., 1] ** 2
@@ -276,19 +279,27 @@ def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarr
         with np.errstate(divide="ignore", invalid="ignore"):
             miss = np.abs(ox * d[..., 1] - oy * d[..., 0]) / np.sqrt(a)  # ray's closest approach to the axis
             s = (-b - np.sqrt(np.maximum(b * b - a * (ox ** 2 + oy ** 2 - radius ** 2), 0.0))) / a
-            s = np.where(np.isfinite(s), s, np.inf)
+            s = np.where(np.isfinite(s), s, 1e6)
             z = T[:, None, 2, 3] + s * d[..., 2]
             reach = np.hypot(ox, oy)
             cover = np.clip(0.5 + (radius - miss) / (reach * eq.rad_per_px), 0.0, 1.0)
         cover = np.where((b < 0) & (z >= hall.bounds[0, 2]) & (z <= hall.bounds[1, 2]), cover, 0.0)
-        cols = np.arange(u0, u1 + 1) % W
-        behind = depth[v0:v1 + 1][:, cols]
-        cover = np.where(behind < s, 0.0, cover).astype(np.float32)
-        if not cover.any():
-            continue
         hx, hy = ox + s * d[..., 0], oy + s * d[..., 1]  # hit point relative to the axis
         lambert = np.clip((hx * light[0] + hy * light[1]) / radius, 0.0, 1.0)
-        grey = (gain * (95.0 + 70.0 * lambert)).astype(np.float32)
+        grey = gain * (95.0 + 70.0 * lambert)
+        size = (u1 - u0 + 1, v1 - v0 + 1)
+        if rows.size > 1:
+            y_map = np.interp(np.arange(v0, v1 + 1), rows, np.arange(rows.size)).astype(np.float32)[:, None]
+            x_map = np.broadcast_to(np.arange(size[0], dtype=np.float32)[None, :], (size[1], size[0]))
+            y_map = np.ascontiguousarray(np.broadcast_to(y_map, (size[1], size[0])))
+            cover, s, grey = (cv2.remap(x.astype(np.float32), np.ascontiguousarray(x_map), y_map, cv2.INTER_LINEAR)
+                              for x in (cover, s, grey))
+        cover, s, grey = cover.astype(np.float32), s.astype(np.float32), grey.astype(np.float32)
+        cols = np.arange(u0, u1 + 1) % W
+        behind = depth[v0:v1 + 1][:, cols]
+        cover = np.where(behind < s, np.float32(0.0), cover)
+        if not cover.any():
+            continue
         patch = canvas[v0:v1 + 1][:, cols]
         canvas[v0:v1 + 1, cols] = patch * (1.0 - cover) + grey * cover
         depth[v0:v1 + 1, cols] = np.where(cover >= 0.5, s, behind)
@@ -366,6 +377,8 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
         Tl = map_T_rows[rows]
         dirs = np.matmul(_low_res_bearings(W, f), np.swapaxes(Tl[:, :3, :3], -1, -2))
         low = hall.shade_room(np.broadcast_to(Tl[:, None, :3, 3], dirs.shape), dirs, tr)
+        # softened before scaling up: the block steps of a one-sample-per-block edge become a smooth line
+        cv2.GaussianBlur(low, (0, 0), 0.6, dst=low, borderType=cv2.BORDER_REPLICATE)
         canvas = cv2.resize(low, (W, H), interpolation=cv2.INTER_LINEAR)
     depth = np.full((H, W), np.inf, dtype=np.float32)
     if hall is not None:
