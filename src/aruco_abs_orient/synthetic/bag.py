@@ -244,4 +244,8 @@ def describe(result: GeneratedScenario, config: Optional[ScenarioConfig] = None)
         lines.insert(1, f"  seed {config.seed}, {config.duration:g} s at {config.fps:g} fps, "
                         f"{config.width}x{config.width // 2}, camera time offset {config.camera_time_offset:g} s, "
                         f"boresight error {config.boresight_deg:g} deg")
+        if config.world != "open" or config.rolling_shutter_readout:
+            lines.insert(2, f"  {config.world} world, rolling shutter readout "
+                            f"{config.rolling_shutter_readout * 1e3:g} ms, camera clock "
+                            f"{config.clock_rate_error_ppm:+g} ppm (hidden.yaml: every parameter)")
     return "\n".join(lines)
