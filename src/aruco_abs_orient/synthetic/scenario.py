@@ -178,8 +178,9 @@ class ScenarioConfig:
 
 REALISTIC = ScenarioConfig(
     duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19, marker_distance=(2.0, 12.0),
-    world="hall", lateral_wander=0.01, tilt_wobble_deg=0.3, vo_tilt_drift_deg_per_min=0.5, exposure_time=0.006,
-    exposure_wander=0.15, jpeg_quality=85, seam_step_px=1.5, seam_band_deg=2.0, clock_rate_error_ppm=20.0)
+    profile="hall", world="hall", lateral_wander=0.01, tilt_wobble_deg=0.3, vo_tilt_drift_deg_per_min=0.5,
+    exposure_time=0.006, exposure_wander=0.15, jpeg_quality=85, seam_step_px=1.5, seam_band_deg=2.0,
+    clock_rate_error_ppm=20.0)
 
 PRESETS: Dict[str, ScenarioConfig] = {
     # plumbing tests: big markers so they are visible at 960 px

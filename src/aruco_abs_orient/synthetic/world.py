@@ -244,6 +244,15 @@ def _placed_per_row(camera_T_map_rows: np.ndarray, centre, map_R_face, item_id: 
     return PlacedMarker(item_id, size, R @ centre + camera_T_map_rows[:, :3, 3], R @ map_R_face)
 
 
+def _centre_row(eq: Equirect, camera_T_rows: np.ndarray, point) -> int:
+    """The image row (of the middle row's pose) through a map point; 0 with a single pose."""
+    if camera_T_rows.shape[0] == 1:
+        return 0
+    T = camera_T_rows[camera_T_rows.shape[0] // 2]
+    _, v = eq.bearing_to_pixel(T[:3, :3] @ point + T[:3, 3])
+    return int(np.clip(round(float(v)), 0, camera_T_rows.shape[0] - 1))
+
+
 def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarray, gain: float) -> None:
     """Paint the hall's pillars (vertical cylinders, floor to ceiling) where they are nearer than ``depth``,
     with edges anti-aliased over one pixel."""
@@ -384,7 +393,10 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
     if hall is not None:
         g = hall.surface_light["posters"](tr)
         for k, (_, centre, R, side, tex) in enumerate(hall.posters):
-            face = _placed_per_row(camera_T_rows, centre, R, k, side, rolling)
+            # a poster takes the pose of the row through its centre (with a rolling shutter: shifted, not
+            # sheared; they are distractors, the markers get every row's pose)
+            face = _placed_per_row(camera_T_rows[_centre_row(eq, camera_T_rows, centre):][:1], centre, R, k, side,
+                                   False)
             render._splat_marker(canvas, eq, face, tex, tex.shape[0], 2, depth=depth, gain=g)
     n_black = render._marker_bit_count(c.dictionary)
     for m in scenario.markers:
