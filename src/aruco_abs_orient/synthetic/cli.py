@@ -19,8 +19,8 @@ presets, the easy world (a textured panorama; quick, for tests):
          easy (60 s, 30 fps, 3840x1920), bench (like easy, 10 s unless --duration)
        the realistic world (a hall with pillars, posters, lights; wander, exposure, blur, JPEG 85,
        a stitch seam, a 20 ppm camera clock; see hidden.yaml for every parameter):
-         demo (60 s, 30 fps, 3840x1920), realistic (like demo, 20 s),
-         realistic-rs (realistic with a 30 ms rolling shutter)
+         demo (60 s, 30 fps, 3840x1920, a 30 ms rolling shutter),
+         realistic (20 s, global shutter), realistic-rs (realistic with a 30 ms rolling shutter)
 
 example:
   aruco-abs-orient-synth --preset demo --seed 7 --time-offset 0.367 --out /tmp/demo
