@@ -16,14 +16,15 @@ JPEG 85, a wandering platform, a VO drifting in yaw and tilt, a stitch seam, a c
               counts as expected when within 75° of facing the camera, at most 14 m away, and not
               hidden by a pillar (2-D line of sight against the hall's pillars).
 
-Scenarios are cached in .cache/bench/realism/. The default run is bounded (20 s scenarios, 3 seeds);
---duration 60 for the full demo length. The EKF figure needs the ROS replay (make demo) and is not here.
+Scenarios are cached in .cache/bench/realism/ (keyed by a digest of their whole configuration). The
+default run is bounded (20 s scenarios, 3 seeds); --duration 60 for the full demo length. The EKF figure needs the ROS replay (make demo) and is not here.
 
 Usage: bench/realism.py [--seeds 101 102 103] [--duration 20] [--width 3840] [--no-rolling]
                         [--every-nth 20] [--workers 2]
 """
 import argparse
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -49,8 +50,8 @@ RANGE_BINS = [(0, 3), (3, 5), (5, 7), (7, 9), (9, 11), (11, 14)]
 
 
 def scenario_dir(config) -> str:
-    key = (f"{config.world}_s{config.seed}_{config.duration:g}s_{config.width}"
-           f"_rs{config.rolling_shutter_readout * 1e3:g}")
+    digest = hashlib.sha1(json.dumps(config.to_dict(), sort_keys=True).encode()).hexdigest()[:10]
+    key = f"{config.world}_s{config.seed}_{config.duration:g}s_rs{config.rolling_shutter_readout * 1e3:g}_{digest}"
     out = os.path.join(ROOT, ".cache", "bench", "realism", key)
     if not os.path.exists(os.path.join(out, "scenario.bag")):
         print(f"rendering {out}", file=sys.stderr, flush=True)
