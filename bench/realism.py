@@ -17,7 +17,8 @@ JPEG 85, a wandering platform, a VO drifting in yaw and tilt, a stitch seam, a c
               hidden by a pillar (2-D line of sight against the hall's pillars).
 
 Scenarios are cached in .cache/bench/realism/ (keyed by a digest of their whole configuration). The
-default run is bounded (20 s scenarios, 3 seeds); --duration 60 for the full demo length. The EKF figure needs the ROS replay (make demo) and is not here.
+default run is bounded (20 s scenarios, 3 seeds); --duration 60 for the full demo length. The EKF
+figure needs the ROS replay (make demo) and is not here.
 
 Usage: bench/realism.py [--seeds 101 102 103] [--duration 20] [--width 3840] [--no-rolling]
                         [--every-nth 20] [--workers 2]
