@@ -16,7 +16,7 @@ Then, in one run:
    per-marker yaws (evaluation.error_by_frame_position: max |mean| over azimuth×elevation bins with
    ≥ ``--min-count`` samples, and the mean per elevation band).
 
-    PYTHONPATH=src .venv/bin/python bench/calibration.py [--preset demo] [--duration 60] [--every 3]
+    PYTHONPATH=src .venv/bin/python bench/calibration.py [--preset easy] [--duration 60] [--every 3]
         [--work /tmp/aruco_calib_bench] [--boresight-deg 0.5]
 
 Scenarios are cached in ``--work`` (re-rendered only with ``--force``).
@@ -172,7 +172,7 @@ def honesty(a) -> int:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="demo", choices=sorted(PRESETS))
+    ap.add_argument("--preset", default="easy", choices=sorted(PRESETS))
     ap.add_argument("--duration", type=float, help="seconds of images (default: the preset's)")
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--boresight-deg", type=float, default=0.5)

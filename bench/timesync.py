@@ -100,7 +100,7 @@ def generator_sweep(offsets: int, noise_deg: float, duration: float) -> None:
           f"{'xcorr err [ms]':>14} {'xcorr smoothed':>14}")
     rows = []
     for i, tau in enumerate(np.linspace(-0.95, 0.95, offsets) + 0.37 / FPS):
-        sc = Scenario(dataclasses.replace(PRESETS["demo"], seed=2000 + i, duration=duration,
+        sc = Scenario(dataclasses.replace(PRESETS["easy"], seed=2000 + i, duration=duration,
                                           camera_time_offset=float(tau)))
         stamps, odom_T = sc.camera_stamps, sc.odom_T_base(sc.frame_times)
         yaw = yaw_of(odom_T[:, :3, :3])

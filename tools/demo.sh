@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # make demo: the main job on the embedded demo scenario, as a user would run it on a recording:
-#   1. generate the demo scenario (60 s, 30 fps, 3840x1920, 19 cm markers at 2-12 m; cached in
-#      .cache/demo/scenario — DEMO_FORCE=1 re-renders it; DEMO_PRESET=ci for a quick look),
+#   1. generate the demo scenario (the realistic world: a hall with pillars, posters and lights, a 30 ms
+#      rolling shutter; 60 s, 30 fps, 3840x1920, 19 cm markers at 2-12 m; cached in .cache/demo/scenario —
+#      DEMO_FORCE=1 re-renders it; DEMO_PRESET=easy for the easy world, DEMO_PRESET=ci for a quick look),
 #   2. estimate the camera <-> total-station time offset (timesync, from the VO heading),
 #   3. calibrate the camera's mounting rotation (boresight) from the bag and refine the time offset
 #      with the marker bearings, then process the bag
@@ -19,7 +20,12 @@ RUN=$OUT/run
 step() { printf '\n\033[1m== %s\033[0m\n' "$*"; }
 
 step "1/5 scenario ($PRESET preset)"
-if [[ -f $SCEN/scenario.bag && -f $SCEN/hidden.yaml && ${DEMO_FORCE:-0} != 1 ]]; then
+same_preset() {  # the cached scenario was made from this preset (not an older generator's or another preset's)
+  python -c "import sys; from aruco_abs_orient.synthetic.scenario import PRESETS, ScenarioConfig as C; import yaml; \
+sys.exit(C.from_dict(yaml.safe_load(open(sys.argv[1]))['config']) != PRESETS[sys.argv[2]])" "$SCEN/hidden.yaml" \
+    "$PRESET" 2>/dev/null
+}
+if [[ -f $SCEN/scenario.bag && -f $SCEN/hidden.yaml && ${DEMO_FORCE:-0} != 1 ]] && same_preset; then
   echo "using the cached scenario $SCEN (DEMO_FORCE=1 make demo renders it again)"
 else
   aruco-abs-orient-synth --preset "$PRESET" --out "$SCEN" --force

@@ -18,7 +18,6 @@ Every file is written under a temporary name and renamed when complete. Frames a
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import math
 import multiprocessing
@@ -33,8 +32,9 @@ import numpy as np
 from ..errors import InputFileError
 from ..transforms import matrix_to_quat
 from ..tum import Trajectory, write_tum
-from .render import PROFILES, encode_jpeg, render_equirect
+from .render import PROFILES, encode_jpeg
 from .scenario import Scenario, ScenarioConfig
+from .world import render_frame
 
 __all__ = ["GenerateError", "GeneratedScenario", "generate", "describe", "OUTPUT_FILES", "TOPICS", "make_typestore"]
 
@@ -90,12 +90,7 @@ def _render_frame(index: int) -> bytes:
     """JPEG bytes of frame ``index`` of the worker's scenario."""
     scenario: Scenario = _WORKER["scenario"]
     c = scenario.config
-    t = float(scenario.frame_times[index])
-    profile = PROFILES[c.profile]
-    image = render_equirect(c.width, scenario.placed_markers(t), dictionary=c.dictionary,
-                            profile=dataclasses.replace(profile, jpeg_quality=None), seed=c.seed,
-                            background_yaw=float(scenario.camera_yaw(t)), noise_seed=(c.seed << 20) + index)
-    return encode_jpeg(image, profile.jpeg_quality or 95)
+    return encode_jpeg(render_frame(scenario, index), c.jpeg_quality or PROFILES[c.profile].jpeg_quality or 95)
 
 
 def _rendered_frames(config: ScenarioConfig, n: int, workers: int) -> Iterator[bytes]:
@@ -223,8 +218,9 @@ def generate(config: ScenarioConfig, out_dir: str, progress: bool = True, force:
             flush(math.inf)
         truth = Trajectory.from_transforms(frame_times, scenario.map_T_base(frame_times))
         truth_path = os.path.join(out_dir, "truth.tum")
-        write_tum(truth_path, truth, header="base_link in map at each image's TRUE capture time "
-                                            f"(image stamps = these + {c.camera_time_offset} s)")
+        clock = f" + {c.clock_rate_error_ppm:g}e-6 * (t - {c.start_time:.0f})" if c.clock_rate_error_ppm else ""
+        write_tum(truth_path, truth, header="base_link in map at each image's TRUE capture time (of its middle "
+                                            f"row; image stamps = these + {c.camera_time_offset} s{clock})")
         markers_path = os.path.join(out_dir, "markers.yaml")
         scenario.markers.save(markers_path)
         hidden_path = os.path.join(out_dir, "hidden.yaml")
@@ -249,4 +245,8 @@ def describe(result: GeneratedScenario, config: Optional[ScenarioConfig] = None)
         lines.insert(1, f"  seed {config.seed}, {config.duration:g} s at {config.fps:g} fps, "
                         f"{config.width}x{config.width // 2}, camera time offset {config.camera_time_offset:g} s, "
                         f"boresight error {config.boresight_deg:g} deg")
+        if config.world != "open" or config.rolling_shutter_readout:
+            lines.insert(2, f"  {config.world} world, rolling shutter readout "
+                            f"{config.rolling_shutter_readout * 1e3:g} ms, camera clock "
+                            f"{config.clock_rate_error_ppm:+g} ppm (hidden.yaml: every parameter)")
     return "\n".join(lines)

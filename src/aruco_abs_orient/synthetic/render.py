@@ -33,6 +33,7 @@ __all__ = [
     "RenderProfile",
     "PROFILES",
     "render_equirect",
+    "finish_frame",
     "encode_jpeg",
     "decode_jpeg",
     "QUIET_ZONE_BITS",
@@ -124,6 +125,9 @@ PROFILES: Dict[str, RenderProfile] = {
                            background="grey"),
     "realistic": RenderProfile(supersample=8, blur_sigma_px=0.7, noise_sigma=2.0, jpeg_quality=85,
                                background="textured"),
+    # the realistic world's (synthetic/world.py): 5×5 sub-samples (25 grey levels of coverage, below its
+    # noise and JPEG) keep a 60 s 3840 px demo, rolling shutter included, within 3 minutes on 2 cores
+    "hall": RenderProfile(supersample=5, blur_sigma_px=0.7, noise_sigma=2.0, jpeg_quality=85, background="textured"),
 }
 
 _GREY_LEVEL = 128
@@ -284,33 +288,57 @@ def _bounding_box(equirect: Equirect, marker: PlacedMarker, half: float
 
 
 class _MarkerShader:
-    """Ray casting against one marker's face (black square + quiet zone) in the camera frame."""
+    """Ray casting against one planar textured square (a marker's black square + quiet zone, or any
+    square ``bits`` texture) in the camera frame.
+
+    The placement may be one pose (``center`` (3,), ``camera_R_marker`` (3, 3)) or one pose per
+    image row (``center`` (H, 3), ``camera_R_marker`` (H, 3, 3)): a rolling shutter, each row
+    seeing the square where it was at that row's capture time. ``origins`` (H, 3), optional: the
+    ray origin of each row in the camera frame of that row (the camera at row time when the
+    placement is given relative to one reference pose)."""
 
     def __init__(self, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray, n_bits_black: int):
         self.equirect = equirect
-        self.R = np.asarray(marker.camera_R_marker, dtype=float)
+        R = np.asarray(marker.camera_R_marker, dtype=float)
         c = np.asarray(marker.center, dtype=float)
+        self.per_row = c.ndim == 2
+        self.R = R
         self.bits = bits
         self.n_all = bits.shape[0]
         self.bit = marker.size / n_bits_black  # bit width, m
         self.half = 0.5 * self.bit * self.n_all  # half side incl. the quiet zone, m
-        self.c_x, self.c_y, self.c_n = (float(x) for x in c @ self.R)
-        self.front = self.c_n < 0.0  # the camera (origin) is on the printed side
+        cn = np.einsum("...i,...ij->...j", c, R)  # centre along marker x, y, z (per row)
+        self.c_x, self.c_y, self.c_n = cn[..., 0], cn[..., 1], cn[..., 2]
+        mid = c.shape[0] // 2 if self.per_row else None
+        c_mid, R_mid, n_mid = (c[mid], R[mid], float(cn[mid, 2])) if self.per_row else (c, R, float(cn[2]))
+        self.front = n_mid < 0.0  # the camera (origin) is on the printed side
+        self.edge_on = abs(n_mid) < 1e-12
         # smallest on-image bit width (px) at the centre, foreshortening included
-        b = c / np.linalg.norm(c)
-        perp = [self.R[:, k] - (self.R[:, k] @ b) * b for k in (0, 1)]
-        self.bit_px = self.bit * min(float(np.linalg.norm(p)) for p in perp) / float(np.linalg.norm(c)) \
+        b = c_mid / np.linalg.norm(c_mid)
+        perp = [R_mid[:, k] - (R_mid[:, k] @ b) * b for k in (0, 1)]
+        self.bit_px = self.bit * min(float(np.linalg.norm(p)) for p in perp) / float(np.linalg.norm(c_mid)) \
             / equirect.rad_per_px
 
-    def shade(self, u, v) -> Tuple[np.ndarray, np.ndarray]:
-        """(inside, grey) at pixel coordinates u, v (same shape): whether the ray hits the face
-        (square + quiet zone) and its grey level (float32) there."""
+    def shade(self, u, v) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(inside, grey, distance) at pixel coordinates u, v (same shape): whether the ray hits the
+        face (square + quiet zone), its grey level (float32) and the distance along the ray (m)."""
         d = self.equirect.pixel_to_bearing(u, v)
-        dp = d @ self.R  # ray components along marker x, y, z
+        if self.per_row:
+            # pixel centres at integer rows: a sub-sample belongs to the nearest row
+            row = np.clip(np.floor(np.asarray(v) + 0.5).astype(np.intp), 0, self.R.shape[0] - 1)
+            if row.ndim == 2 and row.shape[1] > 1 and np.asarray(v)[0, 0] == np.asarray(v)[0, -1]:
+                dp = np.matmul(d, self.R[row[:, 0]])  # a grid, one image row per grid row: batched d @ R
+            else:
+                Rr = self.R.reshape(-1, 9)[row]  # each sample's row rotation, flattened: d @ R without einsum
+                dp = d[..., 0:1] * Rr[..., 0:3] + d[..., 1:2] * Rr[..., 3:6] + d[..., 2:3] * Rr[..., 6:9]
+            c_x, c_y, c_n = self.c_x[row], self.c_y[row], self.c_n[row]
+        else:
+            dp = d @ self.R  # ray components along marker x, y, z
+            c_x, c_y, c_n = self.c_x, self.c_y, self.c_n
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = self.c_n / dp[..., 2]
-            mx = t * dp[..., 0] - self.c_x
-            my = t * dp[..., 1] - self.c_y
+            t = c_n / dp[..., 2]
+            mx = t * dp[..., 0] - c_x
+            my = t * dp[..., 1] - c_y
             inside = (t > 0) & (np.abs(mx) < self.half) & (np.abs(my) < self.half)
         if self.front:
             n = self.n_all
@@ -319,7 +347,7 @@ class _MarkerShader:
             grey = self.bits[row, col]
         else:  # the back of the board: plain white
             grey = np.full(inside.shape, _WHITE, dtype=np.float32)
-        return inside, grey
+        return inside, grey, t
 
 
 # below this on-image bit width (px) every pixel of the box is supersampled
@@ -327,25 +355,37 @@ _ADAPTIVE_MIN_BIT_PX = 3.0
 
 
 def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray,
-                  n_bits_black: int, supersample: int) -> None:
+                  n_bits_black: int, supersample: int, depth: Optional[np.ndarray] = None,
+                  gain: float = 1.0, offset: float = 0.0) -> None:
     """Average the marker (with its quiet zone) into ``canvas`` (H, W) float32 in place.
 
     Pixels are shaded by S×S sub-samples (S = ``supersample``). When a bit spans at least
     ``_ADAPTIVE_MIN_BIT_PX`` pixels, pixels whose 8 neighbours all have the centre's shade
     (same side of every edge) are taken from their centre sample and only the rest are
     supersampled (the same result, several times faster for close markers).
+
+    ``marker`` may be placed per image row (a rolling shutter, see :class:`_MarkerShader`).
+    The texture's grey g is painted as ``offset + gain · g`` (illumination). ``depth`` (H, W),
+    optional: a depth buffer (m along the ray); pixels at least half covered get the face's
+    distance where it is nearer, and the face is not painted where the buffer is nearer.
     """
     shader = _MarkerShader(equirect, marker, bits, n_bits_black)
-    box = _bounding_box(equirect, marker, shader.half)
-    if box is None or abs(shader.c_n) < 1e-12:
+    if shader.edge_on:
+        return
+    box = _bounding_box(equirect, _row_placement(marker, 0), shader.half)
+    if shader.per_row:  # the union of the boxes at the first, middle and last row's poses
+        rows = marker.center.shape[0]
+        box = _union_boxes(equirect, [box] + [_bounding_box(equirect, _row_placement(marker, k), shader.half)
+                                              for k in (rows // 2, rows - 1)])
+    if box is None:
         return
     u0, u1, v0, v1 = box
     rows_n, cols_n = v1 - v0 + 1, u1 - u0 + 1
     S = int(supersample)
     offs = (np.arange(S) + 0.5) / S - 0.5
+    uu, vv = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float))
     if S > 1 and shader.bit_px >= _ADAPTIVE_MIN_BIT_PX:
-        uu, vv = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float))
-        inside, grey = shader.shade(uu, vv)
+        inside, grey, dist = shader.shade(uu, vv)
         if not inside.any():
             return
         label = np.pad(np.where(inside, grey, -1.0), 1, mode="edge")
@@ -360,22 +400,59 @@ def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, 
         if iy.size:
             su = (uu[iy, ix][:, None, None] + offs[None, None, :]).repeat(S, axis=1)
             sv = (vv[iy, ix][:, None, None] + offs[None, :, None]).repeat(S, axis=2)
-            s_in, s_grey = shader.shade(su, sv)
+            s_in, s_grey, _ = shader.shade(su, sv)
             covered[iy, ix] = s_in.mean(axis=(1, 2), dtype=np.float32)
             paint[iy, ix] = np.where(s_in, s_grey, np.float32(0.0)).mean(axis=(1, 2), dtype=np.float32)
     else:
         us = (np.arange(u0, u1 + 1)[:, None] + offs[None, :]).ravel()
         vs = (np.arange(v0, v1 + 1)[:, None] + offs[None, :]).ravel()
-        inside, grey = shader.shade(*np.meshgrid(us, vs))
+        inside, grey, _ = shader.shade(*np.meshgrid(us, vs))
         if not inside.any():
             return
         # per pixel: the covered fraction and the mean of the covered samples' grey
         covered = inside.reshape(rows_n, S, cols_n, S).mean(axis=(1, 3), dtype=np.float32)
         paint = np.where(inside, grey, np.float32(0.0)).reshape(rows_n, S, cols_n, S).mean(
             axis=(1, 3), dtype=np.float32)
+        dist = shader.shade(uu, vv)[2] if depth is not None else None
+    if gain != 1.0 or offset != 0.0:
+        paint = (gain * paint + offset * covered).astype(np.float32)
     cols = np.arange(u0, u1 + 1) % equirect.width
+    if depth is not None:
+        behind = depth[v0:v1 + 1][:, cols]
+        dist = np.where(np.isfinite(dist) & (dist > 0), dist, np.inf).astype(np.float32)
+        hidden = behind < dist
+        covered = np.where(hidden, np.float32(0.0), covered)
+        paint = np.where(hidden, np.float32(0.0), paint)
+        depth[v0:v1 + 1, cols] = np.where(covered >= 0.5, dist, behind)
     patch = canvas[v0:v1 + 1][:, cols]
     canvas[v0:v1 + 1, cols] = patch * (1.0 - covered) + paint
+
+
+def _row_placement(marker: PlacedMarker, row: int) -> PlacedMarker:
+    """The placement of ``marker`` at image row ``row`` (itself when it has a single pose)."""
+    c = np.asarray(marker.center)
+    if c.ndim == 1:
+        return marker
+    return PlacedMarker(marker.id, marker.size, c[row], np.asarray(marker.camera_R_marker)[row])
+
+
+def _union_boxes(equirect: Equirect, boxes) -> Optional[Tuple[int, int, int, int]]:
+    """The pixel box covering all ``boxes`` (None entries skipped), columns unwrapped near the first."""
+    boxes = [b for b in boxes if b is not None]
+    if not boxes:
+        return None
+    W = equirect.width
+    u0, u1, v0, v1 = boxes[0]
+    for a0, a1, b0, b1 in boxes[1:]:
+        if u1 - u0 + 1 >= W or a1 - a0 + 1 >= W:
+            u0, u1 = 0, W - 1
+        else:
+            shift = W * round(((u0 + u1) - (a0 + a1)) / (2.0 * W))
+            u0, u1 = min(u0, a0 + shift), max(u1, a1 + shift)
+        v0, v1 = min(v0, b0), max(v1, b1)
+    if u1 - u0 + 1 >= W:
+        u0, u1 = 0, W - 1
+    return u0, u1, v0, v1
 
 
 def render_equirect(width: int, markers: Sequence[PlacedMarker], dictionary: str = "DICT_4X4_50",
@@ -406,13 +483,22 @@ def render_equirect(width: int, markers: Sequence[PlacedMarker], dictionary: str
     n_black = _marker_bit_count(dictionary)
     for m in markers:
         _splat_marker(canvas, equirect, m, _marker_bits(dictionary, int(m.id)), n_black, p.supersample)
+    return finish_frame(canvas, p, int(seed), int(seed if noise_seed is None else noise_seed))
+
+
+def finish_frame(canvas: np.ndarray, profile: RenderProfile, seed: int, noise_seed: int) -> np.ndarray:
+    """The frame's last steps on ``canvas`` (H, W) float32 grey levels (modified): the profile's
+    sensor noise, optical blur, rounding to uint8 and, when it has a ``jpeg_quality``, the JPEG
+    round trip. ``seed`` selects the cached noise field, ``noise_seed`` this frame's window of it."""
+    p = profile
+    height, width = canvas.shape
     if p.noise_sigma > 0:
         # a window of a cached i.i.d. N(0, 1) field at an offset drawn from the noise seed (cheap;
         # every pixel of a frame independent, successive frames shifted copies of one field)
-        field = _noise_field(equirect.height, width, int(seed))
-        dy, dx = np.random.default_rng([int(seed if noise_seed is None else noise_seed), 0x5EED]).integers(
-            0, [field.shape[0] - equirect.height + 1, field.shape[1] - width + 1])
-        window = field[dy:dy + equirect.height, dx:dx + width]
+        field = _noise_field(height, width, int(seed))
+        dy, dx = np.random.default_rng([int(noise_seed), 0x5EED]).integers(
+            0, [field.shape[0] - height + 1, field.shape[1] - width + 1])
+        window = field[dy:dy + height, dx:dx + width]
         cv2.scaleAdd(window, float(p.noise_sigma), canvas, dst=canvas)
     if p.blur_sigma_px > 0:
         cv2.GaussianBlur(canvas, (0, 0), p.blur_sigma_px, dst=canvas, borderType=cv2.BORDER_REPLICATE)

@@ -9,6 +9,19 @@ Visual odometry ``odom → base_link`` drifts: its yaw error grows linearly plus
 its translation integrates the true motion through that yaw error with a scale error, plus
 jitter. The camera/VO clock runs ``camera_time_offset`` seconds ahead of true time.
 
+The realistic world and the camera effects (issue 17; all off in the easy world's presets):
+``world="hall"`` puts the loop in an interior (walls, floor, ceiling with lights, pillars that
+hide markers, posters and checker patterns; synthetic/world.py); the platform wanders
+sideways (``lateral_wander``, m) and its heading follows its path (non-holonomic), with a roll/
+pitch wobble (``tilt_wobble_deg``); the VO also drifts in tilt (``vo_tilt_drift_deg_per_min``).
+
+Rolling shutter (``rolling_shutter_readout`` = R seconds from the first to the last row): the
+frame's stamp is the capture time of its middle row, and image row v (0 = top, H rows) is
+captured at ``stamp + (v / H − ½) · R`` (:meth:`Scenario.row_times`); the same convention is
+written into hidden.yaml. Camera clock rate error (``clock_rate_error_ppm`` = ε·10⁶): the camera
+takes a frame every 1/fps seconds of ITS clock, which runs at (1 + ε) times true time, so
+``stamp = t + camera_time_offset + ε · (t − start_time)`` (:meth:`Scenario.camera_clock`).
+
 Everything follows from a :class:`ScenarioConfig` (its ``seed`` included), so a scenario is
 rebuilt exactly from the hidden-parameters YAML (:meth:`Scenario.from_hidden`).
 
@@ -30,6 +43,7 @@ from ..markers import ARUCO_DICTIONARIES, Marker, MarkerMap
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
 from ..tum import atomic_write_text, read_yaml
 from .render import PROFILES, PlacedMarker, facing_marker
+from .world import SEAM_AZIMUTHS_DEG, WORLDS, Hall
 
 __all__ = ["ScenarioError", "ScenarioConfig", "PRESETS", "Scenario", "PrismTrack"]
 
@@ -78,6 +92,18 @@ class ScenarioConfig:
     prism_gaps: int = 2  # number of ~1 s tracking losses (while driving)
     impostor_rate: float = 0.0  # fraction of frames showing a false id: a second marker with the
     # id of the map's first marker, 4 m ahead-left of the camera (not where the map has it)
+    # --- the realistic world and the camera effects (issue 17); the defaults are the easy world
+    world: str = "open"  # "open": a textured panorama; "hall": an interior (synthetic/world.py)
+    lateral_wander: float = 0.0  # amplitude of the platform's sideways wander off the loop, m
+    tilt_wobble_deg: float = 0.0  # amplitude of a short-wavelength roll/pitch wobble, deg
+    vo_tilt_drift_deg_per_min: float = 0.0  # VO tilt error growth about a random horizontal axis
+    exposure_time: float = 0.0  # s; motion blur along the camera's yaw rotation (0 = none)
+    exposure_wander: float = 0.0  # relative amplitude of exposure and per-surface brightness changes
+    jpeg_quality: int = 0  # 1-100; 0 = the render profile's
+    rolling_shutter_readout: float = 0.0  # s from the first to the last image row (0 = global)
+    seam_step_px: float = 0.0  # dual-fisheye stitch seam: parallax step, px (0 = no seam)
+    seam_band_deg: float = 2.0  # width of the seam's blend band, deg
+    clock_rate_error_ppm: float = 0.0  # camera clock rate (frame rate) error, parts per million
 
     def validate(self) -> ScenarioConfig:
         """Check ranges; raises ScenarioError naming the field. Returns self."""
@@ -107,6 +133,18 @@ class ScenarioConfig:
         need(self.prism_jitter < 0.5 / self.prism_rate, "prism_jitter", "expected less than half a period")
         for name in ("prism_noise", "vo_translation_noise", "vo_yaw_walk_deg_per_sqrt_s", "prism_gaps"):
             need(getattr(self, name) >= 0, name, "expected >= 0")
+        need(self.world in WORLDS, "world", f"expected one of {', '.join(WORLDS)}")
+        need(0 <= self.lateral_wander <= 0.5, "lateral_wander", "expected metres in [0, 0.5]")
+        need(0 <= self.tilt_wobble_deg <= 5, "tilt_wobble_deg", "expected degrees in [0, 5]")
+        need(abs(self.vo_tilt_drift_deg_per_min) <= 10, "vo_tilt_drift_deg_per_min", "expected |deg/min| <= 10")
+        need(0 <= self.exposure_time <= 0.1, "exposure_time", "expected seconds in [0, 0.1]")
+        need(0 <= self.exposure_wander < 0.5, "exposure_wander", "expected a fraction in [0, 0.5)")
+        need(0 <= self.jpeg_quality <= 100, "jpeg_quality", "expected 1-100, or 0 for the profile's")
+        need(0 <= self.rolling_shutter_readout <= 0.04, "rolling_shutter_readout",
+             "expected a readout time in [0, 0.04] s")
+        need(0 <= self.seam_step_px <= 20, "seam_step_px", "expected pixels in [0, 20]")
+        need(0 < self.seam_band_deg <= 20, "seam_band_deg", "expected degrees in (0, 20]")
+        need(abs(self.clock_rate_error_ppm) <= 1000, "clock_rate_error_ppm", "expected |ppm| <= 1000")
         return self
 
     def to_dict(self) -> dict:
@@ -138,17 +176,30 @@ class ScenarioConfig:
             raise ScenarioError(f"{source}: {e}") from None
 
 
+REALISTIC = ScenarioConfig(
+    duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19, marker_distance=(2.0, 12.0),
+    profile="hall", world="hall", lateral_wander=0.01, tilt_wobble_deg=0.3, vo_tilt_drift_deg_per_min=0.5,
+    exposure_time=0.006, exposure_wander=0.15, jpeg_quality=85, seam_step_px=1.5, seam_band_deg=2.0,
+    clock_rate_error_ppm=20.0)
+
 PRESETS: Dict[str, ScenarioConfig] = {
     # plumbing tests: big markers so they are visible at 960 px
     "tiny": ScenarioConfig(duration=8.0, fps=10.0, width=960, standstill=2.0, n_markers=5, marker_size=0.45,
                            marker_distance=(2.0, 6.0), track_radii=(5.0, 3.5)),
     "ci": ScenarioConfig(duration=20.0, fps=15.0, width=1920, n_markers=8, marker_size=0.30,
                          marker_distance=(2.0, 8.0)),
-    # the paper's set-up: 19 cm DICT_4X4 markers at 2-12 m, Theta Z1 frames at 30 fps
-    "demo": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
+    # the paper's set-up: 19 cm DICT_4X4 markers at 2-12 m, Theta Z1 frames at 30 fps, in the easy world
+    "easy": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                            marker_distance=(2.0, 12.0)),
+    # the same in the realistic world (issue 17): the hall, a wandering platform, a VO drifting in yaw and
+    # tilt, exposure changes, motion blur, JPEG 85, a stitch seam, a camera clock 20 ppm fast, and a 30 ms
+    # rolling shutter (bench/realism.py: the pipeline initialises and keeps its heading on it uncorrected)
+    "demo": dataclasses.replace(REALISTIC, rolling_shutter_readout=0.030),
     "bench": ScenarioConfig(duration=10.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                             marker_distance=(2.0, 12.0)),
+    "realistic": dataclasses.replace(REALISTIC, duration=20.0),
+    # the realistic world with a 30 ms rolling shutter
+    "realistic-rs": dataclasses.replace(REALISTIC, duration=20.0, rolling_shutter_readout=0.030),
 }
 
 
@@ -196,6 +247,13 @@ class Scenario:
             th += _DT * 0.5 * (speed[k] + speed[k + 1]) / math.hypot(a * math.sin(mid), b * math.cos(mid))
             theta.append(th)
         self._theta = np.array(theta)
+        # --- issue 17's realism (its own random stream: the easy world's draws stay as they were)
+        rng_real = np.random.default_rng([c.seed, 17])
+        self._wander_phase = rng_real.uniform(0.0, 2.0 * math.pi, 2)
+        self._wobble_phase = rng_real.uniform(0.0, 2.0 * math.pi, 4)
+        tilt_az = rng_real.uniform(-math.pi, math.pi)
+        self.vo_tilt_axis = np.array([math.cos(tilt_az), math.sin(tilt_az), 0.0])
+        self.exposure_phase = rng_real.uniform(0.0, 2.0 * math.pi, 2)
         # --- lever arms and the boresight error (a rotation of boresight_deg about a random axis)
         axis = rng.normal(size=3)
         axis /= np.linalg.norm(axis)
@@ -217,8 +275,8 @@ class Scenario:
         self._jitter_t = np.arange(jitter_n) * jitter_dt
         self._jitter = rng.normal(0.0, c.vo_translation_noise, (jitter_n, 3))
         self._jitter -= self._jitter[0]
-        p = self._track_point(theta)
-        psi0 = float(self._yaw_on_track(theta[0]))
+        p = self._path_point(self._theta)
+        psi0 = float(self._path_yaw(theta[0]))
         yaw_err = self.vo_yaw_error(self._tg + c.start_time)
         mid_err = 0.5 * (yaw_err[1:] + yaw_err[:-1])
         dp = np.diff(p, axis=0)
@@ -227,6 +285,8 @@ class Scenario:
         self._psi0 = psi0
         # --- total station samples (true time stamps), with jitter, dropouts and gaps
         self.prism = self._prism_track(rng)
+        # --- the interior around it all (walls, pillars, posters, lights), or None: the easy world's panorama
+        self.world = Hall(self, np.random.default_rng([c.seed, 18])) if c.world == "hall" else None
 
     # ---- construction helpers --------------------------------------------------------------
     def _track_point(self, theta) -> np.ndarray:
@@ -240,11 +300,39 @@ class Scenario:
         a, b = self.config.track_radii
         return np.arctan2(b * np.cos(theta), -a * np.sin(theta))  # counter-clockwise travel
 
+    # lateral wander: cycles per loop of its two components and their share of the amplitude
+    _WANDER = ((13.0, 0.6), (29.0, 0.4))
+
+    def _path_point(self, theta) -> np.ndarray:
+        """Where base_link drives: the loop P(θ) moved sideways by the wander (±lateral_wander m,
+        along the loop's left normal), m."""
+        p = self._track_point(theta)
+        amp = self.config.lateral_wander
+        if amp == 0.0:
+            return p
+        theta = np.asarray(theta, dtype=float)
+        w = amp * sum(share * np.sin(k * theta + ph) for (k, share), ph in zip(self._WANDER, self._wander_phase))
+        yaw = self._yaw_on_track(theta)
+        return p + np.stack([-np.sin(yaw) * w, np.cos(yaw) * w, np.zeros_like(w)], axis=-1)
+
+    def _path_yaw(self, theta):
+        """Heading of base_link at θ: the direction of its path (a non-holonomic platform)."""
+        if self.config.lateral_wander == 0.0:
+            return self._yaw_on_track(theta)
+        h = 1e-5
+        d = self._path_point(np.asarray(theta, dtype=float) + h) - self._path_point(np.asarray(theta, dtype=float) - h)
+        return np.arctan2(d[..., 1], d[..., 0])
+
     def _roll_pitch(self, theta):
         amp = math.radians(self.config.roll_pitch_deg)
         ph = self._rp_phase
         roll = amp * (0.7 * np.sin(3.0 * theta + ph[0]) + 0.3 * np.sin(7.0 * theta + ph[1]))
         pitch = amp * (0.7 * np.sin(2.0 * theta + ph[2]) + 0.3 * np.sin(5.0 * theta + ph[3]))
+        wobble = math.radians(self.config.tilt_wobble_deg)
+        if wobble > 0.0:  # bumps of ~0.7-1.3 m wavelength on a loop of ~50 m
+            wp = self._wobble_phase
+            roll = roll + wobble * (0.6 * np.sin(41.0 * theta + wp[0]) + 0.4 * np.sin(67.0 * theta + wp[1]))
+            pitch = pitch + wobble * (0.6 * np.sin(37.0 * theta + wp[2]) + 0.4 * np.sin(73.0 * theta + wp[3]))
         return roll, pitch
 
     def _place_markers(self, rng) -> Tuple[MarkerMap, Dict[int, np.ndarray]]:
@@ -307,14 +395,37 @@ class Scenario:
     # ---- truth -----------------------------------------------------------------------------
     @property
     def frame_times(self) -> np.ndarray:
-        """True capture times (N,) of the camera frames, s."""
+        """True capture times (N,) of the camera frames (of their middle rows), s: one every 1/fps
+        seconds of the camera's clock, which runs clock_rate_error_ppm fast."""
         c = self.config
-        return c.start_time + np.arange(int(round(c.duration * c.fps))) / c.fps
+        return c.start_time + np.arange(int(round(c.duration * c.fps))) / c.fps / (1.0 + 1e-6 * c.clock_rate_error_ppm)
 
     @property
     def camera_stamps(self) -> np.ndarray:
-        """Camera/VO clock stamps (N,) of the frames: true time + camera_time_offset, s."""
-        return self.frame_times + self.config.camera_time_offset
+        """Camera/VO clock stamps (N,) of the frames, s (:meth:`camera_clock` of their true times)."""
+        return self.camera_clock(self.frame_times)
+
+    def camera_clock(self, t):
+        """The camera/VO clock's reading at true time(s) t: t + camera_time_offset + ε · (t − start_time),
+        ε = clock_rate_error_ppm · 1e-6."""
+        c = self.config
+        t = np.asarray(t, dtype=float)
+        return t + c.camera_time_offset + 1e-6 * c.clock_rate_error_ppm * (t - c.start_time)
+
+    def row_times(self, t: float, height: int) -> np.ndarray:
+        """True capture times (height,) of the image rows of the frame whose middle row is captured at
+        true time t: row v at t + (v / height − ½) · rolling_shutter_readout (all t without a rolling
+        shutter)."""
+        return float(t) + (np.arange(int(height)) / float(height) - 0.5) * self.config.rolling_shutter_readout
+
+    def exposure_gain(self, t):
+        """The camera's exposure (brightness factor, 1 ± exposure_wander) at true time(s) t: two slow
+        oscillations, as an auto-exposure hunting under changing light."""
+        c = self.config
+        tr = np.asarray(t, dtype=float) - c.start_time
+        ph = self.exposure_phase
+        return 1.0 + c.exposure_wander * (0.6 * np.sin(2 * math.pi * 0.07 * tr + ph[0])
+                                          + 0.4 * np.sin(2 * math.pi * 0.23 * tr + ph[1]))
 
     def _theta_at(self, t):
         return np.interp(np.asarray(t, dtype=float) - self.config.start_time, self._tg, self._theta)
@@ -323,7 +434,7 @@ class Scenario:
         """True pose(s) of base_link in map at true time(s) t."""
         theta = self._theta_at(t)
         roll, pitch = self._roll_pitch(theta)
-        return make_T(rpy_to_matrix(roll, pitch, self._yaw_on_track(theta)), self._track_point(theta))
+        return make_T(rpy_to_matrix(roll, pitch, self._path_yaw(theta)), self._path_point(theta))
 
     def vo_yaw_error(self, t):
         """VO yaw error (radians) at true time(s) t: linear drift + random walk, 0 at start_time."""
@@ -331,11 +442,18 @@ class Scenario:
         rate = math.radians(self.config.vo_yaw_drift_deg_per_min) / 60.0
         return rate * tr + np.interp(tr, self._walk_t, self._walk)
 
+    def vo_tilt_error(self, t):
+        """VO tilt error (radians, about the horizontal ``vo_tilt_axis``) at true time(s) t: linear drift."""
+        tr = np.asarray(t, dtype=float) - self.config.start_time
+        return math.radians(self.config.vo_tilt_drift_deg_per_min) / 60.0 * tr
+
     def odom_T_base(self, t) -> np.ndarray:
         """The VO's pose(s) of base_link in odom at true time(s) t (what /tf carries, stamped
         t + camera_time_offset). odom is the base_link pose at start_time, levelled."""
         tr = np.asarray(t, dtype=float) - self.config.start_time
         R = rot_z(self.vo_yaw_error(t) - self._psi0) @ self.map_T_base(t)[..., :3, :3]
+        if self.config.vo_tilt_drift_deg_per_min != 0.0:
+            R = _axis_angle(self.vo_tilt_axis, self.vo_tilt_error(t)) @ R
         pos = np.stack([np.interp(tr, self._tg, self._vo_pos[:, k]) for k in range(3)], axis=-1)
         pos = pos + np.stack([np.interp(tr, self._jitter_t, self._jitter[:, k]) for k in range(3)], axis=-1)
         return make_T(R, pos)
@@ -366,10 +484,16 @@ class Scenario:
             centre = transform_points(camera_T_map, m.position)
             R = camera_T_map[:3, :3] @ self.map_R_marker(m.id)
             out.append(PlacedMarker(m.id, m.size, centre, R))
-        if self.has_impostor(t):
-            first = self.markers.ids[0]
-            out.append(facing_marker(first, self.markers[first].size, np.array([2.8, 2.8, 0.3])))
-        return out
+        impostor = self.impostor(t)
+        return out + ([impostor] if impostor is not None else [])
+
+    def impostor(self, t: float):
+        """The false-id impostor (a PlacedMarker in the camera frame) in the frames :meth:`has_impostor`
+        picks, else None."""
+        if not self.has_impostor(t):
+            return None
+        first = self.markers.ids[0]
+        return facing_marker(first, self.markers[first].size, np.array([2.8, 2.8, 0.3]))
 
     def marker_bearings(self, t, max_range: float = 12.0, max_incidence_deg: float = 80.0, noise: float = 0.0,
                         rng=None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -428,7 +552,39 @@ class Scenario:
             "map_T_odom_at_start": _rows(self.map_T_odom(c.start_time)),
             "marker_normals": {int(k): [round(float(x), 9) for x in v] for k, v in self.marker_normals.items()},
             "prism_samples": int(self.prism.stamps.size),
+            "realism": self._hidden_realism(),
         }
+
+    def _hidden_realism(self) -> dict:
+        """The parameters of issue 17's effects (those of the easy world are zero / absent)."""
+        c = self.config
+        out = {
+            "world": c.world,
+            "rolling_shutter": {
+                "readout_s": c.rolling_shutter_readout,
+                "convention": "the image stamp is the capture time of the middle row; row v (0 = top) of H "
+                              "is captured at stamp + (v / H - 1/2) * readout_s"},
+            "camera_clock": {"rate_error_ppm": c.clock_rate_error_ppm,
+                             "convention": "stamp = t + camera_time_offset + rate_error_ppm * 1e-6 * (t - start_time); "
+                                           "a frame every 1/fps s of the camera clock"},
+            "platform": {"lateral_wander_m": c.lateral_wander,
+                         "wander_cycles_per_loop_and_share": [list(w) for w in self._WANDER],
+                         "wander_phase_rad": [round(float(x), 9) for x in self._wander_phase],
+                         "tilt_wobble_deg": c.tilt_wobble_deg,
+                         "wobble_phase_rad": [round(float(x), 9) for x in self._wobble_phase]},
+            "vo_tilt": {"drift_deg_per_min": c.vo_tilt_drift_deg_per_min,
+                        "axis_in_map": [round(float(x), 9) for x in self.vo_tilt_axis]},
+            "exposure": {"time_s": c.exposure_time, "wander": c.exposure_wander,
+                         "frequencies_hz": [0.07, 0.23], "shares": [0.6, 0.4],
+                         "phase_rad": [round(float(x), 9) for x in self.exposure_phase],
+                         "motion_blur": "horizontal box of |camera yaw rate| * time_s, centred on each row's time"},
+            "jpeg_quality": c.jpeg_quality or PROFILES[c.profile].jpeg_quality,
+            "stitch_seam": {"step_px": c.seam_step_px, "band_deg": c.seam_band_deg,
+                            "azimuths_deg": list(SEAM_AZIMUTHS_DEG)},
+        }
+        if self.world is not None:
+            out["hall"] = self.world.hidden()
+        return out
 
     def save_hidden(self, path: str) -> None:
         """Write :meth:`hidden` as YAML, atomically."""
@@ -454,11 +610,13 @@ class Scenario:
         return scenario
 
 
-def _axis_angle(axis, angle: float) -> np.ndarray:
-    """Rotation matrix of ``angle`` radians about unit ``axis`` (Rodrigues)."""
+def _axis_angle(axis, angle) -> np.ndarray:
+    """Rotation matrix (3, 3), or (N, 3, 3) for angles (N,), of ``angle`` radians about unit ``axis``
+    (Rodrigues)."""
     k = np.asarray(axis, dtype=float)
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+    a = np.asarray(angle, dtype=float)[..., None, None]
+    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
 
 
 def _rows(T) -> list:

@@ -145,7 +145,7 @@ def test_readout_recovered_from_feed_observations(readout, seed):
     from aruco_abs_orient.synthetic.feed import marker_observations
     from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
 
-    sc = Scenario(dataclasses.replace(PRESETS["demo"], seed=seed, boresight_deg=0.5, marker_height=(0.0, 3.0),
+    sc = Scenario(dataclasses.replace(PRESETS["easy"], seed=seed, boresight_deg=0.5, marker_height=(0.0, 3.0),
                                       track_radii=(6.0, 4.0), marker_distance=(1.5, 8.0), n_markers=12))
     off = sc.config.camera_time_offset
     frames = sc.frame_times
@@ -170,7 +170,7 @@ def test_synthetic_scenario_geometry(seed):
 
     from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
 
-    config = dataclasses.replace(PRESETS["demo"], seed=seed, duration=30.0, boresight_deg=0.5)
+    config = dataclasses.replace(PRESETS["easy"], seed=seed, duration=30.0, boresight_deg=0.5)
     sc = Scenario(config)
     offset = config.camera_time_offset
     frames = sc.frame_times[::3]
@@ -213,7 +213,7 @@ def test_time_offset_of_generator_scenarios_within_5ms(offset):
     from aruco_abs_orient.timesync import estimate_offset
     from aruco_abs_orient.transforms import yaw_of
 
-    sc = Scenario(dataclasses.replace(PRESETS["demo"], seed=int(1000 * abs(offset)), camera_time_offset=offset))
+    sc = Scenario(dataclasses.replace(PRESETS["easy"], seed=int(1000 * abs(offset)), camera_time_offset=offset))
     stamps = sc.camera_stamps
     odom_T = sc.odom_T_base(sc.frame_times)
     coarse = estimate_offset(stamps, yaw_of(odom_T[:, :3, :3]), sc.prism.stamps, sc.prism.positions,

@@ -173,7 +173,7 @@ def test_placed_markers_are_seen_through_the_true_camera(sc):
     assert max(offs) > 0.0
 
 
-@pytest.mark.parametrize("preset", ["tiny", "ci", "demo"])
+@pytest.mark.parametrize("preset", ["tiny", "ci", "easy", "demo", "realistic"])
 def test_markers_around_the_track(preset):
     cfg = PRESETS[preset]
     s = Scenario(cfg)

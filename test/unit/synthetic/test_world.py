@@ -1,0 +1,200 @@
+"""synthetic/world.py and issue 17's scenario options: the hall, the rolling shutter, the stitch seam,
+the camera clock, the wandering platform and the VO's tilt drift, each checked on rendered frames or
+motion against geometry computed independently here (plain cv2.aruco, finite differences)."""
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from aruco_abs_orient.camera import Equirect
+from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario, ScenarioError
+from aruco_abs_orient.synthetic.world import SEAM_AZIMUTHS_DEG, render_frame
+from aruco_abs_orient.transforms import invert_T, transform_points
+
+_PARAMS = cv2.aruco.DetectorParameters()
+_PARAMS.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+DETECTOR = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), _PARAMS)
+
+# a fast turn: 3 m/s on the tiny loop (yaw rate up to ~1.2 rad/s), markers high above the camera
+FAST = dataclasses.replace(PRESETS["tiny"], width=1920, speed=3.0, profile="clean", marker_height=(2.6, 3.6),
+                           marker_distance=(2.0, 4.0), seed=4)
+
+
+def detect(image):
+    corners, ids, _ = DETECTOR.detectMarkers(image)
+    return {} if ids is None else {int(i): c.reshape(4, 2).mean(axis=0) for i, c in zip(ids.ravel(), corners)}
+
+
+def projected(scenario, marker_id, t, eq):
+    """Pixel (u, v) of a marker's centre seen by the true camera at true time t."""
+    p = transform_points(invert_T(scenario.map_T_camera(t)), scenario.markers[marker_id].position)
+    return np.array(eq.bearing_to_pixel(p), dtype=float)
+
+
+def test_rolling_shutter_shifts_each_marker_by_its_rows_capture_time():
+    """40 ms readout while turning fast: each marker moves (against the global-shutter frame) by what the
+    camera turned between the frame's stamp and the capture time of the marker's row,
+    t + (v/H − ½)·readout — a few pixels for markers far above the middle row."""
+    readout = 0.040
+    global_sc = Scenario(FAST)
+    rolling_sc = Scenario(dataclasses.replace(FAST, rolling_shutter_readout=readout))
+    eq = Equirect(FAST.width, FAST.width // 2)
+    checked = []
+    for index in (52, 55, 58, 61):
+        t = float(global_sc.frame_times[index])
+        seen_g = detect(render_frame(global_sc, index))
+        seen_r = detect(render_frame(rolling_sc, index))
+        for mid in set(seen_g) & set(seen_r):
+            u0, v0 = projected(global_sc, mid, t, eq)
+            t_row = t + (v0 / eq.height - 0.5) * readout
+            u1, _ = projected(global_sc, mid, t_row, eq)
+            expected = (u1 - u0 + eq.width / 2) % eq.width - eq.width / 2
+            measured = (seen_r[mid][0] - seen_g[mid][0] + eq.width / 2) % eq.width - eq.width / 2
+            checked.append((expected, measured))
+    checked = np.array(checked)
+    assert len(checked) >= 4, checked
+    assert np.abs(checked[:, 0]).max() > 2.0, checked  # the effect is visible at all
+    np.testing.assert_allclose(checked[:, 1], checked[:, 0], atol=0.35)
+
+
+def test_row_times_convention():
+    """The middle row is captured at the frame's time; row v at t + (v/H − ½)·readout."""
+    sc = Scenario(dataclasses.replace(FAST, rolling_shutter_readout=0.03))
+    rows = sc.row_times(100.0, 960)
+    assert rows[480] == pytest.approx(100.0)
+    assert rows[0] == pytest.approx(100.0 - 0.015)
+    assert rows[-1] - rows[0] == pytest.approx(0.03 * 959 / 960)
+    hidden = sc.hidden()["realism"]["rolling_shutter"]
+    assert hidden["readout_s"] == 0.03 and "(v / H - 1/2)" in hidden["convention"]
+
+
+def test_stitch_seam_only_in_its_bands_with_the_parallax_step():
+    """The seam changes the frame only in the blend bands at ±90° azimuth; at the band's end the image is
+    the seamless one moved by the step (3 px down, 1.5 px right)."""
+    base = dataclasses.replace(PRESETS["tiny"], width=1920, exposure_wander=0.0)
+    plain = render_frame(Scenario(base), 30).astype(float)
+    seam = render_frame(Scenario(dataclasses.replace(base, seam_step_px=3.0, seam_band_deg=4.0)), 30).astype(float)
+    eq = Equirect(1920, 960)
+    band = round(math.radians(4.0) / eq.rad_per_px)
+    changed = np.nonzero(np.abs(seam - plain).max(axis=0) > 0)[0]
+    inside = np.zeros(1920, bool)
+    for az in SEAM_AZIMUTHS_DEG:
+        u_c = float(eq.azel_to_pixel(math.radians(az), 0.0)[0])
+        inside[(int(round(u_c - band / 2.0)) + np.arange(band)) % 1920] = True
+        last = (int(round(u_c - band / 2.0)) + band - 1) % 1920
+        col_s = seam[:, last]
+        col_p = 0.5 * (plain[:, last - 1] + plain[:, last - 2])  # 1.5 px to the left
+        errs = {dy: np.abs(col_s[10:-10] - np.roll(col_p, dy)[10:-10]).mean() for dy in range(-5, 6)}
+        assert min(errs, key=errs.get) == 3, errs
+        assert errs[3] < 0.75 * errs[0], errs  # the residual: the sensor noise, not shifted
+    # the noise and the optical blur come after the seam: a column or so of blur spills past the band
+    spill = np.zeros(1920, bool)
+    for k in (-2, -1, 0, 1, 2):
+        spill |= np.roll(inside, k)
+    assert changed.size > 0 and spill[changed].all()
+
+
+def test_camera_clock_rate_error():
+    """A camera clock 500 ppm fast: frames every 1/fps of its clock, so in true time every 1/(fps·1.0005);
+    the stamp runs ahead of true time by offset + 500e-6 · elapsed."""
+    cfg = dataclasses.replace(PRESETS["tiny"], clock_rate_error_ppm=500.0)
+    sc = Scenario(cfg)
+    np.testing.assert_allclose(np.diff(sc.camera_stamps), 1.0 / cfg.fps, rtol=2e-5)  # stamps ~1.7e9 s
+    np.testing.assert_allclose(np.diff(sc.frame_times), 1.0 / cfg.fps / 1.0005, rtol=2e-5)
+    lead = sc.camera_stamps - sc.frame_times
+    assert lead[-1] - lead[0] == pytest.approx(500e-6 * (sc.frame_times[-1] - sc.frame_times[0]), rel=1e-4)
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 500), st.floats(5.0, 60.0))
+def test_wander_and_non_holonomic_heading(seed, when):
+    """Off the loop by at most ±lateral_wander, and heading along the path's direction of travel."""
+    cfg = dataclasses.replace(PRESETS["realistic"], seed=seed, duration=60.0)
+    sc = Scenario(cfg)
+    t = cfg.start_time + when
+    T = sc.map_T_base(np.array([t - 1e-3, t, t + 1e-3]))
+    v = T[2, :2, 3] - T[0, :2, 3]
+    heading = math.atan2(T[1, 1, 0], T[1, 0, 0])
+    assert abs((math.atan2(v[1], v[0]) - heading + math.pi) % (2 * math.pi) - math.pi) < 2e-4
+    on_loop = sc._track_point(sc._theta_at(t))
+    assert np.linalg.norm(T[1, :2, 3] - on_loop[:2]) <= cfg.lateral_wander + 1e-9
+
+
+def test_vo_tilt_drift_grows_at_its_rate():
+    cfg = dataclasses.replace(PRESETS["realistic"], vo_tilt_drift_deg_per_min=2.0, duration=60.0)
+    sc = Scenario(cfg)
+    for dt in (0.0, 30.0, 60.0):
+        t = cfg.start_time + dt
+        R_vo = sc.odom_T_base(t)[:3, :3]
+        R_true = sc.map_T_base(t)[:3, :3]
+        up = (R_vo @ R_true.T)[2, 2]  # odom's vertical seen from map: the VO's yaw error cannot tilt it
+        tilt = math.degrees(math.acos(np.clip(up, -1, 1)))
+        assert tilt == pytest.approx(2.0 * dt / 60.0, abs=1e-6)
+
+
+def test_hall_frame_markers_where_they_are_and_no_false_ids():
+    """A hall frame (posters, checkers, lights, pillars, exposure changes, blur, noise; 1920 px, 45 cm markers):
+    plain OpenCV finds only map ids, each at the projection of that marker's centre, and at least two."""
+    cfg = dataclasses.replace(PRESETS["realistic"], width=1920, marker_size=0.45, marker_distance=(2.0, 6.0),
+                              duration=8.0, fps=10.0)
+    sc = Scenario(cfg)
+    eq = Equirect(1920, 960)
+    found = 0
+    for index in (5, 40, 70):
+        seen = detect(render_frame(sc, index))
+        for mid, centre in seen.items():
+            assert mid in sc.markers.ids, (index, mid)
+            u, v = projected(sc, mid, float(sc.frame_times[index]), eq)
+            assert math.hypot((centre[0] - u + 960) % 1920 - 960, centre[1] - v) < 2.0, (index, mid)
+        found += len(seen)
+    assert found >= 2
+
+
+def test_hall_pillars_drawn_where_they_stand():
+    """The frame with the hall's pillars differs from the same frame without them at the nearest pillar's
+    axis (camera height) and not three radii beside it."""
+    cfg = dataclasses.replace(PRESETS["realistic"], width=1920, duration=8.0, fps=10.0)
+    sc = Scenario(cfg)
+    eq = Equirect(1920, 960)
+    t = float(sc.frame_times[0])
+    with_pillars = render_frame(sc, 0).astype(float)
+    pillars = sc.world.pillars.copy()
+    sc.world.pillars = pillars[:0]
+    without = render_frame(sc, 0).astype(float)
+    camera_T_map = invert_T(sc.map_T_camera(t))
+    eye = sc.map_T_camera(t)[:3, 3]
+    px, py, r = pillars[np.argmin(np.hypot(pillars[:, 0] - eye[0], pillars[:, 1] - eye[1]))]
+    side = np.array([-(py - eye[1]), px - eye[0], 0.0]) / math.hypot(px - eye[0], py - eye[1])
+    for point, drawn in ((np.array([px, py, eye[2]]), True), (np.array([px, py, eye[2]]) + 3 * r * side, False)):
+        u, v = (int(round(float(x))) for x in eq.bearing_to_pixel(transform_points(camera_T_map, point)))
+        diff = np.abs(with_pillars[v - 2:v + 3, (u + np.arange(-2, 3)) % 1920]
+                      - without[v - 2:v + 3, (u + np.arange(-2, 3)) % 1920]).max()
+        assert (diff > 3.0) == drawn, (point, diff)
+
+
+def test_hidden_yaml_rebuilds_the_realistic_scenario(tmp_path):
+    sc = Scenario(dataclasses.replace(PRESETS["realistic-rs"], duration=4.0))
+    path = str(tmp_path / "hidden.yaml")
+    sc.save_hidden(path)
+    again = Scenario.from_hidden(path)
+    assert again.config == sc.config
+    np.testing.assert_allclose(again.world.pillars, sc.world.pillars)
+    import yaml
+
+    with open(path) as f:
+        realism = yaml.safe_load(f)["realism"]
+    assert realism["rolling_shutter"]["readout_s"] == 0.03
+    assert realism["camera_clock"]["rate_error_ppm"] == 20.0
+    assert len(realism["hall"]["pillars_x_y_radius_m"]) == len(sc.world.pillars) > 0
+    assert realism["stitch_seam"]["step_px"] > 0 and realism["exposure"]["time_s"] > 0
+
+
+@pytest.mark.parametrize("field, value", [("world", "cave"), ("rolling_shutter_readout", 0.05),
+                                          ("lateral_wander", -0.01), ("jpeg_quality", 101)])
+def test_bad_realism_parameters_named(field, value):
+    with pytest.raises(ScenarioError, match=field):
+        dataclasses.replace(PRESETS["realistic"], **{field: value}).validate()
