@@ -142,7 +142,8 @@ class FilterParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise CorrectionError(f"FilterParams.{name}: expected a non-negative number, got {v!r}")
-        for name in ("gate_chi2_yaw", "gate_chi2_prism", "gate_chi2_pose", "standstill_duration", "reinit_after", "lockout_window"):
+        for name in ("gate_chi2_yaw", "gate_chi2_prism", "gate_chi2_pose", "standstill_duration", "reinit_after",
+                     "lockout_window"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise CorrectionError(f"FilterParams.{name}: expected a positive number, got {v!r}")
