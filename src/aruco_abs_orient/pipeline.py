@@ -25,7 +25,7 @@ from .markers import MarkerMap
 from .solver import SolverError, attitude_from_markers, fuse_yaws, resection, yaw_from_marker
 from .tilt import Tilt, TiltEstimator, TiltParams
 from .tracking import MarkerTracker, TrackingStats
-from .transforms import matrix_to_rpy, yaw_of
+from .transforms import matrix_to_rpy, wrap_angle, yaw_of
 
 __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationResult", "PipelineError",
            "PrismBuffer", "all_param_fields"]
@@ -419,9 +419,9 @@ class AbsOrientPipeline:
         return taken
 
     def _resect_frame(self, t, res: FrameResult, observations, tilt: Tilt, odom_T_base, gated=()) -> None:
-        """No prism: the pose of base_link from the frame's markers (:func:`resection`: ≥ 3 markers with the
-        tilt free, 2 with the tilt as a measurement; IMU tilt always used), one filter update with its
-        position and yaw, and its roll and pitch as a tilt update."""
+        """No prism: the pose of base_link from the frame's ≥ 2 markers (:func:`resection` with the frame's tilt as
+        a measurement of its σ), one filter update with its position and yaw; with ≥ 3 markers, what they say
+        about roll and pitch beyond that tilt (the posterior's information minus the tilt's) updates the tilt."""
         res.observations = [ObservationResult(o, reason="tracking gate: far from its predicted bearing")
                             for o in gated]
         obs = list(observations)
@@ -432,12 +432,11 @@ class AbsOrientPipeline:
             for r in rows:
                 r.reason = "no prism position, and a resection needs ≥ 2 markers (≥ 3 without a known tilt)"
             return
-        free_tilt = len(obs) >= 3 and tilt.source != "imu"
         try:
             est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
                             self.base_T_camera, sigma_bearing=np.array([o.sigma for o in obs]),
                             marker_sigma=np.array([self.marker_map[o.id].sigma for o in obs]),
-                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=None if free_tilt else tilt.sigma,
+                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=tilt.sigma,
                             min_cone=math.radians(self.params.resection_min_cone_deg))
         except SolverError as e:
             self._count("resection_degenerate")
@@ -449,15 +448,30 @@ class AbsOrientPipeline:
         cov4 = est.cov[np.ix_([5, 0, 1, 2], [5, 0, 1, 2])]
         update = self.filter.add_pose(t, est.position, est.yaw, cov4, odom_T_base, sources=used)
         res.marker_pose, res.marker_pose_cov, res.marker_pose_accepted = est.map_T_base, est.cov, update.accepted
-        if update.accepted and free_tilt:
-            odom_roll, odom_pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
-            self.tilt.update(t, est.roll, est.pitch, est.cov[3:5, 3:5], float(odom_roll), float(odom_pitch))
+        if update.accepted and len(obs) >= 3 and tilt.source != "imu":
+            self._tilt_from_resection(t, est, tilt, odom_T_base)
         for r, ok in zip(rows, inlier):
             r.yaw = est.yaw
             r.accepted = bool(ok and update.accepted)
             r.reason = ("" if r.accepted else "disagrees with the other markers of the frame (resection)" if not ok
                         else f"filter: {update.status}")
         self._count("resection_" + update.status)
+
+    def _tilt_from_resection(self, t, est, tilt: Tilt, odom_T_base) -> None:
+        """The markers' own roll and pitch from a resection that had ``tilt`` as a measurement: information of
+        the posterior (roll, pitch) minus the tilt's (exact for the linearised problem: that prior acts on
+        roll and pitch only), as a tilt update when the markers determine them (σ < 1°)."""
+        info_post = np.linalg.inv(est.cov[3:5, 3:5])
+        info_markers = info_post - np.eye(2) / tilt.sigma ** 2
+        if np.linalg.eigvalsh(info_markers)[0] < 1.0 / math.radians(1.0) ** 2:
+            return
+        C = np.linalg.inv(info_markers)
+        prior = np.array([tilt.roll, tilt.pitch])
+        post = prior + wrap_angle(np.array([est.roll, est.pitch]) - prior)
+        x = C @ (info_post @ post - np.eye(2) / tilt.sigma ** 2 @ prior)
+        odom_roll, odom_pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
+        taken = self.tilt.update(t, float(x[0]), float(x[1]), C, float(odom_roll), float(odom_pitch))
+        self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
 
     def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, tilt: Tilt,
                      odom_T_base, gated=()) -> None:

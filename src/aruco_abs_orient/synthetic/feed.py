@@ -8,6 +8,7 @@ scenario's true times (the camera clock's offset already removed, as :mod:`offli
 
 from __future__ import annotations
 
+import math
 from typing import Iterator, Optional, Tuple
 
 import numpy as np
@@ -25,14 +26,21 @@ def feed(scenario: Scenario, pipeline: AbsOrientPipeline, times: Optional[np.nda
     """Yield (true time s, FrameResult) for each frame time in ``times`` (default: all the scenario's
     frames): the markers the camera sees then (:meth:`Scenario.marker_bearings`, each bearing perturbed
     by ``noise`` rad per axis, reported with that σ), after the prism samples up to ``prism_lead`` s past
-    the frame (the total station's latency) were added."""
+    the frame (the total station's latency) and the IMU samples up to the frame (when the scenario has an
+    IMU) were added."""
     times = scenario.frame_times if times is None else np.asarray(times, dtype=float)
     rng = rng if rng is not None else np.random.default_rng(0)
     frame, ids, bearings = scenario.marker_bearings(times, noise=noise, rng=rng)
     sigma = max(float(noise), 1e-5)
     stamps, positions = scenario.prism.stamps, scenario.prism.positions
     j = int(np.searchsorted(stamps, times[0] - 1.0)) if len(times) else 0
+    imu_t, imu_rp = scenario.imu_samples()
+    imu_sigma = math.radians(scenario.config.imu_tilt_noise_deg)
+    k = int(np.searchsorted(imu_t, times[0] - 1.0)) if len(times) else 0
     for i, t in enumerate(times):
+        while k < len(imu_t) and imu_t[k] <= t:
+            pipeline.add_imu(float(imu_t[k]), float(imu_rp[k, 0]), float(imu_rp[k, 1]), imu_sigma)
+            k += 1
         while j < len(stamps) and stamps[j] <= t + prism_lead:
             pipeline.add_prism(float(stamps[j]), positions[j])
             j += 1
