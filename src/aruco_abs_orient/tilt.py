@@ -12,8 +12,8 @@ in a two-state Kalman filter, updated by absolute tilts with χ² gating:
   with the prism, :func:`solver.resection` without).
 
 The tilt of a frame (:meth:`TiltEstimator.tilt`) is the IMU's, interpolated, when a recent IMU sample
-exists (source ``imu``); else the odometry's corrected by the offset (source ``markers`` once a marker
-tilt was accepted); else the odometry's (source ``odometry``). numpy only, Python 3.8, no ROS.
+exists (source ``imu``); else the odometry's corrected by the offset (source ``markers`` or ``imu``: the
+absolute source that corrected it last); else the odometry's (source ``odometry``). numpy only, Python 3.8, no ROS.
 Units: seconds, radians, m/s².
 """
 
@@ -31,6 +31,7 @@ from .transforms import matrix_to_rpy, quat_to_matrix, wrap_angle
 __all__ = ["TiltParams", "Tilt", "TiltEstimator", "tilt_from_imu", "GRAVITY"]
 
 GRAVITY = 9.80665  # m/s²
+INITIAL_OFFSET_SIGMA = math.radians(5.0)  # rad, prior σ of the odometry's tilt error
 
 
 @dataclass
@@ -108,11 +109,12 @@ class TiltEstimator:
     def __init__(self, params: Optional[TiltParams] = None):
         self.params = params or TiltParams()
         self.offset = np.zeros(2)
-        self.P = np.eye(2) * self.params.odometry_sigma ** 2
+        self.P = np.eye(2) * INITIAL_OFFSET_SIGMA ** 2   # a VO may start tilted by degrees
         self.t = -math.inf
         self.marker_updates = 0
         self.imu_updates = 0
         self.rejected = 0
+        self.last_source = "odometry"            # the absolute source that last corrected the offset
         self._imu_t: List[float] = []
         self._imu: List[Tuple[float, float, float]] = []
 
@@ -144,6 +146,7 @@ class TiltEstimator:
             self.imu_updates += 1
         else:
             self.marker_updates += 1
+        self.last_source = source
         return True
 
     def add_imu(self, t: float, roll: float, pitch: float, sigma: float) -> None:
@@ -182,5 +185,5 @@ class TiltEstimator:
         if self.marker_updates or self.imu_updates:
             P = self._predict(t)
             return Tilt(odom_roll + float(self.offset[0]), odom_pitch + float(self.offset[1]),
-                        math.sqrt(max(P[0, 0], P[1, 1])), "markers" if self.marker_updates else "imu")
+                        math.sqrt(max(P[0, 0], P[1, 1])), self.last_source)
         return Tilt(odom_roll, odom_pitch, self.params.odometry_sigma, "odometry")
