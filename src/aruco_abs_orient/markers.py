@@ -19,6 +19,8 @@ from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 
+from .errors import InputFileError
+
 __all__ = ["MarkerMapError", "Marker", "MarkerMap", "ARUCO_DICTIONARIES"]
 
 # Names accepted for ``dictionary`` (cv2.aruco predefined dictionaries).
@@ -28,7 +30,7 @@ ARUCO_DICTIONARIES = tuple(
      "DICT_APRILTAG_36h11")
 
 
-class MarkerMapError(ValueError):
+class MarkerMapError(InputFileError, ValueError):
     """A marker map that cannot be used: the message names the file and the field."""
 
 

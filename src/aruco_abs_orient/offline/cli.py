@@ -16,9 +16,10 @@ import shlex
 import sys
 from typing import List, Optional
 
-from ..markers import MarkerMap, MarkerMapError
-from ..pipeline import PipelineError, PipelineParams
-from .bagio import BagError, Bags, BagTopics, bag_paths, bags_for_shell, expand_bags
+from ..errors import AbsOrientError
+from ..markers import MarkerMap
+from ..pipeline import PipelineParams
+from .bagio import Bags, BagTopics, bag_paths, bags_for_shell, expand_bags
 from .evaluate import parse_after
 
 BAGS_HELP = ("; several bags (a `rosbag record --split` recording, in any order) or a quoted glob such as "
@@ -236,9 +237,6 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    from ..calibration import CalibrationError
-    from .evaluate import EvaluateError
-
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
@@ -247,7 +245,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if a.command == "calibrate":
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate}[a.command](a)
-    except (MarkerMapError, BagError, PipelineError, EvaluateError, CalibrationError) as e:
+    except AbsOrientError as e:  # every error of the package: its message says what, where, what was expected
         return _fail(str(e))
     except KeyboardInterrupt:
         return _fail("interrupted", 130)
