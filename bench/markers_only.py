@@ -124,7 +124,7 @@ def rendered() -> None:
                           params=PipelineParams(markers_only=True))
         traj = read_tum(res.trajectory_path)
     T = sc.map_T_base(traj.stamps)
-    est = traj.transforms()
+    est = traj.transforms
     eh = wrap_angle(yaw_of(est[:, :3, :3]) - yaw_of(T[:, :3, :3]))
     ep = np.linalg.norm(est[:, :3, 3] - T[:, :3, 3], axis=1)
     print("\n## rendered 3840x1920, markers only (process --no-prism), 10 markers 3-10 m, 10 s at 10 fps, seed 0")
