@@ -433,11 +433,14 @@ class AbsOrientPipeline:
             for r in rows:
                 r.reason = "no prism position, and a resection needs ≥ 2 markers (≥ 3 without a known tilt)"
             return
+        start = None
+        if len(obs) == 2 and self.filter.initialised:      # two solutions possible: the one near the prediction
+            start = self.filter.map_T_odom(t)[0] @ odom_T_base
         try:
             est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
                             self.base_T_camera, sigma_bearing=np.array([o.sigma for o in obs]),
                             marker_sigma=np.array([self.marker_map[o.id].sigma for o in obs]),
-                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=tilt.sigma,
+                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=tilt.sigma, initial_pose=start,
                             min_cone=math.radians(self.params.resection_min_cone_deg))
         except SolverError as e:
             self._count("resection_degenerate")

@@ -654,7 +654,8 @@ def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_si
         tilt: (roll, pitch) (rad) assumed for the start (small-tilt platforms: the default 0, 0).
         tilt_sigma: None (tilt free, ≥ 3 markers) or the 1-σ (rad) of ``tilt`` as a measurement (an IMU's or
             the odometry's roll and pitch): it enters the adjustment and ≥ 2 markers suffice.
-        initial_pose: optional map_T_base (4×4) start instead of the yaw scan.
+        initial_pose: optional map_T_base (4×4) start instead of the yaw scan. Two markers with a known tilt
+            can have two solutions: give the predicted pose to get the one near it.
         min_spread: markers closer than this (rad) to one line (collinear), or seen from the camera along
             one line through it, are degenerate.
         min_cone: markers whose directions from the camera all lie within this angle (rad) of each other

@@ -316,12 +316,16 @@ def test_tilt_rotation_order_matches_transforms():
 
 @given(seeds, tilts, tilts, yaws, st.integers(2, 5))
 def test_resection_with_a_known_tilt_is_exact_from_two_markers(seed, roll, pitch, yaw, n):
-    """The tilt as a measurement (IMU, odometry): 2 markers determine position and yaw."""
+    """The tilt as a measurement (IMU, odometry): 2 markers determine position and yaw, up to a discrete
+    ambiguity (two markers with a known vertical can have two solutions): from a start pose near the truth
+    (the filter's prediction) the right one."""
     s = Scene(seed, roll, pitch, yaw, n)
     dirs = s.M - s.C
     dirs /= np.linalg.norm(dirs, axis=1)[:, None]
     assume(float(np.max(np.linalg.norm(np.cross(dirs[:, None], dirs[None]), axis=-1))) > math.sin(math.radians(15)))
-    est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(roll, pitch), tilt_sigma=math.radians(0.1))
+    start = make_T(rpy_to_matrix(roll, pitch, yaw + 0.05), s.p + s.rng.normal(0.0, 0.3, 3))
+    est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(roll, pitch), tilt_sigma=math.radians(0.1),
+                    initial_pose=start)
     np.testing.assert_allclose(est.position, s.p, atol=1e-6)
     assert abs(wrap_angle(est.yaw - yaw)) < 1e-7
     assert est.cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(est.cov) > 0)

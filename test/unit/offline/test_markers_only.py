@@ -1,7 +1,6 @@
 """`aruco-abs-orient process --no-prism --imu-topic` on a rendered bag (issue 15): detection, resection and the
 IMU's tilt read back from the bag with rosbags, against the generator's truth."""
 import json
-import math
 
 import numpy as np
 
