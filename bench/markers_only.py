@@ -3,13 +3,14 @@
 "Without a total station" and of the field guide, on the generator's scenarios.
 
     python bench/markers_only.py                 # all sections (feed: a minute; rendered: a few minutes)
-    python bench/markers_only.py --only coverage dropout tilt   # the fast ones (no rendering)
+    python bench/markers_only.py --only coverage distance dropout tilt   # no rendering
 
 Sections:
 - ``coverage``: markers only (no prism), 19 cm markers 3–10 m from a 12×18 m loop, driving from the first
   frame, exact bearings + 0.02° noise (``synthetic.feed``: no rendering); 4, 6 and 10 markers in the same
   hall (the same track, seeds 0–2): heading and position RMSE of the filtered pose, the frames with
   ≥ 3 and with ≥ 2 markers, the frames with a pose.
+- ``distance``: markers only, 10 markers at 2–5, 4–8 and 7–12 m from the track.
 - ``dropout``: with the prism and a 5 s prism dropout (10 markers): heading RMSE inside vs outside.
 - ``tilt``: VO roll/pitch drifting 1°/min: yaw RMSE with a perfect tilt, with an IMU, without an IMU (tilt
   from the markers), and uncorrected (the VO's tilt alone).
@@ -74,6 +75,20 @@ def coverage() -> None:
               f"{100 * np.mean(cnt >= 2):.0f} % | {100 * np.mean(np.isfinite(eh)):.0f} % |")
 
 
+def distance() -> None:
+    print("\n## markers only by marker distance: 10 markers, the same loop, seeds 0-2")
+    print("| markers from the track | heading RMSE | position RMSE | frames >= 3 markers |")
+    print("|---|---|---|---|")
+    for band in ((2.0, 5.0), (4.0, 8.0), (7.0, 12.0)):
+        eh, ep, cnt = [], [], []
+        for seed in range(3):
+            _, h, p, c = run(replace(HALL, marker_distance=band, seed=seed), PipelineParams(markers_only=True))
+            eh.append(h), ep.append(p), cnt.append(c)
+        eh, ep, cnt = np.concatenate(eh), np.concatenate(ep), np.concatenate(cnt)
+        print(f"| {band[0]:g}-{band[1]:g} m | {math.degrees(rms(eh)):.3f}° | {100 * rms(ep):.2f} cm | "
+              f"{100 * np.mean(cnt >= 3):.0f} % |")
+
+
 def dropout() -> None:
     print("\n## prism + a 5 s prism dropout (10 to 15 s), 10 markers, seeds 0-2")
     inside, outside = [], []
@@ -132,7 +147,7 @@ def rendered() -> None:
           f"{math.degrees(rms(eh)):.4f}°, position RMSE {100 * rms(ep):.2f} cm")
 
 
-SECTIONS = {"coverage": coverage, "dropout": dropout, "tilt": tilt, "rendered": rendered}
+SECTIONS = {"coverage": coverage, "distance": distance, "dropout": dropout, "tilt": tilt, "rendered": rendered}
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
