@@ -154,6 +154,10 @@ PRESETS: Dict[str, ScenarioConfig] = {
     # the paper's set-up: 19 cm DICT_4X4 markers at 2-12 m, Theta Z1 frames at 30 fps
     "demo": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                            marker_distance=(2.0, 12.0)),
+    # markers only (no total station): a smaller loop with 12 markers, >= 3 in view nearly everywhere
+    "markers_only": ScenarioConfig(duration=15.0, fps=10.0, width=1920, n_markers=12, marker_size=0.30,
+                                   marker_distance=(2.0, 7.0), track_radii=(6.0, 4.0), standstill=2.0,
+                                   boresight_deg=0.0),
     "bench": ScenarioConfig(duration=10.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                             marker_distance=(2.0, 12.0)),
 }
