@@ -32,6 +32,9 @@ __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationRes
            "PrismBuffer", "all_param_fields"]
 
 
+_MIN_TILT_SIGMA = math.radians(0.001)  # rad: a tilt σ of 0 (tilt_sigma_deg 0) taken as this in a resection
+
+
 class PipelineError(ConfigurationError, ValueError):
     """Bad pipeline configuration (lever arms, parameters): names the field."""
 
@@ -440,7 +443,8 @@ class AbsOrientPipeline:
             est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
                             self.base_T_camera, sigma_bearing=np.array([o.sigma for o in obs]),
                             marker_sigma=np.array([self.marker_map[o.id].sigma for o in obs]),
-                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=tilt.sigma, initial_pose=start,
+                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA),
+                            initial_pose=start,
                             min_cone=math.radians(self.params.resection_min_cone_deg))
         except SolverError as e:
             self._count("resection_degenerate")
@@ -465,14 +469,15 @@ class AbsOrientPipeline:
         """The markers' own roll and pitch from a resection that had ``tilt`` as a measurement: information of
         the posterior (roll, pitch) minus the tilt's (exact for the linearised problem: that prior acts on
         roll and pitch only), as a tilt update when the markers determine them (σ < 1°)."""
+        info_prior = np.eye(2) / max(tilt.sigma, _MIN_TILT_SIGMA) ** 2
         info_post = np.linalg.inv(est.cov[3:5, 3:5])
-        info_markers = info_post - np.eye(2) / tilt.sigma ** 2
+        info_markers = info_post - info_prior
         if np.linalg.eigvalsh(info_markers)[0] < 1.0 / math.radians(1.0) ** 2:
             return
         C = np.linalg.inv(info_markers)
         prior = np.array([tilt.roll, tilt.pitch])
         post = prior + wrap_angle(np.array([est.roll, est.pitch]) - prior)
-        x = C @ (info_post @ post - np.eye(2) / tilt.sigma ** 2 @ prior)
+        x = C @ (info_post @ post - info_prior @ prior)
         odom_roll, odom_pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
         taken = self.tilt.update(t, float(x[0]), float(x[1]), C, float(odom_roll), float(odom_pitch))
         self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
