@@ -17,7 +17,9 @@ measurement time (the caller interpolates odometry):
   a resection on the markers (no prism: markers-only mode, or a prism dropout), covariance 4×4 over
   (yaw, x, y, z): ``δψ = ψ_abs − ψ_odom`` and ``p = Rz(δψ)·q_base + t``, gated with ``gate_chi2_pose``
   (4 dof). Without a prism the filter starts from ``init_min_yaws`` such poses that agree (their yaws by
-  :func:`solver.yaw_consensus`, their translations within ``gate_chi2_pose``).
+  :func:`solver.yaw_consensus`, their translations within ``gate_chi2_pose``). A gated pose whose yaw is off
+  counts towards the lock-out recovery below; one whose yaw agrees but whose position is off, towards
+  re-anchoring the translation (poses of ``lockout_window`` s that agree with each other).
 
 Model details:
 
@@ -178,6 +180,7 @@ class FilterStats:
     prism_reanchors: int = 0
     pose_accepted: int = 0              # resection poses (markers only) used
     pose_rejected: int = 0              # resection poses gated out
+    pose_reanchors: int = 0             # translation re-anchored to resection poses that agree (position off)
     accepted_by_marker: Dict[int, int] = field(default_factory=dict)
     rejected_by_marker: Dict[int, int] = field(default_factory=dict)
 
@@ -259,6 +262,7 @@ class MapOdomFilter:
         self._prisms: List[_Prism] = []
         self._gated: List[_Yaw] = []        # recent gated yaws (lock-out detection)
         self._poses: List[Tuple[_Yaw, _Pose]] = []   # resection poses buffered for a start without prism
+        self._gated_poses: List[_Pose] = []          # recent poses gated for their position (re-anchoring)
 
     def update_params(self, params: FilterParams) -> None:
         """New tuning (dynamic_reconfigure), effective from the next measurement; the state is kept."""
@@ -446,13 +450,40 @@ class MapOdomFilter:
         if res.accepted:
             self.stats.pose_accepted += 1
             self._count_yaw(True, sample.marker_id, t)
-            self._gated = []
+            self._gated, self._gated_poses = [], []
         else:
             self.stats.pose_rejected += 1
             self._count_yaw(False, sample.marker_id, t)
-            if self._recover_from_lockout(sample):
+            yaw_chi2 = float(nu[0] ** 2 / (H[0] @ self.P @ H[0] + R[0, 0]))
+            if yaw_chi2 > self.params.gate_chi2_yaw:      # the yaw is off: evidence of a filter that ran away
+                if self._recover_from_lockout(sample):
+                    return UpdateResult("initialised", res.chi2, res.innovation)
+            elif self._reanchor_from_poses(_Pose(t, p, C[1:, 1:], q)):   # the position is off (no prism)
                 return UpdateResult("initialised", res.chi2, res.innovation)
         return res
+
+    def _reanchor_from_poses(self, pose: _Pose) -> bool:
+        """Resection poses whose yaw agrees but whose position is gated: when those of the last
+        ``lockout_window`` s (≥ ``lockout_min_yaws``, over half the window) agree with each other, the
+        filter's position is what is wrong (a prism-less run that drifted or was moved): re-anchor the
+        translation to the newest, keeping δψ and ω."""
+        p = self.params
+        self._gated_poses = [x for x in self._gated_poses if x.t >= pose.t - p.lockout_window] + [pose]
+        first = self._gated_poses[0]
+        if len(self._gated_poses) < p.lockout_min_yaws or pose.t - first.t < 0.5 * p.lockout_window:
+            return False
+        Rz = rot_z(self.x[0])
+        trans = np.array([x.p - Rz @ x.q for x in self._gated_poses])
+        d = trans - trans[-1]
+        if any(float(di @ np.linalg.solve(x.cov + pose.cov, di)) > p.gate_chi2_prism
+               for di, x in zip(d, self._gated_poses)):
+            return False
+        self._predict_to(pose.t)
+        self._anchor(float(self.x[0]), float(self.P[0, 0]), pose.p, pose.cov, pose.q, float(self.x[4]),
+                     float(self.P[4, 4]))
+        self._gated_poses = []
+        self.stats.pose_reanchors += 1
+        return True
 
     def _initialise_from_poses(self, t: float, sample: _Yaw, pose: _Pose) -> UpdateResult:
         """Start (or re-start) without a prism: ``init_min_yaws`` buffered resection poses whose yaws agree and
