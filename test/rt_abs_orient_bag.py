@@ -14,6 +14,9 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      standstill: RMSE ≤ ``--max-yaw-rmse-deg`` (0.3°); the only map->odom publisher is /abs_orient;
    - ``--mode ekf``: /odometry/filtered yaw RMSE ≤ 0.3° and position RMSE ≤ ``--max-pos-rmse`` (3 cm)
      after the standstill; the only map->odom publisher is the EKF (/ekf_map);
+   - ``--mode markers_only``: ``markers_only:=true use_ekf:=true``: no prism used (the EKF on
+     cfg/ekf_markers_only.yaml, fed by abs_orient/pose_markers): /odometry/filtered yaw and position RMSE as
+     in ``ekf``, abs_orient/pose_markers published, the EKF the only map->odom publisher;
    - ``--mode loop``: the node resets when the bag loops (diagnostics) and the heading after the reset
      (second pass) meets the same RMSE;
    - ``--mode chaos``: playback starts ``--start`` s into the bag (while driving: no standstill) and the
@@ -354,13 +357,14 @@ class BagRun(unittest.TestCase):
         self.rate = ARGS.rate
 
     def launch(self, use_ekf: bool, loop: bool = False, calibration: str = "", start: float = 0.0,
-               during=None, bag: Path = None, extra=()):
+               during=None, bag: Path = None, extra=(), markers_only: bool = False):
         """Run postprocess.launch to the end of the bag (default: the scenario's; with ``loop``: to the end of
         its second pass); ``during()`` runs in a thread meanwhile."""
         args = ["roslaunch", "aruco_abs_orient", "postprocess.launch", f"bag:={bag or self.dir / 'scenario.bag'}",
                 f"markers:={self.dir / 'markers.yaml'}", f"time_offset:={self.offset}",
                 f"use_ekf:={str(use_ekf).lower()}", f"rate:={self.rate}", f"loop:={str(loop).lower()}",
-                f"calibration:={calibration}", f"start:={start}"] + list(extra)
+                f"calibration:={calibration}", f"start:={start}",
+                f"markers_only:={str(markers_only).lower()}"] + list(extra)
         log_path = Path(os.environ.get("ROS_HOME", "/tmp")) / f"postprocess_{ARGS.mode}.log"
         duration = self.truth.stamps[-1] - self.truth.stamps[0]
         end_stamp = self.truth.stamps[-1] + self.offset - 0.5  # camera clock, near the bag's end
@@ -410,8 +414,17 @@ class BagRun(unittest.TestCase):
         self.report("heading RMSE after the standstill", rmse_deg(e), ARGS.max_yaw_rmse_deg, "deg")
         self.assertLessEqual(rmse_deg(e), ARGS.max_yaw_rmse_deg)
 
-    def check_ekf(self):
-        self.launch(use_ekf=True)
+    def check_markers_only(self):
+        from geometry_msgs.msg import PoseWithCovarianceStamped
+
+        poses = []
+        rospy.Subscriber("abs_orient/pose_markers", PoseWithCovarianceStamped, poses.append, queue_size=100)
+        self.check_ekf(markers_only=True)
+        self.report("abs_orient/pose_markers messages", len(poses), 20, "")
+        self.assertGreater(len(poses), 20, f"too few resection poses; the node said: {self.rec.last_status}")
+
+    def check_ekf(self, markers_only: bool = False):
+        self.launch(use_ekf=True, markers_only=markers_only)
         self.assertEqual(self.rec.map_odom_publishers, {"/ekf_map"},
                          f"map->odom must have exactly one owner; the node said: {self.rec.last_status}")
         filt = _series(self.rec.filtered)
@@ -613,8 +626,8 @@ class BagRun(unittest.TestCase):
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("--mode", choices=("node", "ekf", "loop", "calibration", "chaos", "consumer", "consumer_bad"),
-                    required=True)
+    ap.add_argument("--mode", choices=("node", "ekf", "markers_only", "loop", "calibration", "chaos", "consumer",
+                                       "consumer_bad"), required=True)
     ap.add_argument("--preset", default="ci")
     ap.add_argument("--duration", type=float, default=0.0, help="s: the preset re-rendered this long (0: as is)")
     ap.add_argument("--owner", choices=("node", "ekf"), default="node", help="consumer mode: who owns map->odom")

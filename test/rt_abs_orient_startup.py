@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Checker of abs_orient_startup.test: bad marker maps / calibrations → one line, exit 2; a good
+"""Checker of abs_orient_startup.test: bad marker maps / calibrations (and a map of 2 markers with
+``~markers_only``) → one line, exit 2; a good
 calibration → the two lever arms on /tf_static, equal to the file (read back through tf2)."""
 import math
 import os
@@ -64,6 +65,12 @@ class Startup(unittest.TestCase):
                 path = self._write(name, text)
                 proc = run_node("abs_orient", f"abs_orient_bad_{i}", {"markers": path})
                 self._assert_one_fatal_line(proc, path, EXPECTED[name])
+
+    def test_markers_only_with_fewer_than_three_markers(self):
+        path = self._write("two.yaml", "size: 0.19\nmarkers:\n  - {id: 3, position: [1, 2, 1]}\n"
+                                       "  - {id: 7, position: [4, -2, 1.5]}\n")
+        proc = run_node("abs_orient", "abs_orient_two_markers", {"markers": path, "markers_only": "true"})
+        self._assert_one_fatal_line(proc, path, "at least 3 markers", "it has 2")
 
     def test_no_marker_map_given(self):
         proc = run_node("abs_orient", "abs_orient_no_map", {})

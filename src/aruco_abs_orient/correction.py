@@ -13,6 +13,13 @@ measurement time (the caller interpolates odometry):
 * ``add_yaw(t, yaw_abs, sigma, odom_T_base, marker_id)`` — absolute yaw of base_link (rad)
   from :mod:`solver`: a direct measurement of ``δψ = ψ_abs − ψ_odom`` (exact: map→odom is a
   rotation about z, so yaws add).
+* ``add_pose(t, position, yaw_abs, cov, odom_T_base)`` — base_link position (m) and yaw (rad) in map from
+  a resection on the markers (no prism: markers-only mode, or a prism dropout), covariance 4×4 over
+  (yaw, x, y, z): ``δψ = ψ_abs − ψ_odom`` and ``p = Rz(δψ)·q_base + t``, gated with ``gate_chi2_pose``
+  (4 dof). Without a prism the filter starts from ``init_min_yaws`` such poses that agree (their yaws by
+  :func:`solver.yaw_consensus`, their translations within ``gate_chi2_pose``). A gated pose whose yaw is off
+  counts towards the lock-out recovery below; one whose yaw agrees but whose position is off, towards
+  re-anchoring the translation (poses of ``lockout_window`` s that agree with each other).
 
 Model details:
 
@@ -114,6 +121,7 @@ class FilterParams:
     translation_random_walk: float = 0.01           # m/√s, VO position drift
     gate_chi2_yaw: float = 10.83                    # χ²(1 dof), p = 0.001
     gate_chi2_prism: float = 16.27                  # χ²(3 dof), p = 0.001
+    gate_chi2_pose: float = 18.47                   # χ²(4 dof), p = 0.001: a resection's yaw + position
     standstill_duration: float = 2.0                # s of standstill needed at start-up
     standstill_odom_tolerance: float = 0.01         # m, odometry displacement within the standstill
     standstill_yaw_tolerance: float = math.radians(0.5)  # rad, odometry yaw change within it
@@ -137,7 +145,8 @@ class FilterParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise CorrectionError(f"FilterParams.{name}: expected a non-negative number, got {v!r}")
-        for name in ("gate_chi2_yaw", "gate_chi2_prism", "standstill_duration", "reinit_after", "lockout_window"):
+        for name in ("gate_chi2_yaw", "gate_chi2_prism", "gate_chi2_pose", "standstill_duration", "reinit_after",
+                     "lockout_window"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
                 raise CorrectionError(f"FilterParams.{name}: expected a positive number, got {v!r}")
@@ -169,6 +178,9 @@ class FilterStats:
     last_yaw: float = float("nan")
     last_prism: float = float("nan")
     prism_reanchors: int = 0
+    pose_accepted: int = 0              # resection poses (markers only) used
+    pose_rejected: int = 0              # resection poses gated out
+    pose_reanchors: int = 0             # translation re-anchored to resection poses that agree (position off)
     accepted_by_marker: Dict[int, int] = field(default_factory=dict)
     rejected_by_marker: Dict[int, int] = field(default_factory=dict)
 
@@ -199,6 +211,13 @@ class _Yaw(NamedTuple):
     marker_id: Optional[int]
     odom_yaw: float
     sources: Tuple[int, ...]  # ids of the markers behind it (empty: unknown)
+
+
+class _Pose(NamedTuple):
+    t: float
+    p: np.ndarray            # base_link in map (m)
+    cov: np.ndarray          # 3×3 m²
+    q: np.ndarray            # base_link in odom (m)
 
 
 class _Prism(NamedTuple):
@@ -242,6 +261,8 @@ class MapOdomFilter:
         self._yaws: List[_Yaw] = []
         self._prisms: List[_Prism] = []
         self._gated: List[_Yaw] = []        # recent gated yaws (lock-out detection)
+        self._poses: List[Tuple[_Yaw, _Pose]] = []   # resection poses buffered for a start without prism
+        self._gated_poses: List[_Pose] = []          # recent poses gated for their position (re-anchoring)
 
     def update_params(self, params: FilterParams) -> None:
         """New tuning (dynamic_reconfigure), effective from the next measurement; the state is kept."""
@@ -386,6 +407,117 @@ class MapOdomFilter:
         elif self._recover_from_lockout(sample):
             return UpdateResult("initialised", res.chi2, res.innovation)
         return res
+
+    def add_pose(self, t: float, position, yaw_abs: float, cov, odom_T_base, sources: Sequence[int] = ()
+                 ) -> UpdateResult:
+        """Position ``position`` (3,) of base_link in map (m) and its yaw ``yaw_abs`` (rad) from a resection on
+        the markers, with ``cov`` (4×4 over yaw rad, x, y, z m; rad², m²) at time ``t`` (s); ``odom_T_base``
+        the odometry pose (4×4) then; ``sources`` the ids of the markers behind it."""
+        T = _pose(odom_T_base)
+        p = np.asarray(position, dtype=float)
+        C = np.asarray(cov, dtype=float)
+        if p.shape != (3,) or C.shape != (4, 4):
+            raise CorrectionError(f"add_pose: expected a position (3,) m and a 4×4 covariance, got {p.shape}, "
+                                  f"{C.shape}")
+        t, yaw_abs = float(t), float(yaw_abs)
+        if (T is None or not (math.isfinite(t) and math.isfinite(yaw_abs)) or not np.all(np.isfinite(p))
+                or not np.all(np.isfinite(C)) or np.linalg.eigvalsh(0.5 * (C + C.T))[0] <= 0):
+            self.stats.invalid += 1
+            return UpdateResult("invalid", float("nan"), float("nan"))
+        self._note_odom(t, T)
+        q = T[:3, 3].copy()
+        odom_yaw = float(yaw_of(T[:3, :3]))
+        ids = tuple(int(i) for i in sources)
+        sample = _Yaw(t, float(wrap_angle(yaw_abs - odom_yaw)), math.sqrt(C[0, 0]), ids[0] if ids else None,
+                      odom_yaw, ids)
+        if self.stats.state == "tracking" and t - self.stats.last_yaw > self.params.reinit_after:
+            self.stats.state = "reinitialising"
+            self._poses = []
+        if self.stats.state != "tracking":
+            return self._initialise_from_poses(t, sample, _Pose(t, p, C[1:, 1:], q))
+        late = self._late(t)
+        if late is None:
+            return UpdateResult("too_old", float("nan"), float("nan"))
+        Rq = rot_z(self.x[0]) @ q
+        H = np.zeros((4, 5))
+        H[0, 0], H[0, 4] = 1.0, -late
+        H[1:, 0] = _ez_cross(Rq)
+        H[1:, 1:4] = np.eye(3)
+        nu = np.concatenate([[wrap_angle(sample.offset - self.x[0] + self.x[4] * late)], p - (Rq + self.x[1:4])])
+        R = C + H @ self._process_noise(late, q) @ H.T
+        res = self._update(H, nu, R, self.params.gate_chi2_pose, t)
+        self._adapt(float(nu[0] ** 2 / (C[0, 0] + self.P[0, 0])))
+        if res.accepted:
+            self.stats.pose_accepted += 1
+            self._count_yaw(True, sample.marker_id, t)
+            self._gated, self._gated_poses = [], []
+        else:
+            self.stats.pose_rejected += 1
+            self._count_yaw(False, sample.marker_id, t)
+            yaw_chi2 = float(nu[0] ** 2 / (H[0] @ self.P @ H[0] + R[0, 0]))
+            if yaw_chi2 > self.params.gate_chi2_yaw:      # the yaw is off: evidence of a filter that ran away
+                if self._recover_from_lockout(sample):
+                    return UpdateResult("initialised", res.chi2, res.innovation)
+            elif self._reanchor_from_poses(_Pose(t, p, C[1:, 1:], q)):   # the position is off (no prism)
+                return UpdateResult("initialised", res.chi2, res.innovation)
+        return res
+
+    def _reanchor_from_poses(self, pose: _Pose) -> bool:
+        """Resection poses whose yaw agrees but whose position is gated: when those of the last
+        ``lockout_window`` s (≥ ``lockout_min_yaws``, over half the window) agree with each other, the
+        filter's position is what is wrong (a prism-less run that drifted or was moved): re-anchor the
+        translation to the newest, keeping δψ and ω."""
+        p = self.params
+        self._gated_poses = [x for x in self._gated_poses if x.t >= pose.t - p.lockout_window] + [pose]
+        first = self._gated_poses[0]
+        if len(self._gated_poses) < p.lockout_min_yaws or pose.t - first.t < 0.5 * p.lockout_window:
+            return False
+        Rz = rot_z(self.x[0])
+        trans = np.array([x.p - Rz @ x.q for x in self._gated_poses])
+        d = trans - trans[-1]
+        if any(float(di @ np.linalg.solve(x.cov + pose.cov, di)) > p.gate_chi2_prism
+               for di, x in zip(d, self._gated_poses)):
+            return False
+        self._predict_to(pose.t)
+        self._anchor(float(self.x[0]), float(self.P[0, 0]), pose.p, pose.cov, pose.q, float(self.x[4]),
+                     float(self.P[4, 4]))
+        self._gated_poses = []
+        self.stats.pose_reanchors += 1
+        return True
+
+    def _initialise_from_poses(self, t: float, sample: _Yaw, pose: _Pose) -> UpdateResult:
+        """Start (or re-start) without a prism: ``init_min_yaws`` buffered resection poses whose yaws agree and
+        whose translations map→odom agree (χ² ``gate_chi2_pose`` on the position part)."""
+        p = self.params
+        self._poses = [x for x in self._poses if x[0].t >= t - max(p.standstill_duration, p.max_delay)]
+        self._poses.append((sample, pose))
+        cons, why = self._consensus([y for y, _ in self._poses], p.init_min_yaws, p.init_min_markers)
+        if cons is None:
+            self.stats.waiting_reason = "resection poses: " + why
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        dpsi, var, used = cons
+        members = [ps for y, ps in self._poses if any(y is u for u in used)]
+        trans = np.array([m.p - rot_z(dpsi) @ m.q for m in members])
+        mid = np.median(trans, axis=0)
+        agree = [m for m, tr in zip(members, trans)
+                 if float((tr - mid) @ np.linalg.solve(m.cov + 1e-6 * np.eye(3), tr - mid)) <= p.gate_chi2_pose]
+        if len(agree) < p.init_min_yaws:
+            self.stats.waiting_reason = (f"resection poses: {len(agree)} of {len(members)} agree in position, "
+                                         f"{p.init_min_yaws} needed")
+            return UpdateResult("buffered", float("nan"), float("nan"))
+        last = max(agree, key=lambda m: m.t)
+        keep_position = self.stats.state == "reinitialising"
+        self.t = max(self.t, last.t)
+        self._anchor(dpsi, var, last.p, last.cov, last.q)
+        self.stats.state, self.stats.waiting_reason = "tracking", ""
+        self.stats.last_update = self.t
+        self.stats.pose_accepted += len(agree)
+        for y in used:
+            self._count_yaw(True, y.marker_id, y.t)
+        if keep_position:
+            self.stats.reinitialisations += 1
+        self._poses, self._yaws, self._gated = [], [], []
+        return UpdateResult("initialised", float("nan"), float("nan"))
 
     # ------------------------------------------------------------------ internals
 

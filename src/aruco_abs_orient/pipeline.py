@@ -30,7 +30,8 @@ from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
-from .solver import SolverError, fuse_yaws, yaw_from_marker
+from .solver import SolverError, attitude_from_markers, fuse_yaws, resection, yaw_from_marker
+from .tilt import Tilt, TiltEstimator, TiltParams
 from .tracking import MarkerTracker, TrackingStats
 from .transforms import matrix_to_rpy, wrap_angle, yaw_of
 
@@ -51,6 +52,9 @@ def row_fraction(bearings, height: int) -> np.ndarray:
         raise PipelineError(f"image height: expected a positive number of rows, got {height!r}")
     _, v = Equirect(2 * h, h).bearing_to_pixel(np.asarray(bearings, dtype=float))
     return v / h - 0.5
+
+
+_MIN_TILT_SIGMA = math.radians(0.001)  # rad: a tilt σ of 0 (tilt_sigma_deg 0) taken as this in a resection
 
 
 class PipelineError(ConfigurationError, ValueError):
@@ -79,6 +83,13 @@ class PipelineParams:
       not throw away the frames that give them (live, the newest image wins anyway).
     - ``jpeg_reduce``: decode JPEGs at 1/1, 1/2, 1/4 or 1/8 resolution (1 = full; accuracy
       falls with resolution, see bench/detection.py).
+    - ``markers_only``: ignore the prism; every frame's pose comes from a resection on its markers
+      (≥ 3, or ≥ 2 with the tilt from an IMU or the odometry). Without it, frames without a prism
+      position (none configured, or a dropout longer than ``prism_max_gap``) are resected too.
+    - ``resection_min_cone_deg``: a resection whose markers all lie within this angle of each other, seen
+      from the camera, is refused (degrees).
+    - ``attitude_min_spread_deg``: with the prism, a frame whose markers span at least this angle (degrees)
+      also measures roll and pitch (``solver.attitude_from_markers``), a gated update of the tilt.
     """
 
     prism_sigma: float = 0.005
@@ -91,6 +102,9 @@ class PipelineParams:
     fusion_gate: float = 4.0
     init_search_interval: int = 1
     jpeg_reduce: int = 1
+    markers_only: bool = False
+    resection_min_cone_deg: float = 10.0
+    attitude_min_spread_deg: float = 20.0
 
     def validate(self) -> None:
         for f in fields(self):
@@ -144,6 +158,10 @@ class FrameResult:
     prism_position: Optional[np.ndarray] = None     # (3,) m, prism interpolated at the image time
     map_T_odom: Optional[np.ndarray] = None
     map_T_odom_cov: Optional[np.ndarray] = None     # 4×4 over (yaw, x, y, z)
+    marker_pose: Optional[np.ndarray] = None        # 4×4 map_T_base from a resection on the markers (no prism)
+    marker_pose_cov: Optional[np.ndarray] = None    # 6×6 over (x, y, z, roll, pitch, yaw), m², rad²
+    marker_pose_accepted: bool = False              # the filter took it
+    tilt_source: str = ""                           # roll/pitch used: 'imu', 'markers' or 'odometry'
     initialised: bool = False
     error: Optional[str] = None
     timings: Dict[str, float] = field(default_factory=dict)   # ms per stage
@@ -230,6 +248,7 @@ class AbsOrientPipeline:
     def _build(self) -> None:
         self.tracker = MarkerTracker(self.marker_map, self.detector_params)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
+        self.tilt = TiltEstimator(TiltParams(odometry_sigma=math.radians(self.params.tilt_sigma_deg)))
         self.last_stamp: Optional[float] = None
         self._last_odom: Optional[Tuple[float, np.ndarray]] = None   # (t, roll/pitch/yaw) of the last frame
         self._uninitialised_frames = 0
@@ -251,6 +270,7 @@ class AbsOrientPipeline:
             p = replace(self.params, **per_group["pipeline"])
             p.validate()
             self.params = p
+            self.tilt.params.odometry_sigma = math.radians(p.tilt_sigma_deg)
         if per_group["detection"]:
             self.detector_params = replace(self.detector_params, **per_group["detection"])
             self.tracker = MarkerTracker(self.marker_map, self.detector_params)
@@ -273,6 +293,11 @@ class AbsOrientPipeline:
             return
         self.prism.add(float(t), p)
 
+    def add_imu(self, t: float, roll: float, pitch: float, sigma: float) -> None:
+        """Roll and pitch of base_link (rad, 1-σ rad) from an IMU at total-station time ``t`` (s)
+        (:func:`tilt.tilt_from_imu` turns a ``sensor_msgs/Imu`` into them)."""
+        self.tilt.add_imu(float(t), float(roll), float(pitch), float(sigma))
+
     @property
     def waiting_reason(self) -> str:
         """Why there is no pose yet ('' once the filter is initialised): the filter's reason, with what
@@ -287,6 +312,9 @@ class AbsOrientPipeline:
         if not seen:
             return f"no marker of the map seen in {s.get('frames', 0)} frame(s)"
         kept = [f"{s[k]} {what}" for k, what in (("no_prism", "frame(s) without a prism position"),
+                                               ("too_few_for_resection", "frame(s) with too few markers for a "
+                                                "resection"),
+                                               ("resection_degenerate", "resection(s) refused for their geometry"),
                                                ("rejected_elevation", "marker(s) whose elevation disagrees with "
                                                 "the map (wrong id or moved marker)"),
                                                ("degenerate", "marker(s) in degenerate geometry")) if s.get(k)]
@@ -326,7 +354,7 @@ class AbsOrientPipeline:
             return res
         res.timings["decode"] = 1e3 * (time.perf_counter() - clock)
 
-        prism = self.prism.at(t, self.params.prism_max_gap, self.params.prism_max_extrapolation)
+        prism = self._prism_at(t)
         map_T_camera = None
         if self.filter.initialised:
             map_T_odom, _ = self.filter.map_T_odom(t)
@@ -365,22 +393,27 @@ class AbsOrientPipeline:
         if res is None:
             res = FrameResult(stamp=float(t))
             odom_T_base = np.asarray(odom_T_base, dtype=float)
-            prism = self.prism.at(t, self.params.prism_max_gap, self.params.prism_max_extrapolation)
-        roll, pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
+            prism = self._prism_at(t)
+        odom_roll, odom_pitch, _ = (float(a) for a in matrix_to_rpy(odom_T_base[:3, :3]))
         clock = time.perf_counter()
         self._count("observations", len(observations))
         if prism is None:
-            self._count("no_prism")
-            res.observations = [ObservationResult(o, reason="no prism position")
-                                for o in list(observations) + list(gated)]
+            self._count("markers_only_frames" if self.params.markers_only else "no_prism")
+            tilt = self.tilt.tilt(t, odom_roll, odom_pitch)
+            self._resect_frame(t, res, observations, tilt, odom_T_base, gated)
         else:
             p, extra_sigma = prism
             res.prism_position = p
             s2 = self.params.prism_sigma ** 2 + extra_sigma ** 2
             prism_cov = np.eye(3) * s2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
+            tilt = self.tilt.tilt(t, odom_roll, odom_pitch)
+            if tilt.source != "imu" and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll,
+                                                                odom_pitch):
+                tilt = self.tilt.tilt(t, odom_roll, odom_pitch)
             rows = self._row_times(t, list(observations) + list(gated), image_height, odom_T_base)
-            self._solve_frame(t, res, observations, p, prism_cov, roll, pitch, odom_T_base, gated, rows)
+            self._solve_frame(t, res, observations, p, prism_cov, tilt, odom_T_base, gated, rows)
+        res.tilt_source = tilt.source
         self._last_odom = (float(t), np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float))
         res.timings["solve"] = 1e3 * (time.perf_counter() - clock)
 
@@ -403,9 +436,9 @@ class AbsOrientPipeline:
 
     def _row_times(self, t: float, observations, image_height, odom_T_base):
         """Per observation: None at a global shutter (readout 0: the frame's prism and tilt serve), else
-        (row time − t in s, prism position at the row time or None, roll, pitch at the row time, odometry
-        yaw change from t to the row time) — the tilt and yaw moved at the rates between the previous
-        frame's odometry and this one's (zero when there is none within ``ODOM_RATE_MAX_GAP``)."""
+        (row time − t in s, prism position at the row time or None, the odometry's roll, pitch and yaw
+        changes from t to the row time) — at the rates between the previous frame's odometry and this
+        one's (zero when there is none within ``ODOM_RATE_MAX_GAP``)."""
         if self.readout == 0.0 or not observations:
             return [None] * len(observations)
         rpy = np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float)
@@ -417,11 +450,95 @@ class AbsOrientPipeline:
         out = []
         for dt in dts:
             prism = self.prism.at(t + float(dt), q.prism_max_gap, q.prism_max_extrapolation)
-            roll, pitch, dyaw = rpy[0] + rate[0] * dt, rpy[1] + rate[1] * dt, rate[2] * dt
-            out.append((float(dt), None if prism is None else prism[0], float(roll), float(pitch), float(dyaw)))
+            droll, dpitch, dyaw = (float(r) * dt for r in rate)
+            out.append((float(dt), None if prism is None else prism[0], droll, dpitch, dyaw))
         return out
 
-    def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, roll, pitch,
+    def _prism_at(self, t: float):
+        if self.params.markers_only:
+            return None
+        return self.prism.at(t, self.params.prism_max_gap, self.params.prism_max_extrapolation)
+
+    def _tilt_from_markers(self, t, observations, prism_p, prism_cov, tilt: Tilt, odom_roll, odom_pitch) -> bool:
+        """Roll and pitch from a frame's ≥ 2 well-spread markers and the prism (:func:`attitude_from_markers`)
+        as a gated update of the tilt; True when it was taken."""
+        if len(observations) < 2:
+            return False
+        M = np.array([self.marker_map[o.id].position for o in observations])
+        try:
+            est = attitude_from_markers(
+                np.array([o.centre for o in observations]), M, prism_p, self.base_T_camera, self.base_T_prism[:3, 3],
+                sigma_bearing=np.array([o.sigma for o in observations]), prism_cov=prism_cov,
+                marker_sigma=np.array([self.marker_map[o.id].sigma for o in observations]),
+                tilt=(tilt.roll, tilt.pitch), min_spread=math.radians(self.params.attitude_min_spread_deg))
+        except SolverError:
+            self._count("tilt_from_markers_refused")
+            return False
+        taken = self.tilt.update(t, est.roll, est.pitch, est.cov[:2, :2], odom_roll, odom_pitch)
+        self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
+        return taken
+
+    def _resect_frame(self, t, res: FrameResult, observations, tilt: Tilt, odom_T_base, gated=()) -> None:
+        """No prism: the pose of base_link from the frame's ≥ 2 markers (:func:`resection` with the frame's tilt as
+        a measurement of its σ), one filter update with its position and yaw; with ≥ 3 markers, what they say
+        about roll and pitch beyond that tilt (the posterior's information minus the tilt's) updates the tilt."""
+        res.observations = [ObservationResult(o, reason="tracking gate: far from its predicted bearing")
+                            for o in gated]
+        obs = list(observations)
+        rows = [ObservationResult(o) for o in obs]
+        res.observations = rows + res.observations
+        if len(obs) < 2:
+            self._count("too_few_for_resection")
+            for r in rows:
+                r.reason = "no prism position, and a resection needs ≥ 2 markers (≥ 3 without a known tilt)"
+            return
+        start = None
+        if len(obs) == 2 and self.filter.initialised:      # two solutions possible: the one near the prediction
+            start = self.filter.map_T_odom(t)[0] @ odom_T_base
+        try:
+            est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
+                            self.base_T_camera, sigma_bearing=np.array([o.sigma for o in obs]),
+                            marker_sigma=np.array([self.marker_map[o.id].sigma for o in obs]),
+                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA),
+                            initial_pose=start,
+                            min_cone=math.radians(self.params.resection_min_cone_deg))
+        except SolverError as e:
+            self._count("resection_degenerate")
+            for r in rows:
+                r.reason = f"resection: {e}"
+            return
+        inlier = est.weights > 0.5
+        used = [r.id for r, ok in zip(rows, inlier) if ok]
+        cov4 = est.cov[np.ix_([5, 0, 1, 2], [5, 0, 1, 2])]
+        update = self.filter.add_pose(t, est.position, est.yaw, cov4, odom_T_base, sources=used)
+        res.marker_pose, res.marker_pose_cov, res.marker_pose_accepted = est.map_T_base, est.cov, update.accepted
+        if update.accepted and len(obs) >= 3 and tilt.source != "imu":
+            self._tilt_from_resection(t, est, tilt, odom_T_base)
+        for r, ok in zip(rows, inlier):
+            r.yaw = est.yaw
+            r.accepted = bool(ok and update.accepted)
+            r.reason = ("" if r.accepted else "disagrees with the other markers of the frame (resection)" if not ok
+                        else f"filter: {update.status}")
+        self._count("resection_" + update.status)
+
+    def _tilt_from_resection(self, t, est, tilt: Tilt, odom_T_base) -> None:
+        """The markers' own roll and pitch from a resection that had ``tilt`` as a measurement: information of
+        the posterior (roll, pitch) minus the tilt's (exact for the linearised problem: that prior acts on
+        roll and pitch only), as a tilt update when the markers determine them (σ < 1°)."""
+        info_prior = np.eye(2) / max(tilt.sigma, _MIN_TILT_SIGMA) ** 2
+        info_post = np.linalg.inv(est.cov[3:5, 3:5])
+        info_markers = info_post - info_prior
+        if np.linalg.eigvalsh(info_markers)[0] < 1.0 / math.radians(1.0) ** 2:
+            return
+        C = np.linalg.inv(info_markers)
+        prior = np.array([tilt.roll, tilt.pitch])
+        post = prior + wrap_angle(np.array([est.roll, est.pitch]) - prior)
+        x = C @ (info_post @ post - info_prior @ prior)
+        odom_roll, odom_pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
+        taken = self.tilt.update(t, float(x[0]), float(x[1]), C, float(odom_roll), float(odom_pitch))
+        self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
+
+    def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, tilt: Tilt,
                      odom_T_base, gated=(), rows=None) -> None:
         """Yaw from each marker (closed form), their fusion (shared prism/tilt errors, false ids
         dropped), and one filter update with the fused yaw. ``rows``: :meth:`_row_times` per observation
@@ -432,18 +549,19 @@ class AbsOrientPipeline:
         everything = list(observations) + list(gated)
         for o, row in zip(everything, rows or [None] * len(everything)):
             m = self.marker_map[o.id]  # the tracker only returns ids of the map
-            p_o, roll_o, pitch_o, dyaw = prism_p, roll, pitch, 0.0
+            p_o, roll_o, pitch_o, dyaw = prism_p, tilt.roll, tilt.pitch, 0.0
             if row is not None:
-                _, p_o, roll_o, pitch_o, dyaw = row
+                _, p_o, droll, dpitch, dyaw = row
+                roll_o, pitch_o = tilt.roll + droll, tilt.pitch + dpitch
                 if p_o is None:
                     self._count("no_prism_at_row_time")
                     res.observations.append(ObservationResult(o, reason="no prism position at its row's time"))
                     continue
             try:
                 est = yaw_from_marker(
-                    o.centre, m.position, p_o, float(roll_o), float(pitch_o), self.base_T_camera,
+                    o.centre, m.position, p_o, roll_o, pitch_o, self.base_T_camera,
                     self.base_T_prism[:3, 3], sigma_bearing=o.sigma, prism_cov=prism_cov, marker_sigma=m.sigma,
-                    tilt_sigma=math.radians(q.tilt_sigma_deg), lever_sigma=q.lever_sigma, min_range=q.min_range)
+                    tilt_sigma=tilt.sigma, lever_sigma=q.lever_sigma, min_range=q.min_range)
             except SolverError as e:
                 self._count("degenerate")
                 res.observations.append(ObservationResult(o, reason=f"geometry: {e}"))

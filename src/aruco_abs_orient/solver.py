@@ -19,7 +19,9 @@ bearing ``u`` in the camera frame (from ``camera``/``detection``).
   under its measured prior (so the prism noise common to all markers is handled correctly).
 * :func:`fuse_yaws` — the per-marker yaws of one frame fused with their correlation (they share
   the prism, tilt and lever-arm errors), false ids gated out.
-* :func:`resection` — ≥ 3 markers, no prism ⇒ position and attitude of base_link.
+* :func:`resection` — ≥ 3 markers (≥ 2 with a known tilt), no prism ⇒ position and attitude of base_link;
+  degenerate geometry (collinear markers, markers along one line through the camera or in one small cone)
+  refused with the reason.
 
 Units: metres, radians, everything in ``map`` unless named otherwise. numpy only,
 Python 3.8 compatible.
@@ -122,7 +124,7 @@ class AttitudeEstimate(NamedTuple):
 
 
 class ResectionEstimate(NamedTuple):
-    """Pose of base_link from ≥ 3 markers (spatial resection).
+    """Pose of base_link from ≥ 3 markers, or ≥ 2 with a known tilt (spatial resection).
 
     ``position`` (3,) base_link origin in map (m); ``roll``, ``pitch``, ``yaw`` (rad); ``R`` 3×3;
     ``map_T_base`` 4×4; ``cov`` 6×6 over (x, y, z, roll, pitch, yaw) in m²/rad²; other fields as
@@ -416,12 +418,13 @@ class _Fit(NamedTuple):
 
 def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p: bool, loss: str,
                   loss_scale: float, outlier_gate: Optional[float], min_inliers: int,
-                  max_iterations: int) -> _Fit:
+                  max_iterations: int, tilt_prior=None) -> _Fit:
     """Robust GN over R (right perturbation R·Exp(δ)) and, if ``estimate_p``, the reference point p.
 
     Model: camera C = p + R a; predicted camera bearing ``R_bcᵀ Rᵀ (M − C) / |·|``; residual its
     difference from the observed bearing in the observed bearing's tangent plane (≈ rad).
-    ``prior`` is None or (p_measured, L⁻¹) with L Lᵀ its covariance (m²).
+    ``prior`` is None or (p_measured, L⁻¹) with L Lᵀ its covariance (m²). ``tilt_prior`` is None or
+    (roll, pitch, σ) in rad: a measured tilt (IMU, odometry) as two more observations.
 
     Two stages: IRLS with the robust ``loss`` finds the outliers; then, if at least ``min_inliers``
     markers have normalised residuals ≤ ``outlier_gate``, plain least squares on those (weights 1/0)
@@ -459,6 +462,13 @@ def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p
             H[3:, 3:] += Linv.T @ Linv
             gvec[3:] += Linv.T @ rp
             chi2 += float(rp @ rp)
+        if tilt_prior is not None:
+            r0, p0_, st = tilt_prior
+            Jt = _rpy_jacobian(R)[:2] / st
+            rt = wrap_angle(np.array(matrix_to_rpy(R)[:2]) - np.array([r0, p0_])) / st
+            H[:3, :3] += Jt.T @ Jt
+            gvec[:3] += Jt.T @ rt
+            chi2 += float(rt @ rt)
         return u_pred, e, w, H, gvec, chi2
 
     def solve(R, p, loss, mask):
@@ -488,7 +498,7 @@ def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p
             R, p, it2 = solve(R, p, "none", mask)
             iterations += it2
     u_pred, e, weights, H, _, chi2 = linearise(R, p, final_loss, mask)
-    dof = 2 * int(np.count_nonzero(mask)) + (3 if use_prior else 0) - npar
+    dof = 2 * int(np.count_nonzero(mask)) + (3 if use_prior else 0) + (2 if tilt_prior is not None else 0) - npar
     vf = chi2 / dof if dof > 0 else float("nan")
     return _Fit(R, p, np.linalg.inv(H), angle_between(u_pred, u_obs), e, weights, vf, iterations)
 
@@ -500,6 +510,18 @@ def _check_spread(directions: np.ndarray, min_spread: float, what: str) -> None:
         raise DegenerateGeometryError(
             f"{what} lie within {math.degrees(math.asin(min(1.0, float(sin.max())))):.2f}° of one line "
             f"(min_spread {math.degrees(min_spread):.2f}°): the rotation about it is unobservable")
+
+
+def _check_cone(directions: np.ndarray, min_spread: float, min_cone: float) -> None:
+    """Refuse markers seen from the camera along one line through it (``min_spread``, rad) or within one
+    small cone (largest pairwise angle below ``min_cone``, rad)."""
+    _check_spread(directions, min_spread, "the markers seen from the camera (collinear with it)")
+    d = _unit(directions)
+    widest = float(np.max(np.arccos(np.clip(d @ d.T, -1.0, 1.0))))
+    if widest < min_cone:
+        raise DegenerateGeometryError(
+            f"the markers lie within a cone of {math.degrees(widest):.1f}° seen from the camera (min_cone "
+            f"{math.degrees(min_cone):.1f}°): the position along it is poorly determined")
 
 
 def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float, np.ndarray]:
@@ -617,35 +639,48 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
 
 
 def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_sigma=0.0,
-              tilt: Tuple[float, float] = (0.0, 0.0), initial_pose=None, loss: str = "cauchy",
-              loss_scale: float = 2.0, outlier_gate: Optional[float] = 4.0, min_spread: float = math.radians(3.0),
+              tilt: Tuple[float, float] = (0.0, 0.0), tilt_sigma: Optional[float] = None, initial_pose=None,
+              loss: str = "cauchy", loss_scale: float = 2.0, outlier_gate: Optional[float] = 4.0,
+              min_spread: float = math.radians(3.0), min_cone: float = math.radians(10.0),
               max_iterations: int = 50) -> ResectionEstimate:
-    """Position and attitude of base_link from ≥ 3 marker bearings (no prism).
+    """Position and attitude of base_link from ≥ 3 marker bearings (no prism), or from ≥ 2 when the
+    tilt is known (``tilt_sigma`` given).
 
     Args:
         bearings: (N, 3) bearings in the camera frame; markers: (N, 3) centres in map (m).
         base_T_camera: static transform base_link ← camera (4×4).
         sigma_bearing, marker_sigma, loss, loss_scale, outlier_gate: as in :func:`attitude_from_markers`
-            (at least 3 inliers are needed for the least-squares stage).
+            (at least 3 inliers, 2 with a known tilt, are needed for the least-squares stage).
         tilt: (roll, pitch) (rad) assumed for the start (small-tilt platforms: the default 0, 0).
-        initial_pose: optional map_T_base (4×4) start instead of the yaw scan.
-        min_spread: markers closer than this (rad) to one line (collinear) are degenerate.
+        tilt_sigma: None (tilt free, ≥ 3 markers) or the 1-σ (rad) of ``tilt`` as a measurement (an IMU's or
+            the odometry's roll and pitch): it enters the adjustment and ≥ 2 markers suffice.
+        initial_pose: optional map_T_base (4×4) start instead of the yaw scan. Two markers with a known tilt
+            can have two solutions: give the predicted pose to get the one near it.
+        min_spread: markers closer than this (rad) to one line (collinear), or seen from the camera along
+            one line through it, are degenerate.
+        min_cone: markers whose directions from the camera all lie within this angle (rad) of each other
+            (one small cone: range and position poorly determined) are degenerate.
 
     Raises:
-        DegenerateGeometryError: collinear markers, singular normal equations.
-        SolverError: fewer than 3 markers or malformed inputs.
+        DegenerateGeometryError: collinear markers, markers collinear with the camera or in one small
+            cone, singular normal equations; ``reason`` says which.
+        SolverError: too few markers or malformed inputs.
     """
     u = _unit(_vecs3(bearings, "bearings"))
     M = _vecs3(markers, "markers")
     n = len(u)
-    if n < 3 or len(M) != n:
-        raise SolverError(f"resection: need ≥ 3 bearings with as many markers, got {n} and {len(M)}")
+    need = 3 if tilt_sigma is None else 2
+    if n < need or len(M) != n:
+        raise SolverError(f"resection: need ≥ {need} bearings with as many markers"
+                          f"{'' if tilt_sigma is None else ' (tilt known)'}, got {n} and {len(M)}")
+    if tilt_sigma is not None and not (math.isfinite(tilt_sigma) and tilt_sigma > 0):
+        raise SolverError(f"tilt_sigma: expected a positive σ in radians, got {tilt_sigma!r}")
     R_bc, t_cam = _transform(base_T_camera, "base_T_camera")
     sb = _per_marker(sigma_bearing, n, "sigma_bearing")
     sm = _per_marker(marker_sigma, n, "marker_sigma")
     centred = M - M.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[0] == 0 or sv[1] < math.tan(min_spread) * sv[0]:
+    if sv[0] == 0 or (tilt_sigma is None and sv[1] < math.tan(min_spread) * sv[0]):
         raise DegenerateGeometryError("the markers are (nearly) collinear: the rotation about their line "
                                       "and the position around it are not determined")
     if initial_pose is not None:
@@ -655,8 +690,11 @@ def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_si
         yaw0, C0 = _scan_yaw(u @ (Rt @ R_bc).T, M)
         R0 = rpy_to_matrix(float(tilt[0]), float(tilt[1]), yaw0)
         p0 = C0 - R0 @ t_cam
-    fit = _gauss_newton(u, M, R_bc, t_cam, R0, p0, sb, sm, None, True, loss, loss_scale, outlier_gate, 3,
-                        max_iterations)
+    tilt_prior = None if tilt_sigma is None else (float(tilt[0]), float(tilt[1]), float(tilt_sigma))
+    fit = _gauss_newton(u, M, R_bc, t_cam, R0, p0, sb, sm, None, True, loss, loss_scale, outlier_gate, need,
+                        max_iterations, tilt_prior)
+    used = fit.weights > 0.5 if np.count_nonzero(fit.weights > 0.5) >= need else np.ones(n, bool)
+    _check_cone(M[used] - (fit.p + fit.R @ t_cam), min_spread, min_cone)
     K = _rpy_jacobian(fit.R)
     T = np.zeros((6, 6))
     T[:3, 3:] = np.eye(3)          # position block: p (map, additive)

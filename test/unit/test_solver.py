@@ -312,3 +312,41 @@ def test_tilt_rotation_order_matches_transforms():
     """R_t = Ry(pitch)·Rx(roll) is the tilt part of rpy_to_matrix (guards the convention used above)."""
     r, p, y = 0.1, -0.2, 0.7
     np.testing.assert_allclose(rpy_to_matrix(r, p, y), rpy_to_matrix(0, 0, y) @ rot_y(p) @ rot_x(r), atol=1e-15)
+
+
+@given(seeds, tilts, tilts, yaws, st.integers(2, 5))
+def test_resection_with_a_known_tilt_is_exact_from_two_markers(seed, roll, pitch, yaw, n):
+    """The tilt as a measurement (IMU, odometry): 2 markers determine position and yaw, up to a discrete
+    ambiguity (two markers with a known vertical can have two solutions): from a start pose near the truth
+    (the filter's prediction) the right one."""
+    s = Scene(seed, roll, pitch, yaw, n)
+    dirs = s.M - s.C
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    assume(float(np.max(np.linalg.norm(np.cross(dirs[:, None], dirs[None]), axis=-1))) > math.sin(math.radians(15)))
+    start = make_T(rpy_to_matrix(roll, pitch, yaw + 0.05), s.p + s.rng.normal(0.0, 0.3, 3))
+    est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(roll, pitch), tilt_sigma=math.radians(0.1),
+                    initial_pose=start)
+    np.testing.assert_allclose(est.position, s.p, atol=1e-6)
+    assert abs(wrap_angle(est.yaw - yaw)) < 1e-7
+    assert est.cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(est.cov) > 0)
+
+
+def test_resection_with_a_wrong_tilt_measurement_and_three_markers_follows_the_markers():
+    """A tilt measured 2° off with σ 2°: ≥ 3 well-spread markers outweigh it."""
+    s = Scene(5, 0.05, -0.03, 1.0, 6)
+    est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(0.05 + math.radians(2), -0.03),
+                    tilt_sigma=math.radians(2.0), sigma_bearing=1e-4)
+    assert abs(est.roll - 0.05) < math.radians(0.05)
+    assert abs(wrap_angle(est.yaw - 1.0)) < math.radians(0.05)
+
+
+def test_resection_refuses_markers_in_one_small_cone_or_along_one_line_through_the_camera():
+    s = Scene(3, 0.0, 0.0, 0.3, 3)
+    ahead = s.C + np.array([[10.0, 0.0, 0.0], [10.0, 0.8, 0.3], [10.0, -0.5, 0.6]])   # within ~6° of each other
+    with pytest.raises(DegenerateGeometryError, match="cone"):
+        resection(s.bearings(ahead), ahead, s.base_T_camera, tilt=(0.0, 0.0), tilt_sigma=0.01)
+    both = s.C + np.array([[6.0, 1.0, 0.2], [-12.0, -2.0, -0.4]])          # opposite: one line through the camera
+    with pytest.raises(DegenerateGeometryError, match="collinear|singular"):
+        resection(s.bearings(both), both, s.base_T_camera, tilt=(0.0, 0.0), tilt_sigma=0.01)
+    with pytest.raises(SolverError, match="≥ 3"):
+        resection(s.bearings()[:2], s.M[:2], s.base_T_camera)

@@ -110,7 +110,10 @@ def test_an_odometry_wandering_six_times_the_model_does_not_lock_out(seed):
     times, err, seen, pipe = run(cfg)
     ok = np.isfinite(err)
     assert np.mean(ok[int(np.argmax(seen > 0)):]) > 0.95
-    assert math.degrees(np.sqrt(np.mean(err[ok] ** 2))) < 0.3
+    # on the markers: frames with a marker seen within the last second (a stretch of seconds with none coasts on
+    # an odometry wandering 0.3°/√s, ~0.5° per 3 s whatever the filter does: not what this test is about)
+    recent = np.array([seen[max(0, i - int(MOVING.fps)):i + 1].any() for i in range(len(seen))])
+    assert math.degrees(np.sqrt(np.mean(err[ok & recent] ** 2))) < 0.3
     assert pipe.filter.stats.noise_scale > 2.0          # it learnt that the odometry is worse than assumed
     gated = pipe.stats.get("filter_gated", 0)
     assert gated < 0.1 * pipe.stats.get("filter_accepted", 1)

@@ -81,6 +81,7 @@ class BagTopics:
     base_frame: str = "base_link"
     camera_frame: str = "camera"
     prism_frame: str = "prism"
+    imu: str = ""                          # sensor_msgs/Imu topic for roll/pitch (empty: none)
 
 
 @dataclass
@@ -99,6 +100,8 @@ class BagData:
     end: float                             # s, last message of the bag
     skipped: Dict[str, int] = field(default_factory=dict)   # reason -> count
     warnings: List[str] = field(default_factory=list)
+    imu_stamps: np.ndarray = field(default_factory=lambda: np.zeros(0))       # (K,) s, camera/VO clock
+    imu_tilts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (K, 3) roll, pitch, σ in rad
 
 
 def open_reader(path: Bags):
@@ -155,7 +158,11 @@ def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
         odom_t, odom_T = [], []
         statics: Dict[Tuple[str, str], np.ndarray] = {}
         prism_t, prism_p = [], []
-        wanted = [c for c in reader.connections if c.topic in (topics.tf, topics.tf_static, topics.prism)]
+        if topics.imu and topics.imu not in by_topic:
+            raise BagError(f"{bag_name(path)}: no IMU topic {topics.imu} (topics in the bag: {present})")
+        imu_t, imu_msgs = [], []
+        wanted = [c for c in reader.connections if c.topic in (topics.tf, topics.tf_static, topics.prism)
+                  or (topics.imu and c.topic == topics.imu)]
         for conn, _, raw in reader.messages(connections=wanted):
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -170,6 +177,10 @@ def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
                     continue
                 prism_t.append(_stamp(msg.header))
                 prism_p.append((p.x, p.y, p.z))
+                continue
+            if topics.imu and conn.topic == topics.imu:
+                imu_t.append(_stamp(msg.header))
+                imu_msgs.append(msg)
                 continue
             for tr in msg.transforms:
                 parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
@@ -205,13 +216,40 @@ def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
     if not prism_t:
         warnings.append(f"{bag_name(path)}: no prism positions on {topics.prism}: yaw from markers needs the prism")
     p_order = np.argsort(prism_t, kind="stable")
+    imu_stamps, imu_tilts = _imu_tilts(imu_t, imu_msgs, statics, topics, skipped)
+    if topics.imu and not len(imu_stamps):
+        warnings.append(f"{bag_name(path)}: no usable IMU sample on {topics.imu}: tilt from the markers and the "
+                        "odometry")
     return BagData(
         path=bag_name(path), odom=odom, base_T_camera=static(topics.camera_frame),
         base_T_prism=static(topics.prism_frame),
         prism_stamps=np.asarray(prism_t, dtype=float)[p_order],
         prism_positions=np.asarray(prism_p, dtype=float).reshape(-1, 3)[p_order],
         image_count=image_count, image_format=image_format, start=start, end=end, skipped=skipped,
-        warnings=warnings)
+        warnings=warnings, imu_stamps=imu_stamps, imu_tilts=imu_tilts)
+
+
+def _imu_tilts(stamps, msgs, statics, topics: BagTopics, skipped: Dict[str, int]):
+    """(stamps (K,), (roll, pitch, σ) (K, 3) rad) of base_link from sensor_msgs/Imu messages
+    (:func:`tilt.tilt_from_imu`; the IMU's mounting rotation from tf_static base_link→its frame, when
+    there); unusable samples (NaN, unknown orientation while moving) are counted in ``skipped``."""
+    from ..tilt import tilt_from_imu
+
+    out_t, out = [], []
+    for t, m in zip(stamps, msgs):
+        T = statics.get((topics.base_frame, m.header.frame_id.lstrip("/")))
+        o, a, w = m.orientation, m.linear_acceleration, m.angular_velocity
+        tilt, why = tilt_from_imu([o.x, o.y, o.z, o.w], m.orientation_covariance, [a.x, a.y, a.z],
+                                  m.linear_acceleration_covariance, [w.x, w.y, w.z],
+                                  base_R_imu=None if T is None else T[:3, :3])
+        if tilt is None:
+            key = f"IMU sample without tilt ({why.lstrip('; ')})"
+            skipped[key] = skipped.get(key, 0) + 1
+            continue
+        out_t.append(t)
+        out.append(tilt)
+    order = np.argsort(out_t, kind="stable")
+    return np.asarray(out_t, dtype=float)[order], np.asarray(out, dtype=float).reshape(-1, 3)[order]
 
 
 def iter_images(path: Bags, topics: Optional[BagTopics] = None) -> Iterator[Tuple[float, object]]:

@@ -35,6 +35,7 @@ EXAMPLES = """examples:
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367 \\
       --calibration calibration.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --image-topic /theta/image/compressed
+  aruco-abs-orient process run.bag --markers markers.yaml --out results/ --no-prism --imu-topic /imu/data
 """
 
 
@@ -49,11 +50,14 @@ def _add_topics(p: argparse.ArgumentParser) -> None:
     g.add_argument("--base-frame", default=d.base_frame, help=f"(default {d.base_frame})")
     g.add_argument("--camera-frame", default=d.camera_frame, help=f"(default {d.camera_frame})")
     g.add_argument("--prism-frame", default=d.prism_frame, help=f"(default {d.prism_frame})")
+    g.add_argument("--imu-topic", default=d.imu, metavar="TOPIC",
+                   help="sensor_msgs/Imu for roll and pitch (orientation, or gravity at standstill; default: none, "
+                        "the tilt comes from the markers and the odometry)")
 
 
 def _topics(a: argparse.Namespace) -> BagTopics:
     return BagTopics(a.image_topic, a.tf_topic, a.tf_static_topic, a.prism_topic, a.odom_frame, a.base_frame,
-                     a.camera_frame, a.prism_frame)
+                     a.camera_frame, a.prism_frame, a.imu_topic)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -79,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "instead of the bag's /tf_static")
     p.add_argument("--jpeg-reduce", type=int, choices=(1, 2, 4, 8), default=PipelineParams.jpeg_reduce,
                    help="decode images at 1/N resolution (default 1: full; faster, less accurate)")
+    p.add_argument("--no-prism", action="store_true",
+                   help="markers only: ignore the prism, each frame's pose from a resection on its markers (>= 3, "
+                        "or 2 with the tilt); see the field guide, 'Without a total station'")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
 
@@ -157,6 +164,9 @@ def cmd_process(a: argparse.Namespace) -> int:
     from .process import process_bag
 
     marker_map = MarkerMap.load(a.markers)
+    if a.no_prism and len(marker_map) < 3:
+        return _fail(f"{a.markers}: --no-prism needs at least 3 markers in the map for a resection, it has "
+                     f"{len(marker_map)}")
     calibration = load_calibration(a.calibration) if a.calibration else None
     try:
         os.makedirs(a.out, exist_ok=True)
@@ -164,7 +174,7 @@ def cmd_process(a: argparse.Namespace) -> int:
         return _fail(f"{a.out}: cannot create the output directory: {e.strerror}")
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
-    params = PipelineParams(jpeg_reduce=a.jpeg_reduce)
+    params = PipelineParams(jpeg_reduce=a.jpeg_reduce, markers_only=a.no_prism)
     result = process_bag(a.bag, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
                          progress=not a.quiet, calibration=calibration)
     s = result.summary

@@ -184,6 +184,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
         pipeline_kwargs.setdefault("readout", float(calibration.get("readout", 0.0)))
     pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, params, **pipeline_kwargs)
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
+    next_imu = 0
 
     fd, obs_tmp = tempfile.mkstemp(prefix=".observations.csv.", suffix=".tmp", dir=out_dir)
     os.fchmod(fd, RESULT_FILE_MODE)
@@ -196,6 +197,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     timing_sum: Dict[str, float] = {}
     checked: List[tuple] = []  # (t, id, az, el, yaw σ, residual, accepted, yaw, odom yaw) of each marker yaw
     modes: Dict[str, int] = {}
+    tilt_sources: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)
     stop = threading.Event()
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
@@ -230,9 +232,14 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                 while next_prism < len(data.prism_stamps) and data.prism_stamps[next_prism] <= t + PRISM_LOOKAHEAD:
                     pipe.add_prism(float(data.prism_stamps[next_prism]), data.prism_positions[next_prism])
                     next_prism += 1
+                while next_imu < len(data.imu_stamps) and data.imu_stamps[next_imu] <= stamp:
+                    pipe.add_imu(float(data.imu_stamps[next_imu]) - time_offset, *data.imu_tilts[next_imu])
+                    next_imu += 1
                 res = pipe.process_image(t, image, T_odom)
                 for k, v in res.timings.items():
                     timing_sum[k] = timing_sum.get(k, 0.0) + v
+                if res.tilt_source:
+                    tilt_sources[res.tilt_source] = tilt_sources.get(res.tilt_source, 0) + 1
                 if res.tracking is not None:
                     modes[res.tracking.mode] = modes.get(res.tracking.mode, 0) + 1
                 if res.error:
@@ -280,6 +287,9 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                    "reinitialisations": pipe.filter.stats.reinitialisations,
                    "yaw_noise_scale": pipe.filter.stats.noise_scale},
         "frames_without_odometry": odom_missing,
+        "mode": "markers only (no prism)" if params.markers_only else "prism and markers",
+        "imu_samples": int(len(data.imu_stamps)),
+        "tilt_sources": tilt_sources,
         "prism_samples": int(len(data.prism_stamps)),
         "skipped": {**data.skipped, **errors},
         "warnings": data.warnings,

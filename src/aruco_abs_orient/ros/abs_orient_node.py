@@ -14,7 +14,9 @@ Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry th
   ``yaw``), roll/pitch from odometry, unobserved parts at variance 1e6; only when the node's filter
   accepted it (its gate drops false ids);
 - ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
-  arm removed; ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
+  arm removed; ``abs_orient/pose_markers`` (``PoseWithCovarianceStamped``): base_link's pose from a resection
+  on the frame's markers (no prism: ``~markers_only``, or a prism dropout), covariance from the geometry;
+  ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
   ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``abs_orient/rays`` (``MarkerArray``: a line
   from the camera to each accepted marker of the frame, in the camera frame); ``~debug_image``
   (``Image`` bgr8) and ``~debug_image/compressed`` (``CompressedImage``, JPEG: image_transport's compressed
@@ -67,7 +69,7 @@ from ..detection import DetectionError, decode_jpeg
 from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
 from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth
-from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
+from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, PipelineParams, all_param_fields
 from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
@@ -119,6 +121,9 @@ class NodeConfig:
       a node (re)started within ``state_max_age`` s of it starts from it and publishes map→odom at once.
       Empty: none.
     - ``state_max_age``: s, oldest state restored (in ROS time: a bag replayed later never matches).
+    - ``markers_only``: no total station: each frame's pose from a resection on its markers, published on
+      ``abs_orient/pose_markers`` (a map of fewer than 3 markers is refused at start-up).
+    - ``imu_topic``: ``sensor_msgs/Imu`` for roll and pitch (empty: none; tilt from the markers and odometry).
     - frames: ``map_frame``, ``odom_frame``, ``base_frame``, ``camera_frame``, ``prism_frame``.
     """
 
@@ -149,6 +154,8 @@ class NodeConfig:
     base_frame: str = "base_link"
     camera_frame: str = "camera"
     prism_frame: str = "prism"
+    markers_only: bool = False
+    imu_topic: str = ""
 
     @classmethod
     def from_params(cls, get_param) -> NodeConfig:
@@ -283,6 +290,7 @@ class AbsOrientNode:
         self._prediction: Optional[MapOdomPrediction] = None  # of the filter, total-station time
         self.health = NodeHealth(config.image_timeout, config.prism_timeout, config.publish_tf, time.monotonic(),
                                  (config.base_frame, config.camera_frame, config.prism_frame))
+        self.health.extra_values["tilt source"] = self._tilt_source
 
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0), debug=False)
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
@@ -298,6 +306,12 @@ class AbsOrientNode:
         self._debug_wall = -math.inf
         self._rays_shown = False
         self._debug_reduce = 1  # JPEG DCT reduction for ~debug_image (learnt from the first frame's width)
+        self.pub_pose_markers = rospy.Publisher("abs_orient/pose_markers", PoseWithCovarianceStamped, queue_size=10)
+        self.imu_tilts: Deque[Tuple[float, float, float, float]] = collections.deque(maxlen=1000)
+        if config.imu_topic:
+            from sensor_msgs.msg import Imu
+
+            self.imu_sub = rospy.Subscriber(config.imu_topic, Imu, self._on_imu, queue_size=50)
 
         # counters and state (main thread only, except the mailbox and the prism deque)
         self.images = Mailbox()
@@ -359,6 +373,26 @@ class AbsOrientNode:
                                                                             c.prism_timeout), "prism stamp offset")
         self.updater.add(self.diag_image_age)
         self.updater.add(self.diag_prism_offset)
+
+    def _on_imu(self, msg) -> None:
+        """Roll and pitch of base_link from an IMU sample (its mounting rotation from tf), or counted as unusable."""
+        from ..tilt import tilt_from_imu
+
+        base = self.config.base_frame
+        frame = msg.header.frame_id.lstrip("/") or base
+        try:
+            R = None if frame == base else self.cv.transform_to_matrix(
+                self.tf_buffer.lookup_transform(base, frame, self.rospy.Time(0)).transform, f"{base}->{frame}")[:3, :3]
+        except (self.tf2_ros.TransformException, self.cv.ConversionError):
+            self.health.count("imu_unusable")
+            return
+        o, a, w = msg.orientation, msg.linear_acceleration, msg.angular_velocity
+        tilt, _ = tilt_from_imu([o.x, o.y, o.z, o.w], msg.orientation_covariance, [a.x, a.y, a.z],
+                                msg.linear_acceleration_covariance, [w.x, w.y, w.z], base_R_imu=R)
+        if tilt is None:
+            self.health.count("imu_unusable")
+            return
+        self.imu_tilts.append((self.cv.stamp_to_sec(msg.header.stamp),) + tuple(tilt))
 
     def _start_reconfigure(self) -> None:
         try:
@@ -489,7 +523,7 @@ class AbsOrientNode:
         try:
             readout = 0.0 if calibrated is None else float(calibrated.get("readout", 0.0))  # rolling shutter, s
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
-                                              readout=readout)
+                                              PipelineParams(markers_only=c.markers_only), readout=readout)
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
         except PipelineError as e:
@@ -605,6 +639,9 @@ class AbsOrientNode:
             return
         tf_wait_ms = 1e3 * (time.monotonic() - tf_wait)
         self._feed_prisms()  # what arrived while waiting for tf
+        while self.imu_tilts:  # IMU stamps are on the robot's (camera/VO) clock
+            t_imu, roll, pitch, sigma = self.imu_tilts.popleft()
+            self.pipeline.add_imu(t_imu - self.time_offset, roll, pitch, sigma)
         bad_before = self.pipeline.stats.get("bad_images", 0)
         try:
             result = self.pipeline.process_image(s - self.time_offset, image, odom_T_base)
@@ -671,6 +708,9 @@ class AbsOrientNode:
         pose = cv.pose_msg(result, stamp, c.map_frame)
         if pose is not None:
             self.pub_pose.publish(pose)
+        if result.marker_pose is not None and result.marker_pose_accepted:  # the frame's own resection
+            self.pub_pose_markers.publish(cv.pose_with_covariance_msg(result.marker_pose, result.marker_pose_cov,
+                                                                      stamp, c.map_frame))
         if result.observations or self._rays_shown:
             self.pub_rays.publish(cv.rays_marker_array(result.observations, stamp, c.camera_frame))
             self._rays_shown = bool(result.observations)
@@ -740,6 +780,12 @@ class AbsOrientNode:
             self._send_map_odom(stamp, self._prediction.at(s - self.time_offset))
             self.health.count("tf_republished")
 
+    def _tilt_source(self) -> str:
+        """Where the newest frame's roll and pitch came from (imu, markers, odometry), with unusable IMU samples."""
+        r, unusable = self.last_result, self.health.counts["imu_unusable"]
+        return ((r.tilt_source if r is not None and r.tilt_source else "-")
+                + (f" ({unusable} IMU samples unusable)" if unusable else ""))
+
     def _pipeline_task(self, stat):
         """diagnostic_updater task ``pipeline``: :meth:`NodeHealth.report` since the previous update."""
         r = self.last_result
@@ -778,6 +824,10 @@ def main(argv=None) -> int:
         marker_map = MarkerMap.load(config.markers)
     except (NodeConfigError, MarkerMapError) as e:
         rospy.logfatal(f"abs_orient: {e}")
+        return 2
+    if config.markers_only and len(marker_map) < 3:
+        rospy.logfatal(f"abs_orient: {config.markers}: ~markers_only needs at least 3 markers in the map for a "
+                       f"resection, it has {len(marker_map)}")
         return 2
     node = AbsOrientNode(config, marker_map)
     rospy.loginfo(f"abs_orient: {len(marker_map)} markers from {config.markers}; "

@@ -218,6 +218,17 @@ def prism_pose_msg(result, stamp: rospy.Time, frame_id: str = "map") -> Optional
     return msg
 
 
+def pose_with_covariance_msg(map_T_base: np.ndarray, cov: np.ndarray, stamp: rospy.Time,
+                             frame_id: str = "map") -> PoseWithCovarianceStamped:
+    """A pose (4×4) with its full 6×6 covariance over (x, y, z, roll, pitch, yaw) (m², rad²), e.g. a resection."""
+    msg = PoseWithCovarianceStamped()
+    msg.header = _header(stamp, frame_id)
+    msg.pose.pose = matrix_to_pose(map_T_base)
+    C = _finite(cov, "pose covariance").reshape(6, 6)
+    msg.pose.covariance = [float(x) for x in (0.5 * (C + C.T)).ravel()]
+    return msg
+
+
 def pose_msg(result, stamp: rospy.Time, frame_id: str = "map") -> Optional[PoseStamped]:
     """The corrected pose ``map_T_base`` of the frame, or None before initialisation."""
     if result.map_T_base is None:

@@ -6,8 +6,9 @@
   ``camera``), ``/tf`` (tf2_msgs/TFMessage, ``odom → base_link`` at each image), both stamped on
   the camera clock (true time + ``camera_time_offset``); ``/tf_static`` (latched: ``base_link →
   camera`` with the NOMINAL rotation, ``base_link → prism``); ``/ms60/prism``
-  (geometry_msgs/PointStamped, frame ``map``, stamped with true time). Each message is recorded
-  at its header stamp.
+  (geometry_msgs/PointStamped, frame ``map``, stamped with true time); with ``imu_rate`` > 0 also
+  ``/imu/data`` (sensor_msgs/Imu, frame ``base_link``, camera clock: roll/pitch with noise, the true yaw,
+  gravity as the acceleration). Each message is recorded at its header stamp.
 - ``truth.tum``: base_link in map at each image's TRUE capture time (one line per image).
 - ``markers.yaml``: the surveyed marker map; ``hidden.yaml``: the scenario's parameters and
   hidden truth (seed, time offset, boresight error, drift), enough for ``Scenario.from_hidden``.
@@ -30,7 +31,7 @@ from typing import Iterator, List, NamedTuple, Optional, Tuple
 import numpy as np
 
 from ..errors import InputFileError
-from ..transforms import matrix_to_quat
+from ..transforms import matrix_to_quat, matrix_to_rpy, rpy_to_matrix
 from ..tum import Trajectory, write_tum
 from .render import PROFILES, encode_jpeg
 from .scenario import Scenario, ScenarioConfig
@@ -45,6 +46,7 @@ TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/ms60/prism": "geometry_msgs/msg/PointStamped",
 }
+IMU_TOPIC = "/imu/data"
 
 
 class GenerateError(InputFileError, RuntimeError):
@@ -142,6 +144,21 @@ class _Messages:
                                                           data=np.frombuffer(jpeg, dtype=np.uint8))
         return bytes(self.store.serialize_ros1(msg, "sensor_msgs/msg/CompressedImage"))
 
+    def imu(self, t: float, R: np.ndarray, sigma: float) -> bytes:
+        """sensor_msgs/Imu at rest in orientation ``R`` (base_link in map) with roll/pitch 1-σ ``sigma`` (rad)."""
+        g = self.T
+        q = matrix_to_quat(R)
+        a = R.T @ np.array([0.0, 0.0, 9.80665])
+        cov = np.diag([sigma ** 2, sigma ** 2, 0.01]).ravel()
+        msg = g["sensor_msgs/msg/Imu"](
+            header=self.header(t, "base_link"),
+            orientation=g["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+            orientation_covariance=cov, angular_velocity=g["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+            angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=g["geometry_msgs/msg/Vector3"](x=float(a[0]), y=float(a[1]), z=float(a[2])),
+            linear_acceleration_covariance=np.eye(3).ravel() * 1e-4)
+        return bytes(self.store.serialize_ros1(msg, "sensor_msgs/msg/Imu"))
+
     def point(self, t: float, p) -> bytes:
         msg = self.T["geometry_msgs/msg/PointStamped"](
             header=self.header(t, "map"),
@@ -189,21 +206,30 @@ def generate(config: ScenarioConfig, out_dir: str, progress: bool = True, force:
     os.unlink(tmp_bag)  # rosbags' Writer refuses an existing file
     try:
         with Writer(tmp_bag) as writer:
+            topics = dict(TOPICS, **({IMU_TOPIC: "sensor_msgs/msg/Imu"} if c.imu_rate > 0 else {}))
             conn = {topic: writer.add_connection(topic, typ, typestore=store,
                                                  latching=1 if topic == "/tf_static" else None)
-                    for topic, typ in TOPICS.items()}
+                    for topic, typ in topics.items()}
             t0 = min(float(stamps[0]), float(scenario.prism.stamps[0]) if scenario.prism.stamps.size else math.inf)
             writer.write(conn["/tf_static"], _ns(t0), msgs.tf([
                 msgs.transform(t0, "base_link", "camera", scenario.base_T_camera_nominal),
                 msgs.transform(t0, "base_link", "prism", scenario.base_T_prism)]))
             # prism samples are merged in time order between the frames
             pending: List[Tuple[float, int]] = [(float(t), i) for i, t in enumerate(scenario.prism.stamps)]
+            imu_t, imu_rp = scenario.imu_samples()
+            imu_yaw = matrix_to_rpy(scenario.map_T_base(imu_t)[..., :3, :3])[2] if len(imu_t) else []
+            pending += [(float(t) + c.camera_time_offset, -1 - i) for i, t in enumerate(imu_t)]  # camera clock
             heapq.heapify(pending)
 
             def flush(until: float) -> None:
                 while pending and pending[0][0] <= until:
                     t, i = heapq.heappop(pending)
-                    writer.write(conn["/ms60/prism"], _ns(t), msgs.point(t, scenario.prism.positions[i]))
+                    if i >= 0:
+                        writer.write(conn["/ms60/prism"], _ns(t), msgs.point(t, scenario.prism.positions[i]))
+                    else:
+                        k = -1 - i
+                        R = rpy_to_matrix(imu_rp[k, 0], imu_rp[k, 1], imu_yaw[k])
+                        writer.write(conn[IMU_TOPIC], _ns(t), msgs.imu(t, R, math.radians(c.imu_tilt_noise_deg)))
 
             bar = tqdm(total=n, desc=f"render {c.width}x{c.width // 2}", unit="frame", file=sys.stderr,
                        disable=not progress, dynamic_ncols=True)

@@ -13,6 +13,7 @@ iteration (the row depends on the bearing, which depends on the time).
 
 from __future__ import annotations
 
+import math
 from typing import Iterator, NamedTuple, Optional, Tuple
 
 import numpy as np
@@ -68,7 +69,8 @@ def feed(scenario: Scenario, pipeline: AbsOrientPipeline, times: Optional[np.nda
     """Yield (true time s, FrameResult) for each frame time in ``times`` (default: all the scenario's
     frames): the markers the camera sees then (:func:`marker_observations`, each bearing perturbed by
     ``noise`` rad per axis, reported with that σ; a rolling shutter of ``readout`` s), after the prism
-    samples up to ``prism_lead`` s past the frame (the total station's latency) were added."""
+    samples up to ``prism_lead`` s past the frame (the total station's latency) and the IMU samples up to
+    the frame (when the scenario has an IMU) were added."""
     times = scenario.frame_times if times is None else np.asarray(times, dtype=float)
     rng = rng if rng is not None else np.random.default_rng(0)
     obs = marker_observations(scenario, times, noise=noise, rng=rng, readout=readout)
@@ -77,7 +79,13 @@ def feed(scenario: Scenario, pipeline: AbsOrientPipeline, times: Optional[np.nda
     sigma = max(float(noise), 1e-5)
     stamps, positions = scenario.prism.stamps, scenario.prism.positions
     j = int(np.searchsorted(stamps, times[0] - 1.0)) if len(times) else 0
+    imu_t, imu_rp = scenario.imu_samples()
+    imu_sigma = math.radians(scenario.config.imu_tilt_noise_deg)
+    n = int(np.searchsorted(imu_t, times[0] - 1.0)) if len(times) else 0
     for i, t in enumerate(times):
+        while n < len(imu_t) and imu_t[n] <= t:
+            pipeline.add_imu(float(imu_t[n]), float(imu_rp[n, 0]), float(imu_rp[n, 1]), imu_sigma)
+            n += 1
         while j < len(stamps) and stamps[j] <= t + prism_lead:
             pipeline.add_prism(float(stamps[j]), positions[j])
             j += 1

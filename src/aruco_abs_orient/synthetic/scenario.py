@@ -90,6 +90,9 @@ class ScenarioConfig:
     prism_noise: float = 0.002  # prism position σ per axis, m
     prism_dropout: float = 0.02  # probability of losing one prism sample
     prism_gaps: int = 2  # number of ~1 s tracking losses (while driving)
+    prism_outage: Tuple[float, float] = (0.0, 0.0)  # (start after start_time, duration) of a prism dropout, s
+    imu_rate: float = 0.0  # IMU (roll, pitch) rate, Hz (0: no IMU)
+    imu_tilt_noise_deg: float = 0.02  # IMU roll/pitch noise σ, deg
     impostor_rate: float = 0.0  # fraction of frames showing a false id: a second marker with the
     # id of the map's first marker, 4 m ahead-left of the camera (not where the map has it)
     # --- the realistic world and the camera effects (issue 17); the defaults are the easy world
@@ -130,6 +133,9 @@ class ScenarioConfig:
         need(0 < self.prism_rate <= 100, "prism_rate", "expected Hz in (0, 100]")
         need(0 <= self.prism_dropout < 1, "prism_dropout", "expected a probability in [0, 1)")
         need(0 <= self.impostor_rate <= 1, "impostor_rate", "expected a fraction in [0, 1]")
+        need(self.prism_outage[1] >= 0, "prism_outage", "expected (start s, duration s >= 0)")
+        need(0 <= self.imu_rate <= 1000 and self.imu_tilt_noise_deg >= 0, "imu_rate",
+             "expected Hz in [0, 1000] and imu_tilt_noise_deg >= 0")
         need(self.prism_jitter < 0.5 / self.prism_rate, "prism_jitter", "expected less than half a period")
         for name in ("prism_noise", "vo_translation_noise", "vo_yaw_walk_deg_per_sqrt_s", "prism_gaps"):
             need(getattr(self, name) >= 0, name, "expected >= 0")
@@ -195,6 +201,10 @@ PRESETS: Dict[str, ScenarioConfig] = {
     # tilt, exposure changes, motion blur, JPEG 85, a stitch seam, a camera clock 20 ppm fast, and a 30 ms
     # rolling shutter (bench/realism.py: the pipeline initialises and keeps its heading on it uncorrected)
     "demo": dataclasses.replace(REALISTIC, rolling_shutter_readout=0.030),
+    # markers only (no total station): a smaller loop with 12 markers, >= 3 in view nearly everywhere
+    "markers_only": ScenarioConfig(duration=15.0, fps=10.0, width=1920, n_markers=12, marker_size=0.30,
+                                   marker_distance=(2.0, 7.0), track_radii=(6.0, 4.0), standstill=2.0,
+                                   boresight_deg=0.0),
     "bench": ScenarioConfig(duration=10.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                             marker_distance=(2.0, 12.0)),
     "realistic": dataclasses.replace(REALISTIC, duration=20.0),
@@ -388,6 +398,8 @@ class Scenario:
             if c.start_time + c.duration - t_moving > 2.0:
                 g0 = rng.uniform(t_moving, c.start_time + c.duration - 1.5)
                 keep &= ~((t >= g0) & (t < g0 + rng.uniform(0.6, 1.4)))
+        o0, od = c.prism_outage
+        keep &= ~((t >= c.start_time + o0) & (t < c.start_time + o0 + od))
         t = t[keep]
         pos = self.prism_position(t) + rng.normal(0.0, c.prism_noise, (t.size, 3))
         return PrismTrack(t, pos)
@@ -447,9 +459,21 @@ class Scenario:
         tr = np.asarray(t, dtype=float) - self.config.start_time
         return math.radians(self.config.vo_tilt_drift_deg_per_min) / 60.0 * tr
 
+    def imu_samples(self) -> Tuple[np.ndarray, np.ndarray]:
+        """The IMU's samples: true times (N,) s and (roll, pitch) (N, 2) of base_link in rad with
+        ``imu_tilt_noise_deg`` noise (empty without an IMU; its own random stream)."""
+        c = self.config
+        if c.imu_rate <= 0:
+            return np.zeros(0), np.zeros((0, 2))
+        rng = np.random.default_rng([c.seed, 2])
+        t = c.start_time - 0.5 + np.arange(int((c.duration + 1.0) * c.imu_rate)) / c.imu_rate
+        rp = np.stack(matrix_to_rpy(self.map_T_base(t)[:, :3, :3])[:2], axis=-1)
+        return t, rp + rng.normal(0.0, math.radians(c.imu_tilt_noise_deg), rp.shape)
+
     def odom_T_base(self, t) -> np.ndarray:
         """The VO's pose(s) of base_link in odom at true time(s) t (what /tf carries, stamped
-        t + camera_time_offset). odom is the base_link pose at start_time, levelled."""
+        t + camera_time_offset). odom is the base_link pose at start_time, levelled; its roll and pitch
+        drift by :meth:`vo_tilt_error`."""
         tr = np.asarray(t, dtype=float) - self.config.start_time
         R = rot_z(self.vo_yaw_error(t) - self._psi0) @ self.map_T_base(t)[..., :3, :3]
         if self.config.vo_tilt_drift_deg_per_min != 0.0:
