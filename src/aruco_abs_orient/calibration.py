@@ -60,6 +60,7 @@ import numpy as np
 
 from .errors import GeometryError
 from .markers import MarkerMap
+from .pipeline import PipelineParams
 from .solver import yaw_consensus
 from .timesync import TimeSyncError, heading_from_track
 from .transforms import make_T, matrix_to_rpy, quat_to_matrix, rot_z, rpy_to_matrix, wrap_angle, yaw_of
@@ -113,8 +114,8 @@ class CalibrationParams:
     max_turn_rate_deg: float = 30.0
     velocity_sigma: float = 0.01
     min_moving_time: float = 5.0
-    prism_max_gap: float = 0.5
-    prism_sigma: float = 0.005
+    prism_max_gap: float = PipelineParams.prism_max_gap
+    prism_sigma: float = PipelineParams.prism_sigma
     min_observations: int = 20
     min_markers: int = 2
     loss_scale: float = 2.0

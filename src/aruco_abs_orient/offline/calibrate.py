@@ -33,6 +33,7 @@ from ..calibration import (
 )
 from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
+from ..params import load_params
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
 from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
@@ -204,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         marker_map = MarkerMap.load(args.markers)
         data = read_bag_data(args.bag, topics)
         obs = collect_observations(args.bag, marker_map, topics, progress=not args.quiet, data=data,
-                                   every=args.every)
+                                   every=args.every, detector_params=load_params(args.params).detection)
     except (MarkerMapError, BagError) as e:
         return _fail(str(e))
     try:

@@ -58,6 +58,7 @@ import numpy as np
 from ..calibration import CalibrationError, load_calibration
 from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
+from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
@@ -89,6 +90,8 @@ class NodeConfig:
     - ``calibration``: calibration YAML of ``aruco-abs-orient calibrate`` whose lever arms replace the
       static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static); empty:
       the lever arms come from tf.
+    - ``params``: tunables YAML (cfg/params.yaml's sections, any subset: ``aruco-abs-orient params``);
+      empty: the defaults. dynamic_reconfigure starts from its values (an explicit ``~name`` wins).
     - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
     - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
     - ``tf_timeout``: s (wall clock), how long to wait for ``odom → base_link`` at an image stamp.
@@ -109,6 +112,7 @@ class NodeConfig:
     estimate_time_offset: bool = True
     apply_estimated_time_offset: bool = True
     calibration: str = ""
+    params: str = ""
     publish_tf: bool = True
     tf_rate: float = 20.0
     tf_timeout: float = 0.05
@@ -146,6 +150,7 @@ class NodeConfig:
         if not config.markers:
             raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
         config.calibrated_lever_arms()  # read here, once: a file that does not load is one clear line at start-up
+        config.tunables()
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
@@ -158,6 +163,18 @@ class NodeConfig:
         """``{"camera": base_T_camera, "prism": base_T_prism}`` of ``calibration`` (None without one),
         read from the file on the first call only. Raises NodeConfigError naming the file and the key."""
         return self._calibrated_lever_arms
+
+    def tunables(self) -> Tunables:
+        """The pipeline's tunables from ``params`` (defaults without one), read on the first call only.
+        Raises NodeConfigError naming the file and the key."""
+        return self._tunables
+
+    @cached_property
+    def _tunables(self) -> Tunables:
+        try:
+            return load_params(self.params)
+        except ParamsError as e:
+            raise NodeConfigError(f"~params: {e}") from None
 
     @cached_property
     def _calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
@@ -306,6 +323,9 @@ class AbsOrientNode:
         except ImportError as e:
             self.rospy.logwarn(f"abs_orient: dynamic_reconfigure unavailable ({e}): parameters fixed at start-up")
             return
+        for name, value in self.config.tunables().flat().items():  # the server starts from ~params' values
+            if name in AbsOrientConfig.defaults and not self.rospy.has_param("~" + name):
+                self.rospy.set_param("~" + name, value)
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
 
     def _on_reconfigure(self, config, level):
@@ -415,7 +435,8 @@ class AbsOrientNode:
                 self._error("no_static_tf", f"waiting for the static tf {c.base_frame} -> {child}: {e}")
                 return False
         try:
-            self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame])
+            self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
+                                              **c.tunables().pipeline_kwargs())
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
         except PipelineError as e:
