@@ -206,7 +206,7 @@ class MarkerDetector:
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
         get their rejected quads within ``gate_deg`` of the view centre decoded
         (:func:`decode_quad`), as in :meth:`detect`; with ``expect_sizes`` (predicted
-        angular sizes, radians) only quads within 35 % of that size are tried.
+        angular sizes, radians) only quads within ``view_size_tolerance`` (35 %) of that size are tried.
         """
         if not views:
             return []
@@ -249,7 +249,7 @@ class MarkerDetector:
             if expect_sizes is None:
                 return True
             side = float(np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)))
-            return abs(side / (expect_sizes[k] * views[k].focal) - 1.0) <= 0.35
+            return abs(side / (expect_sizes[k] * views[k].focal) - 1.0) <= q.view_size_tolerance
 
         tries = [(k, quad) for c, k in ((c, tile_of(c)) for c in rejected)
                  if k >= 0 and k not in keep and near_centre(c, k)

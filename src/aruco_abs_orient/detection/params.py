@@ -91,6 +91,8 @@ class DetectorParams:
       (:class:`~.quads.EdgeFitParams`: profile contrast, half width, steps across, profiles along).
     - ``view_edge_samples``, ``view_edge_profiles``: the same two for OpenCV's finds in tracking ROI
       views, whose corners are close: short profiles do.
+    - ``view_size_tolerance``: in tracking ROI views, a rejected quad is read only if its side is
+      within this fraction of the predicted marker size.
 
     Noise model (1-σ centre bearing, radians, see :func:`bearing_sigma`):
 
@@ -166,6 +168,7 @@ class DetectorParams:
     edge_profiles: int = EdgeFitParams.along
     view_edge_samples: int = 12
     view_edge_profiles: int = 12
+    view_size_tolerance: float = 0.35
 
     corner_sigma_px: float = 0.03
     small_marker_side_px: float = 30.0
