@@ -37,7 +37,7 @@ from ..params import load_params
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
 from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
-from .cli import process_command
+from .cli import add_params_option, process_command
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
 
@@ -174,6 +174,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help=f"(default {getattr(d, name)})")
     for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
+    add_params_option(p)
     p.set_defaults(func=run)
     return p
 

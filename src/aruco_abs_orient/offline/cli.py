@@ -139,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .calibrate import add_parser as add_calibrate
 
-    add_params_option(add_calibrate(sub))
+    add_calibrate(sub)
 
     p = sub.add_parser("params", help="write the documented defaults of every tunable (cfg/params.yaml)",
                        description="Every tunable of the pipeline (pipeline, detection, filter) with its default and "
@@ -153,11 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def add_params_option(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """``--params YAML`` on a sub-command that runs the pipeline or the detector."""
+def add_params_option(p: argparse.ArgumentParser) -> None:
+    """``--params YAML`` on a sub-command that runs the pipeline or the detector (process, calibrate)."""
     p.add_argument("--params", metavar="YAML", help="tunables to change from their defaults (any subset of "
                    "cfg/params.yaml, written by `aruco-abs-orient params`)")
-    return p
 
 
 
