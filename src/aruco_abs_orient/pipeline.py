@@ -36,7 +36,7 @@ from .tracking import MarkerTracker, TrackingStats
 from .transforms import matrix_to_rpy, wrap_angle, yaw_of
 
 __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationResult", "PipelineError",
-           "PrismBuffer", "all_param_fields", "row_fraction"]
+           "PrismBuffer", "all_param_fields", "row_fraction", "PARAM_GROUPS"]
 
 #: longest gap (s) between two frames' odometry poses whose difference gives the rates that move the tilt
 #: and yaw to an observation's row time; beyond it the rates are taken as zero
@@ -117,13 +117,13 @@ class PipelineParams:
             raise PipelineError(f"PipelineParams.jpeg_reduce: expected 1, 2, 4 or 8, got {self.jpeg_reduce!r}")
 
 
+#: (group, params class) of every tunable the pipeline takes: cfg/params.yaml's sections, in its order
+PARAM_GROUPS = (("pipeline", PipelineParams), ("detection", DetectorParams), ("filter", FilterParams))
+
+
 def all_param_fields() -> List[Tuple[str, str, object]]:
     """(group, name, default) of every tunable: pipeline, detection, filter (flat, unique names)."""
-    out = []
-    for group, cls in (("pipeline", PipelineParams), ("detection", DetectorParams), ("filter", FilterParams)):
-        for f in fields(cls):
-            out.append((group, f.name, f.default))
-    return out
+    return [(group, f.name, f.default) for group, cls in PARAM_GROUPS for f in fields(cls)]
 
 
 @dataclass

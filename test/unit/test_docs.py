@@ -80,7 +80,8 @@ _REQUIRED = object()  # a launch arg without a default
 
 def default_matches(cell: str, default) -> bool:
     """Does a table cell state ``default``? Numbers within 0.5 % (rounded in the text), booleans as
-    true/false, strings in backticks, an empty string as 'required' or 'empty', None as 'unset'."""
+    true/false, tuples as YAML lists, strings in backticks, an empty string as 'required' or 'empty', None as
+    'unset'."""
     text = cell.lower()
     if default is _REQUIRED:
         return "required" in text
@@ -91,6 +92,10 @@ def default_matches(cell: str, default) -> bool:
     if isinstance(default, (int, float)):
         m = re.search(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", text)
         return m is not None and math.isclose(float(m.group(0)), float(default), rel_tol=5e-3, abs_tol=1e-12)
+    if isinstance(default, tuple):  # numbers, as the YAML list [a, b, ...]
+        m = re.findall(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", text)
+        return len(m) == len(default) and all(math.isclose(float(x), float(d), rel_tol=5e-3)
+                                              for x, d in zip(m, default))
     if default == "":
         return "required" in text or "empty" in text
     return f"`{default}`".lower() in text

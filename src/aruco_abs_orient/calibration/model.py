@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import GeometryError
 from ..markers import MarkerMap
+from ..pipeline import PipelineParams
 from ..transforms import make_T, rpy_to_matrix
 from ..tum import Trajectory
 
@@ -69,8 +70,8 @@ class CalibrationParams:
     max_turn_rate_deg: float = 30.0
     velocity_sigma: float = 0.01
     min_moving_time: float = 5.0
-    prism_max_gap: float = 0.5
-    prism_sigma: float = 0.005
+    prism_max_gap: float = PipelineParams.prism_max_gap
+    prism_sigma: float = PipelineParams.prism_sigma
     min_observations: int = 20
     min_markers: int = 2
     loss_scale: float = 2.0

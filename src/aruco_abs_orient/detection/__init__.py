@@ -40,7 +40,7 @@ The package, one module per stage (each says what goes in and what comes out):
 """
 
 from .backend import ArucoBackend
-from .detector import RESCUE_SHRINK, MarkerDetector
+from .detector import MarkerDetector
 from .images import decode_jpeg, to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectionError, DetectorParams
@@ -77,5 +77,4 @@ __all__ = [
     "decode_quads",
     "dedupe_observations",
     "image_sampler",
-    "RESCUE_SHRINK",
 ]

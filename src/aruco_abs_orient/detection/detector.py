@@ -25,9 +25,9 @@ from .images import to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectorParams
 from .quads import decode_quad, decode_quads, image_sampler, refine_quads
-from .sphere import decode_marker, decode_markers, marker_angular_size, refine_corners_many, sphere_centre_bearing
+from .sphere import decode_markers, marker_angular_size, refine_corners_many, sphere_centre_bearing
 
-__all__ = ["MarkerDetector", "RESCUE_SHRINK"]
+__all__ = ["MarkerDetector"]
 
 
 class MarkerDetector:
@@ -98,14 +98,14 @@ class MarkerDetector:
             c = np.array([corners[k] for k in wanted])
             b = to_bearing(c[..., 0], c[..., 1])
             if q.edge_refine and perspective:
-                rq = refine_quads(sample, c, bits, q.view_refine_iterations)
+                rq = refine_quads(sample, c, bits, q.view_refine_iterations, q.edge_fit())
                 b = np.where(np.isnan(rq).any(axis=(1, 2))[:, None, None], b, to_bearing(rq[..., 0], rq[..., 1]))
             elif q.edge_refine:
-                rb = refine_corners_many(grey, equirect, b, bits)
+                rb = refine_corners_many(grey, equirect, b, bits, fit=q.edge_fit())
                 b = np.where(np.isnan(rb).any(axis=(1, 2))[:, None, None], b, rb)
             if q.verify_decode and expect_id is None:
                 # OpenCV's id must be what the cells say (else a misread or a texture)
-                hits = decode_markers(grey, equirect, b, codes, *self._decode_thresholds())
+                hits = decode_markers(grey, equirect, b, codes, self.params.decode())
                 same = [k for k, (i, hit) in enumerate(zip(kept_ids, hits)) if hit is not None and hit[0] == i]
                 kept_ids, b = [kept_ids[k] for k in same], b[same]
             if kept_ids:
@@ -115,17 +115,17 @@ class MarkerDetector:
         small = q.rescue_max_side_px * 4.0 * scale
         large = math.radians(q.close_range_size_deg) / equirect.rad_per_px * 4.0 * scale
         # a small quad is the black square, the outline of its white quiet zone or a looser one
-        # (RESCUE_SHRINK): all refined and read at once in the image, then (equirect) again on
+        # (rescue_shrink): all refined and read at once in the image, then (equirect) again on
         # the sphere; a large one may be a close marker whose curved equirect image OpenCV
         # could not read: in a view read at once, in the equirect on the sphere only.
         rejected = np.array(rejected, dtype=float).reshape(-1, 4, 2)
         perimeters = np.sum(np.linalg.norm(rejected - np.roll(rejected, -1, axis=1), axis=2), axis=1)
         mid = rejected.mean(axis=1, keepdims=True)
-        shrunk = mid[:, None] + np.asarray(RESCUE_SHRINK)[None, :, None, None] * (rejected - mid)[:, None]
+        shrunk = mid[:, None] + np.asarray(q.rescue_shrink)[None, :, None, None] * (rejected - mid)[:, None]
         tries = shrunk[(perimeters <= small) | (perspective & (perimeters >= large))].reshape(-1, 4, 2)
-        refined = refine_quads(sample, tries, bits)
+        refined = refine_quads(sample, tries, bits, fit=q.edge_fit())
         refined = refined[~np.isnan(refined).any(axis=(1, 2))]
-        hits = [h for h in decode_quads(sample, refined, codes, *self._decode_thresholds())
+        hits = [h for h in decode_quads(sample, refined, codes, self.params.decode())
                 if h is not None and (expect_id is None or h[0] == expect_id)]
         if hits and perspective:
             out += self.observations(equirect, [h[0] for h in hits],
@@ -140,10 +140,10 @@ class MarkerDetector:
                 quads = shrunk[big].reshape(-1, 4, 2)
                 b = to_bearing(quads[..., 0], quads[..., 1])
                 # a quick loose reading first: most large quads are texture
-                loose = [k for k, h in enumerate(decode_markers(grey, equirect, b, codes, *_LOOSE_DECODE))
+                loose = [k for k, h in enumerate(decode_markers(grey, equirect, b, codes, q.loose_decode()))
                          if h is not None]
                 got = self._refined_and_read(grey, equirect, b[loose], [expect_id] * len(loose), method,
-                                             keys=[k // len(RESCUE_SHRINK) for k in loose])
+                                             keys=[k // len(q.rescue_shrink) for k in loose])
                 out += got
         return dedupe_observations(out)
 
@@ -163,9 +163,9 @@ class MarkerDetector:
                 if keys[k] not in seen:
                     seen.add(keys[k])
                     batch.append(k)
-            rb = refine_corners_many(grey, equirect, corners[batch], self.backend.bits)
+            rb = refine_corners_many(grey, equirect, corners[batch], self.backend.bits, fit=self.params.edge_fit())
             good = np.flatnonzero(~np.isnan(rb).any(axis=(1, 2)))
-            hits = decode_markers(grey, equirect, rb[good], self.backend.codes, *self._decode_thresholds())
+            hits = decode_markers(grey, equirect, rb[good], self.backend.codes, self.params.decode())
             done = set()
             for j, hit in zip(good, hits):
                 k = batch[j]
@@ -194,13 +194,6 @@ class MarkerDetector:
         return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, img, map_step <= 4,
                             expect_id)
 
-    def _decode_thresholds(self) -> Tuple[float, float, float, float]:
-        q = self.params
-        return (q.decode_min_contrast, q.decode_min_correlation, q.decode_min_lead, q.decode_min_pattern_correlation)
-
-    def _decode(self, grey: np.ndarray, equirect: Equirect, corners: np.ndarray):
-        return decode_marker(grey, equirect, corners, self.backend.codes, *self._decode_thresholds())
-
     def detect_in_views(self, grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView],
                         maps: Sequence[Tuple[np.ndarray, np.ndarray]], expect_ids: Sequence[int],
                         method: str = "tracked", expect_sizes: Optional[Sequence[float]] = None
@@ -213,7 +206,7 @@ class MarkerDetector:
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
         get their rejected quads within ``gate_deg`` of the view centre decoded
         (:func:`decode_quad`), as in :meth:`detect`; with ``expect_sizes`` (predicted
-        angular sizes, radians) only quads within 35 % of that size are tried.
+        angular sizes, radians) only quads within ``view_size_tolerance`` (35 %) of that size are tried.
         """
         if not views:
             return []
@@ -256,11 +249,11 @@ class MarkerDetector:
             if expect_sizes is None:
                 return True
             side = float(np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)))
-            return abs(side / (expect_sizes[k] * views[k].focal) - 1.0) <= 0.35
+            return abs(side / (expect_sizes[k] * views[k].focal) - 1.0) <= q.view_size_tolerance
 
         tries = [(k, quad) for c, k in ((c, tile_of(c)) for c in rejected)
                  if k >= 0 and k not in keep and near_centre(c, k)
-                 for quad in (c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for shrink in RESCUE_SHRINK)
+                 for quad in (c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for shrink in q.rescue_shrink)
                  if plausible(quad, k)]
         # OpenCV's finds and the rejected quads worth reading, refined in one batch; OpenCV's
         # corners in a view are close: short profiles do (12 × 12 per edge)
@@ -268,13 +261,13 @@ class MarkerDetector:
         if not batch:
             return []
         quads = np.array([b[1] for b in batch])
-        refined = (refine_quads(sample, quads, bits, q.view_refine_iterations, along=12, samples=12)
+        refined = (refine_quads(sample, quads, bits, q.view_refine_iterations, q.edge_fit(view=True))
                    if q.edge_refine or tries else quads)
         for (k, c, read_by_opencv), r in zip(batch, refined):
             if read_by_opencv:
                 add(k, expect_ids[k], c if (np.isnan(r).any() or not q.edge_refine) else r)
             elif k not in found and not np.isnan(r).any():
-                hit = decode_quad(sample, r, self.backend.codes, *self._decode_thresholds())
+                hit = decode_quad(sample, r, self.backend.codes, self.params.decode())
                 if hit is not None and hit[0] == expect_ids[k]:
                     add(k, hit[0], hit[1])
         return self.observations(equirect, marker_ids, np.array(bearings), method) if bearings else []
@@ -400,10 +393,3 @@ def _straddles_seam(obs: MarkerObservation, equirect: Equirect) -> bool:
     """True when the marker's corners lie on both sides of the ±180° seam (column −0.5 ≡ W−0.5)."""
     u = obs.corners_px[:, 0]
     return bool(u.min() < -0.5 < u.max() or u.min() < equirect.width - 0.5 < u.max())
-
-
-#: decode thresholds of a quick first reading of a large rejected quad from OpenCV's corners
-_LOOSE_DECODE = (20.0, 0.5, 0.05, 0.6)
-#: scales tried on a rejected quad: the black square itself, the outline of its white quiet
-#: zone (6/8 for 4×4 codes), a looser outline (OpenCV's candidate merging keeps either)
-RESCUE_SHRINK = (1.0, 0.75, 0.55)

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import Tuple
 
 from ..errors import InputFileError
+from .quads import DecodeParams, EdgeFitParams
 
 __all__ = ["DetectionError", "DetectorParams"]
 
@@ -22,7 +24,8 @@ class DetectionError(InputFileError, ValueError):
 
 @dataclass
 class DetectorParams:
-    """Every knob of detection and tracking, flat scalars (exposed via dynamic_reconfigure).
+    """Every knob of detection and tracking, flat (cfg/params.yaml's ``detection`` section; those
+    worth changing live are also in cfg/AbsOrient.cfg, for dynamic_reconfigure).
 
     cv2.aruco (see ``cv2.aruco.DetectorParameters``):
 
@@ -71,11 +74,25 @@ class DetectorParams:
       it unless the cells give the same id (OpenCV misreads small markers on texture).
     - ``rescue_max_side_px``: quads OpenCV rejected with sides up to this (equirect pixels)
       are refined and read by :func:`decode_quad` (as they are, and shrunk by
-      ``RESCUE_SHRINK``); this is what reaches 12 m (9–10 px markers at 3840 px).
+      ``rescue_shrink``); this is what reaches 12 m (9–10 px markers at 3840 px).
+    - ``rescue_shrink``: scales tried on a rejected quad: the black square itself, the outline of
+      its white quiet zone (6/8 for 4×4 codes), a looser outline (OpenCV's candidate merging
+      keeps either).
     - ``close_range_size_deg``: so are rejected quads with sides above this (degrees): close
       markers whose equirect image is too curved for OpenCV to read.
     - ``decode_min_contrast`` (grey levels), ``decode_min_correlation``, ``decode_min_lead``,
-      ``decode_min_pattern_correlation``: acceptance thresholds of :func:`decode_marker`.
+      ``decode_min_pattern_correlation``: acceptance thresholds of :func:`decode_marker`
+      (:class:`~.quads.DecodeParams`).
+    - ``loose_decode_min_contrast``, ``loose_decode_min_correlation``, ``loose_decode_min_lead``,
+      ``loose_decode_min_pattern_correlation``: the same for a quick first reading of a large
+      rejected quad from OpenCV's corners in the equirect (most are texture).
+    - ``edge_min_contrast`` (grey levels), ``edge_min_half_px`` (pixels), ``edge_half_bits`` (bits),
+      ``edge_samples``, ``edge_profiles``: how :func:`refine_quads` fits a marker's edges
+      (:class:`~.quads.EdgeFitParams`: profile contrast, half width, steps across, profiles along).
+    - ``view_edge_samples``, ``view_edge_profiles``: the same two for OpenCV's finds in tracking ROI
+      views, whose corners are close: short profiles do.
+    - ``view_size_tolerance``: in tracking ROI views, a rejected quad is read only if its side is
+      within this fraction of the predicted marker size.
 
     Noise model (1-σ centre bearing, radians, see :func:`bearing_sigma`):
 
@@ -135,10 +152,23 @@ class DetectorParams:
     view_refine_iterations: int = 2
     verify_decode: bool = True
     rescue_max_side_px: float = 30.0
-    decode_min_contrast: float = 40.0
-    decode_min_correlation: float = 0.75
-    decode_min_lead: float = 0.15
-    decode_min_pattern_correlation: float = 0.9
+    rescue_shrink: Tuple[float, ...] = (1.0, 0.75, 0.55)
+    decode_min_contrast: float = DecodeParams.min_contrast
+    decode_min_correlation: float = DecodeParams.min_correlation
+    decode_min_lead: float = DecodeParams.min_lead
+    decode_min_pattern_correlation: float = DecodeParams.min_pattern_correlation
+    loose_decode_min_contrast: float = 20.0
+    loose_decode_min_correlation: float = 0.5
+    loose_decode_min_lead: float = 0.05
+    loose_decode_min_pattern_correlation: float = 0.6
+    edge_min_contrast: float = EdgeFitParams.min_contrast
+    edge_min_half_px: float = EdgeFitParams.min_half_px
+    edge_half_bits: float = EdgeFitParams.half_bits
+    edge_samples: int = EdgeFitParams.samples
+    edge_profiles: int = EdgeFitParams.along
+    view_edge_samples: int = 12
+    view_edge_profiles: int = 12
+    view_size_tolerance: float = 0.35
 
     corner_sigma_px: float = 0.03
     small_marker_side_px: float = 30.0
@@ -166,6 +196,10 @@ class DetectorParams:
             v = getattr(self, f.name)
             if isinstance(v, (bool, str)):
                 continue
+            if isinstance(v, tuple):
+                if not v or not all(isinstance(x, (int, float)) and 0.0 < x <= 1.0 for x in v):
+                    raise DetectionError(f"DetectorParams.{f.name}: expected a list of scales in (0, 1], got {v!r}")
+                continue
             if not math.isfinite(v) or v < 0:
                 raise DetectionError(f"DetectorParams.{f.name}: expected a finite non-negative number, got {v!r}")
         if self.corner_refinement not in _REFINE:
@@ -178,6 +212,25 @@ class DetectorParams:
             raise DetectionError(f"DetectorParams.pole_band_deg: expected (0, 90) degrees, got {self.pole_band_deg}")
         if self.sweep_period_frames < 1:
             raise DetectionError("DetectorParams.sweep_period_frames: expected ≥ 1")
+        for name in ("edge_samples", "edge_profiles", "view_edge_samples", "view_edge_profiles"):
+            if getattr(self, name) < 2:
+                raise DetectionError(f"DetectorParams.{name}: expected ≥ 2, got {getattr(self, name)!r}")
+
+    def decode(self) -> DecodeParams:
+        """The acceptance thresholds of a reading (``decode_*``)."""
+        return DecodeParams(self.decode_min_contrast, self.decode_min_correlation, self.decode_min_lead,
+                            self.decode_min_pattern_correlation)
+
+    def loose_decode(self) -> DecodeParams:
+        """The thresholds of the quick first reading of a large rejected quad (``loose_decode_*``)."""
+        return DecodeParams(self.loose_decode_min_contrast, self.loose_decode_min_correlation,
+                            self.loose_decode_min_lead, self.loose_decode_min_pattern_correlation)
+
+    def edge_fit(self, view: bool = False) -> EdgeFitParams:
+        """The edge fit of :func:`refine_quads` (``edge_*``; ``view``: in a tracking ROI view, ``view_edge_*``)."""
+        return EdgeFitParams(self.edge_min_contrast, self.edge_min_half_px, self.edge_half_bits,
+                             self.view_edge_samples if view else self.edge_samples,
+                             self.view_edge_profiles if view else self.edge_profiles)
 
 
 _REFINE = {"none": "CORNER_REFINE_NONE", "subpix": "CORNER_REFINE_SUBPIX",

@@ -10,12 +10,52 @@ tracking ROI); never in the equirect, whose edges are curved.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import List, Optional, Tuple
 
 import cv2
 import numpy as np
 
-__all__ = ["refine_quad", "refine_quads", "decode_quad", "decode_quads", "image_sampler"]
+__all__ = ["EdgeFitParams", "DecodeParams", "refine_quad", "refine_quads", "decode_quad", "decode_quads",
+           "image_sampler"]
+
+
+@dataclass(frozen=True)
+class EdgeFitParams:
+    """How :func:`refine_quads` finds a quad's edges (the detector's ``edge_*`` fields set them).
+
+    - ``min_contrast``: grey levels a profile across an edge must rise by to count.
+    - ``min_half_px``, ``half_bits``: a profile spans ±max(``half_bits`` bit, ``min_half_px`` pixels)
+      of the current line.
+    - ``samples``: steps across the edge per profile; ``along``: profiles along each edge.
+    """
+
+    min_contrast: float = 12.0
+    min_half_px: float = 1.5
+    half_bits: float = 0.45
+    samples: int = 16
+    along: int = 20
+
+
+@dataclass(frozen=True)
+class DecodeParams:
+    """Acceptance thresholds of :func:`decode_quads` (the detector's ``decode_*`` fields set them).
+
+    - ``min_contrast``: grey levels every quiet-zone cell must be brighter than every border cell.
+    - ``min_correlation``: correlation of the inner cells with the best code/order.
+    - ``min_lead``: lead of that correlation over every other code/order.
+    - ``min_pattern_correlation``: correlation of the whole pattern (quiet zone, border, bits).
+    """
+
+    min_contrast: float = 40.0
+    min_correlation: float = 0.75
+    min_lead: float = 0.15
+    min_pattern_correlation: float = 0.9
+
+
+#: the defaults, for the functions' default arguments
+EDGE_FIT = EdgeFitParams()
+DECODE = DecodeParams()
 
 
 def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) -> np.ndarray:
@@ -31,27 +71,29 @@ def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) ->
     return out.reshape(-1)[:n].astype(float).reshape(x.shape)
 
 
-def refine_quad(sample, q: np.ndarray, bits: int = 6, iterations: int = 2, **kw) -> Optional[np.ndarray]:
+def refine_quad(sample, q: np.ndarray, bits: int = 6, iterations: int = 2,
+                fit: EdgeFitParams = EDGE_FIT) -> Optional[np.ndarray]:
     """Refined corners (4, 2) of one marker quad, or None: :func:`refine_quads` for one."""
-    r = refine_quads(sample, np.asarray(q, dtype=float)[None], bits, iterations, **kw)[0]
+    r = refine_quads(sample, np.asarray(q, dtype=float)[None], bits, iterations, fit)[0]
     return None if np.isnan(r).any() else r
 
 
-def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2, min_contrast: float = 12.0,
-                 min_half_px: float = 1.5, half_bits: float = 0.45, samples: int = 16,
-                 along: int = 20) -> np.ndarray:
+def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2,
+                 fit: EdgeFitParams = EDGE_FIT) -> np.ndarray:
     """Refined corners (M, 4, 2) of markers' black squares in a perspective image; NaN rows
     for the quads that fail (too small, too little contrast, diverging).
 
     ``sample(pts, rows)``: grey levels at image points (R, ..., 2) (pixels) of the quads
     ``rows`` (R indices into ``quads``; :func:`image_sampler`); ``quads`` (M, 4, 2):
-    approximate corners. Along each edge (``along`` profiles) the intensity profile across
+    approximate corners. Along each edge (``fit.along`` profiles) the intensity profile across
     it is sampled, the edge is located at the centroid of the black→white gradient within
-    ±max(``half_bits`` bit, ``min_half_px`` pixels) of the current line (``samples`` steps),
-    a line is fitted to each edge (robust total least squares) and adjacent lines are
+    ±max(``fit.half_bits`` bit, ``fit.min_half_px`` pixels) of the current line (``fit.samples``
+    steps), a line is fitted to each edge (robust total least squares) and adjacent lines are
     intersected; iterated ``iterations`` times, re-centring the profiles on the new lines.
-    ``min_contrast``: grey levels a profile must rise by to count. All markers at once.
+    ``fit.min_contrast``: grey levels a profile must rise by to count. All markers at once.
     """
+    min_contrast, min_half_px, half_bits, samples, along = (fit.min_contrast, fit.min_half_px, fit.half_bits,
+                                                            fit.samples, fit.along)
     q = np.array(quads, dtype=float).reshape(-1, 4, 2)
     alive = np.ones(len(q), dtype=bool)
     s = np.linspace(0.15, 0.85, along)
@@ -107,32 +149,31 @@ def image_sampler(img: np.ndarray):
     return sample
 
 
-def decode_quad(sample, q: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
-                min_correlation: float = 0.75, min_lead: float = 0.15,
-                min_pattern_correlation: float = 0.9) -> Optional[Tuple[int, np.ndarray]]:
+def decode_quad(sample, q: np.ndarray, codes: np.ndarray,
+                thresholds: DecodeParams = DECODE) -> Optional[Tuple[int, np.ndarray]]:
     """Read a marker quad (4, 2) of a perspective image: ``(id, corners (4, 2) in ArUco
     order)`` or None. ``sample(pts)``: grey levels at image points (..., 2).
 
     For small markers whose bits OpenCV cannot threshold (1–2 px cells, blurred). The
     centres of the marker's cells and of the one-cell white quiet zone around it are mapped
     by the quad's homography, 3×3 sub-samples per cell. Accepted when every quiet-zone cell
-    is brighter than every border cell by ≥ ``min_contrast`` grey levels, and the Pearson
-    correlation of the inner cells' grey levels with one code's bits, in one of the four
-    corner orders, is ≥ ``min_correlation`` and leads every other code/order by
+    is brighter than every border cell by ≥ ``thresholds.min_contrast`` grey levels, and the
+    Pearson correlation of the inner cells' grey levels with one code's bits, in one of the
+    four corner orders, is ≥ ``min_correlation`` and leads every other code/order by
     ≥ ``min_lead`` (a soft decision: blur lowers isolated white bits below any fixed
     threshold, not their rank), and the whole 8×8 pattern (quiet zone, border, bits)
-    correlates ≥ ``min_pattern_correlation`` with the grey levels.
+    correlates ≥ ``min_pattern_correlation`` with the grey levels (:class:`DecodeParams`).
     ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
     """
-    return decode_quads(lambda pts: sample(pts[0])[None], np.asarray(q, dtype=float)[None], codes, min_contrast,
-                        min_correlation, min_lead, min_pattern_correlation)[0]
+    return decode_quads(lambda pts: sample(pts[0])[None], np.asarray(q, dtype=float)[None], codes, thresholds)[0]
 
 
-def decode_quads(sample, quads: np.ndarray, codes: np.ndarray, min_contrast: float = 40.0,
-                 min_correlation: float = 0.75, min_lead: float = 0.15,
-                 min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
+def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
+                 thresholds: DecodeParams = DECODE) -> List[Optional[Tuple[int, np.ndarray]]]:
     """:func:`decode_quad` of M quads (M, 4, 2) at once: ``sample(pts)`` gets the points
     (M, ..., 2) of all of them in one call; one ``(id, corners)`` or None per quad."""
+    min_contrast, min_correlation, min_lead, min_pattern_correlation = (
+        thresholds.min_contrast, thresholds.min_correlation, thresholds.min_lead, thresholds.min_pattern_correlation)
     quads = np.asarray(quads, dtype=float).reshape(-1, 4, 2)
     if not len(quads):
         return []

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from ..camera import Equirect, GnomonicView, angle_between
-from .quads import _remap_points, decode_quads, refine_quads
+from .quads import DECODE, EDGE_FIT, DecodeParams, EdgeFitParams, _remap_points, decode_quads, refine_quads
 
 __all__ = ["sphere_centre_bearing", "pixel_centre_bearing", "marker_angular_size", "refine_corners",
            "refine_corners_many", "decode_marker", "decode_markers"]
@@ -128,7 +128,7 @@ def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6, iterations: int = 2,
-                   ) -> Optional[np.ndarray]:
+                   fit: EdgeFitParams = EDGE_FIT) -> Optional[np.ndarray]:
     """Refined corner bearings (4, 3) of a marker from approximate ones (4, 3), or None.
 
     The four outer edges of the black square are straight lines in a gnomonic view centred
@@ -137,19 +137,19 @@ def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
     (one bilinear interpolation, through camera.py's mappings).
     ``bits``: cells across the marker including its black border (6 for 4×4 dictionaries).
     """
-    r = refine_corners_many(grey, equirect, np.asarray(corners, dtype=float)[None], bits, iterations)[0]
+    r = refine_corners_many(grey, equirect, np.asarray(corners, dtype=float)[None], bits, iterations, fit)[0]
     return None if np.isnan(r).any() else r
 
 
 def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
-                        iterations: int = 2) -> np.ndarray:
+                        iterations: int = 2, fit: EdgeFitParams = EDGE_FIT) -> np.ndarray:
     """:func:`refine_corners` of M markers (corner bearings (M, 4, 3)) at once, each in its
     own virtual view, all profiles sampled in one remap: (M, 4, 3), NaN rows for failures."""
     mv = _MarkerViews(equirect, corners)
     out = np.full((len(mv.quads), 4, 3), np.nan)
     sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
     if len(sel):
-        r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations)
+        r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations, fit)
         good = ~np.isnan(r).any(axis=(1, 2))
         if np.any(good):
             out[sel[good]] = mv.bearings(r[good], sel[good])
@@ -157,28 +157,24 @@ def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int
 
 
 def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
-                  min_contrast: float = 40.0, min_correlation: float = 0.75,
-                  min_lead: float = 0.15, min_pattern_correlation: float = 0.9) -> Optional[Tuple[int, np.ndarray]]:
+                  thresholds: DecodeParams = DECODE) -> Optional[Tuple[int, np.ndarray]]:
     """Read a candidate quad (corner bearings (4, 3)) straight from the equirect:
     ``(id, corner bearings in ArUco order)`` or None. :func:`decode_quad` in a virtual
     gnomonic view centred on the quad (exact homography for a planar marker), sampling the
     equirect through camera.py's mappings.
     """
-    return decode_markers(grey, equirect, np.asarray(corners, dtype=float)[None], codes, min_contrast,
-                          min_correlation, min_lead, min_pattern_correlation)[0]
+    return decode_markers(grey, equirect, np.asarray(corners, dtype=float)[None], codes, thresholds)[0]
 
 
 def decode_markers(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
-                   min_contrast: float = 40.0, min_correlation: float = 0.75, min_lead: float = 0.15,
-                   min_pattern_correlation: float = 0.9) -> List[Optional[Tuple[int, np.ndarray]]]:
+                   thresholds: DecodeParams = DECODE) -> List[Optional[Tuple[int, np.ndarray]]]:
     """:func:`decode_marker` of M candidate quads (corner bearings (M, 4, 3)) at once, all
     cells sampled in one remap: one ``(id, corner bearings)`` or None per quad."""
     mv = _MarkerViews(equirect, corners)
     out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(mv.quads)
     sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
     if len(sel):
-        hits = decode_quads(mv.sampler(grey, sel), mv.quads[sel], codes, min_contrast, min_correlation, min_lead,
-                            min_pattern_correlation)
+        hits = decode_quads(mv.sampler(grey, sel), mv.quads[sel], codes, thresholds)
         for k, hit in zip(sel, hits):
             if hit is not None:
                 out[k] = (hit[0], mv.bearings(hit[1][None], [k])[0])

@@ -33,11 +33,12 @@ from ..calibration import (
 )
 from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..markers import MarkerMap, MarkerMapError
+from ..params import load_params
 from ..pipeline import row_fraction
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
 from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
-from .cli import process_command
+from .cli import add_params_option, process_command
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
 
@@ -192,6 +193,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help=f"(default {getattr(d, name)})")
     for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
+    add_params_option(p)
     p.set_defaults(func=run)
     return p
 
@@ -223,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         marker_map = MarkerMap.load(args.markers)
         data = read_bag_data(args.bag, topics)
         obs = collect_observations(args.bag, marker_map, topics, progress=not args.quiet, data=data,
-                                   every=args.every)
+                                   every=args.every, detector_params=load_params(args.params).detection)
     except (MarkerMapError, BagError) as e:
         return _fail(str(e))
     try:

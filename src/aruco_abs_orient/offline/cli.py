@@ -14,11 +14,14 @@ import json
 import os
 import shlex
 import sys
+from dataclasses import replace
 from typing import List, Optional
 
 from ..errors import AbsOrientError
 from ..markers import MarkerMap
+from ..params import defaults_yaml, load_params
 from ..pipeline import PipelineParams
+from ..tum import atomic_write_text
 from .bagio import Bags, BagTopics, bag_paths, bags_for_shell, expand_bags
 from .evaluate import parse_after
 
@@ -81,11 +84,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", metavar="YAML",
                    help="lever arms and camera rotation from this calibration file (written by `calibrate`) "
                         "instead of the bag's /tf_static")
-    p.add_argument("--jpeg-reduce", type=int, choices=(1, 2, 4, 8), default=PipelineParams.jpeg_reduce,
-                   help="decode images at 1/N resolution (default 1: full; faster, less accurate)")
+    p.add_argument("--jpeg-reduce", type=int, choices=(1, 2, 4, 8),
+                   help=f"decode images at 1/N resolution (default {PipelineParams.jpeg_reduce}: full; faster, less "
+                        "accurate); overrides the params file's pipeline.jpeg_reduce")
     p.add_argument("--no-prism", action="store_true",
                    help="markers only: ignore the prism, each frame's pose from a resection on its markers (>= 3, "
                         "or 2 with the tilt); see the field guide, 'Without a total station'")
+    add_params_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
 
@@ -142,7 +147,24 @@ def build_parser() -> argparse.ArgumentParser:
     from .calibrate import add_parser as add_calibrate
 
     add_calibrate(sub)
+
+    p = sub.add_parser("params", help="write the documented defaults of every tunable (cfg/params.yaml)",
+                       description="Every tunable of the pipeline (pipeline, detection, filter) with its default and "
+                       "its description, as the YAML file --params and the node's ~params read. Copy it, keep "
+                       "the lines you change.",
+                       epilog="examples:\n  aruco-abs-orient params --out my_params.yaml\n"
+                              "  aruco-abs-orient process run.bag --markers markers.yaml --out results/ "
+                              "--params my_params.yaml",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", metavar="YAML", help="write it here (default: print it)")
     return parser
+
+
+def add_params_option(p: argparse.ArgumentParser) -> None:
+    """``--params YAML`` on a sub-command that runs the pipeline or the detector (process, calibrate)."""
+    p.add_argument("--params", metavar="YAML", help="tunables to change from their defaults (any subset of "
+                   "cfg/params.yaml, written by `aruco-abs-orient params`)")
+
 
 
 def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
@@ -168,15 +190,18 @@ def cmd_process(a: argparse.Namespace) -> int:
         return _fail(f"{a.markers}: --no-prism needs at least 3 markers in the map for a resection, it has "
                      f"{len(marker_map)}")
     calibration = load_calibration(a.calibration) if a.calibration else None
+    tunables = load_params(a.params)
     try:
         os.makedirs(a.out, exist_ok=True)
     except OSError as e:
         return _fail(f"{a.out}: cannot create the output directory: {e.strerror}")
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
-    params = PipelineParams(jpeg_reduce=a.jpeg_reduce, markers_only=a.no_prism)
+    params = tunables.pipeline if a.jpeg_reduce is None else replace(tunables.pipeline, jpeg_reduce=a.jpeg_reduce)
+    params = replace(params, markers_only=a.no_prism)
     result = process_bag(a.bag, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
-                         progress=not a.quiet, calibration=calibration)
+                         progress=not a.quiet, calibration=calibration, detector_params=tunables.detection,
+                         filter_params=tunables.filter)
     s = result.summary
     print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
     for w in s["warnings"]:
@@ -246,6 +271,16 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_params(a: argparse.Namespace) -> int:
+    text = defaults_yaml()
+    if a.out:
+        atomic_write_text(a.out, text)
+        print(f"wrote {a.out}")
+    else:
+        print(text, end="")
+    return 0
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
@@ -254,7 +289,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             a.bag = expand_bags(a.bag)
         if a.command == "calibrate":
             return a.func(a)
-        return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate}[a.command](a)
+        return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate,
+                "params": cmd_params}[a.command](a)
     except AbsOrientError as e:  # every error of the package: its message says what, where, what was expected
         return _fail(str(e))
     except KeyboardInterrupt:

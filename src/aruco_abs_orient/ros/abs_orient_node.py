@@ -57,7 +57,7 @@ import sys
 import threading
 import time
 import traceback
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 from typing import Deque, Dict, Optional, Tuple
 
@@ -69,7 +69,8 @@ from ..detection import DetectionError, decode_jpeg
 from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
 from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth
-from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, PipelineParams, all_param_fields
+from ..params import ParamsError, Tunables, load_params
+from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import RollingSelfCheck
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
@@ -102,6 +103,8 @@ class NodeConfig:
       whose ``camera_readout_ms`` (rolling shutter) is used; empty: the lever arms come from tf, global
       shutter. Stamp convention of the camera driver: an image's stamp is the capture time of its MIDDLE
       row; row v of H is captured at stamp + (v/H − ½)·readout.
+    - ``params``: tunables YAML (cfg/params.yaml's sections, any subset: ``aruco-abs-orient params``);
+      empty: the defaults. dynamic_reconfigure starts from its values (an explicit ``~name`` wins).
     - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
     - ``transform_tolerance``: s, map→odom estimated at time t is stamped t + this (future-dated, as amcl).
     - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
@@ -133,6 +136,7 @@ class NodeConfig:
     estimate_time_offset: bool = True
     apply_estimated_time_offset: bool = True
     calibration: str = ""
+    params: str = ""
     publish_tf: bool = True
     transform_tolerance: float = 0.1
     tf_rate: float = 20.0
@@ -179,6 +183,7 @@ class NodeConfig:
         if not config.markers:
             raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
         config.calibrated_lever_arms()  # read here, once: a file that does not load is one clear line at start-up
+        config.tunables()
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
@@ -199,6 +204,18 @@ class NodeConfig:
         """``{"camera": base_T_camera, "prism": base_T_prism}`` of ``calibration`` (None without one),
         read from the file on the first call only. Raises NodeConfigError naming the file and the key."""
         return self._calibrated_lever_arms
+
+    def tunables(self) -> Tunables:
+        """The pipeline's tunables from ``params`` (defaults without one), read on the first call only.
+        Raises NodeConfigError naming the file and the key."""
+        return self._tunables
+
+    @cached_property
+    def _tunables(self) -> Tunables:
+        try:
+            return load_params(self.params)
+        except ParamsError as e:
+            raise NodeConfigError(f"~params: {e}") from None
 
     @cached_property
     def _calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
@@ -402,6 +419,9 @@ class AbsOrientNode:
         except ImportError as e:
             self.rospy.logwarn(f"abs_orient: dynamic_reconfigure unavailable ({e}): parameters fixed at start-up")
             return
+        for name, value in self.config.tunables().flat().items():  # the server starts from ~params' values
+            if name in AbsOrientConfig.defaults and not self.rospy.has_param("~" + name):
+                self.rospy.set_param("~" + name, value)
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
 
     def _on_reconfigure(self, config, level):
@@ -522,8 +542,11 @@ class AbsOrientNode:
                 return False
         try:
             readout = 0.0 if calibrated is None else float(calibrated.get("readout", 0.0))  # rolling shutter, s
+            kwargs = c.tunables().pipeline_kwargs()
+            if c.markers_only:
+                kwargs["params"] = replace(kwargs["params"], markers_only=True)
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
-                                              PipelineParams(markers_only=c.markers_only), readout=readout)
+                                              readout=readout, **kwargs)
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
         except PipelineError as e:
