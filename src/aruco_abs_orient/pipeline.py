@@ -373,6 +373,11 @@ class AbsOrientPipeline:
         tracker_gated = {id(o) for o in gated}
         for o in list(observations) + list(gated):
             m = self.marker_map[o.id]  # the tracker only returns ids of the map
+            if not m.visible_from(prism_p, margin=float(np.linalg.norm(self.base_T_camera[:3, 3]
+                                                                       - self.base_T_prism[:3, 3]))):
+                self._count("rejected_behind")
+                res.observations.append(ObservationResult(o, reason="seen from behind its surveyed face (wrong id)"))
+                continue
             try:
                 est = yaw_from_marker(
                     o.centre, m.position, prism_p, float(roll), float(pitch), self.base_T_camera,

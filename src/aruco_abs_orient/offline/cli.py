@@ -18,8 +18,15 @@ from typing import List, Optional
 
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import PipelineError, PipelineParams
-from .bagio import BagError, Bags, BagTopics, bag_paths, bags_for_shell, expand_bags
+from .bagio import BagError, Bags, BagTopics, bag_name, bags_for_shell, expand_bags
 from .evaluate import parse_after
+
+VIDEO_EXAMPLES = """video input (no bag: a 360° video, its VO trajectory, the prism log; doc/field_guide.md):
+  aruco-abs-orient timesync --video run.mp4 --trajectory frame_trajectory.txt --trajectory-frame camera_optical \
+      --prism prism.gsi --lever-arms lever_arms.yaml
+  aruco-abs-orient process --video run.mp4 --trajectory frame_trajectory.txt --trajectory-frame camera_optical \
+      --prism prism.gsi --lever-arms lever_arms.yaml --markers markers.yaml --out results/ --time-offset -1699999999.633
+"""
 
 BAGS_HELP = ("; several bags (a `rosbag record --split` recording, in any order) or a quoted glob such as "
              "'run_*.bag' are read as one recording in time order")
@@ -34,7 +41,53 @@ EXAMPLES = """examples:
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --time-offset 0.367 \\
       --calibration calibration.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --image-topic /theta/image/compressed
-"""
+""" + VIDEO_EXAMPLES
+
+
+def add_video_inputs(p: argparse.ArgumentParser) -> None:
+    """The options of a recording without a bag (video + VO trajectory + prism log)."""
+    from .prism import PRISM_FORMATS
+    from .video import TRAJECTORY_FRAMES
+
+    g = p.add_argument_group("video input, instead of a bag (doc/field_guide.md: The video workflow)")
+    g.add_argument("--video", metavar="FILE", help="equirectangular MP4/MOV/MKV (frame times: container timestamps)")
+    g.add_argument("--trajectory", metavar="TUM", help="VO trajectory on the video's clock (stella_vslam's "
+                   "frame_trajectory.txt, evo): t x y z qx qy qz qw")
+    g.add_argument("--trajectory-frame", choices=TRAJECTORY_FRAMES, default="base_link",
+                   help="the frame the trajectory gives: base_link, camera (x forward at the image centre, y "
+                        "left, z up) or camera_optical (stella_vslam/OpenVSLAM: x right, y down, z forward); "
+                        "default base_link")
+    g.add_argument("--prism", metavar="FILE", help="prism log on the total station's clock: CSV t,x,y,z, the "
+                   "ms60_driver ~log, or a GSI-16 tracking export (time in word 71)")
+    g.add_argument("--prism-format", choices=PRISM_FORMATS, default="auto", help="(default auto)")
+    g.add_argument("--lever-arms", metavar="YAML", help="base_link_to_camera / base_link_to_prism {xyz, rpy_deg} "
+                   "(the format `calibrate` writes; --calibration works too)")
+    g.add_argument("--video-start", choices=("zero", "creation"), default="zero",
+                   help="the video clock starts at 0 or at the creation time in its metadata (default zero)")
+
+
+def video_recording(a: argparse.Namespace, marker_map: Optional[MarkerMap] = None):
+    """The VideoRecording the options describe, or None when no --video was given; BagError for an incomplete
+    set (which option is missing) or a video given together with bags."""
+    if not getattr(a, "video", None):
+        if getattr(a, "bag", None) in (None, [], ""):
+            raise BagError("no input: expected a bag, or --video with --trajectory, --prism and --lever-arms")
+        return None
+    from ..calibration import load_calibration
+    from .video import VideoRecording
+
+    if a.bag:
+        raise BagError("a bag and --video given: expected one recording (a bag, or a video with its files)")
+    missing = [o for o, v in (("--trajectory", a.trajectory), ("--prism", a.prism),
+                              ("--lever-arms (or --calibration)", a.lever_arms or getattr(a, "calibration", None)))
+               if not v]
+    if missing:
+        raise BagError(f"--video {a.video}: missing {', '.join(missing)}")
+    levers = load_calibration(a.lever_arms or a.calibration)
+    origin = marker_map.origin if marker_map is not None and marker_map.origin is not None else (0.0, 0.0, 0.0)
+    return VideoRecording(a.video, a.trajectory, a.prism, levers["camera"], levers["prism"], a.trajectory_frame,
+                          a.video_start, tuple(float(x) for x in origin), a.prism_format,
+                          lever_arms=a.lever_arms or a.calibration)
 
 
 def _add_topics(p: argparse.ArgumentParser) -> None:
@@ -68,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "observations.csv and summary.json to --out, and check the run's own consistency "
                        "(self-checks: warnings with the likely cause and the command that fixes it).",
                        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
+    p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
     p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
     p.add_argument("--out", required=True, help="output directory (created; files are replaced atomically)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
@@ -78,8 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "instead of the bag's /tf_static")
     p.add_argument("--jpeg-reduce", type=int, choices=(1, 2, 4, 8), default=PipelineParams.jpeg_reduce,
                    help="decode images at 1/N resolution (default 1: full; faster, less accurate)")
+    p.add_argument("--full-coordinates", action="store_true",
+                   help="also write trajectory.csv: t, E, N, H (the map origin added back) and roll, pitch, heading "
+                        "in degrees, for a surveyor")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
+    add_video_inputs(p)
 
     p = sub.add_parser("timesync", help="camera/VO ↔ total-station time offset of a recording",
                        description="The camera/VO ↔ total-station time offset of a recording: phase coherence of "
@@ -89,18 +146,20 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  aruco-abs-orient timesync run.bag --plot results/\n"
                        "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="+", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
+    p.add_argument("bag", nargs="*", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
                    "with --markers)" + BAGS_HELP)
     p.add_argument("--markers", metavar="YAML", help="marker map: refine the offset with the marker bearings")
     p.add_argument("--every", type=int, default=3, metavar="N",
                    help="with --markers: search every N-th image (default 3)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--search", type=float, nargs=2, default=(-1.0, 1.0), metavar=("MIN", "MAX"),
-                   help="offsets searched, seconds (default -1 1)")
+    p.add_argument("--search", type=float, nargs=2, metavar=("MIN", "MAX"),
+                   help="offsets searched, seconds (default -1 1 for a bag; for a video every offset at which the "
+                        "trajectory and the prism log overlap by 10 s or more)")
     p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
     p.add_argument("--min-confidence", type=float, default=0.3, metavar="C",
                    help="refuse an estimate whose confidence (0-1) is below C (default 0.3)")
     _add_topics(p)
+    add_video_inputs(p)
 
     p = sub.add_parser(
         "evaluate", help="report of a processed run: markers agree?, residuals, coverage; errors vs a reference",
@@ -134,13 +193,38 @@ def build_parser() -> argparse.ArgumentParser:
     from .calibrate import add_parser as add_calibrate
 
     add_calibrate(sub)
+
+    from ..markers import ARUCO_DICTIONARIES
+
+    p = sub.add_parser(
+        "markers", help="marker map YAML from a survey: CSV id,E,N,H, Leica GSI-8/16, or four corners per marker",
+        description="Build the marker map from the survey: points named by the marker id (7 or M7) are centres; "
+                    "7.1 .. 7.4 are a marker's corners measured reflectorless (top-left, top-right, bottom-right, "
+                    "bottom-left seen from the front), from which its centre and face normal come, after a check "
+                    "that they form a square of --size in a plane (the offending point is named). The YAML gets "
+                    "each marker's normal (the detector then ignores a marker seen from behind) and, with --origin, "
+                    "the local origin that ROS works relative to.",
+        epilog="examples:\n  aruco-abs-orient markers survey.gsi --size 0.19 --out markers.yaml\n"
+               "  aruco-abs-orient markers corners.csv --size 0.19 --dictionary DICT_4X4_50 "
+               "--origin 2600000 1200000 400 --out markers.yaml",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("survey", help="CSV (id, E, N, H) or GSI-8/16 file of the surveyed points")
+    p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
+    p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
+                   help="ArUco dictionary (default DICT_4X4_50)")
+    p.add_argument("--tolerance", type=float, default=0.01, metavar="M",
+                   help="largest distance of a corner from the fitted square (default 0.01 m)")
+    p.add_argument("--sigma", type=float, default=0.002, metavar="M", help="survey 1-σ per marker (default 0.002 m)")
+    p.add_argument("--origin", type=float, nargs=3, metavar=("E", "N", "H"),
+                   help="local origin for national grids (the MS60 driver's ~origin must be the same)")
+    p.add_argument("--out", required=True, metavar="YAML", help="marker map to write (atomically)")
     return parser
 
 
 def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
     """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s) and marker
     map as given (``markers`` already shell-quoted or a placeholder), the output in ``results/<bag name>``."""
-    stem = os.path.splitext(os.path.basename(bag_paths(bag)[0]))[0] or "run"
+    stem = os.path.splitext(os.path.basename(bag_name(bag)))[0] or "run"
     cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} --out {shlex.quote('results/' + stem)} "
            f"--time-offset {time_offset:.4f}")
     return cmd + (f" --calibration {shlex.quote(calibration)}" if calibration else "")
@@ -157,6 +241,7 @@ def cmd_process(a: argparse.Namespace) -> int:
 
     marker_map = MarkerMap.load(a.markers)
     calibration = load_calibration(a.calibration) if a.calibration else None
+    recording = video_recording(a, marker_map) or a.bag
     try:
         os.makedirs(a.out, exist_ok=True)
     except OSError as e:
@@ -164,13 +249,14 @@ def cmd_process(a: argparse.Namespace) -> int:
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
     params = PipelineParams(jpeg_reduce=a.jpeg_reduce)
-    result = process_bag(a.bag, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
-                         progress=not a.quiet, calibration=calibration)
+    result = process_bag(recording, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
+                         progress=not a.quiet, calibration=calibration, full_coordinates=a.full_coordinates)
     s = result.summary
     print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
     for w in s["warnings"]:
         print(f"aruco-abs-orient: warning: {w}", file=sys.stderr)
-    print(f"wrote {result.trajectory_path}\n      {result.observations_path}\n      {result.summary_path}")
+    print(f"wrote {result.trajectory_path}\n      {result.observations_path}\n      {result.summary_path}"
+          + "".join(f"\n      {p}" for p in result.extra_paths))
     return 0 if s["frames_with_pose"] else 1
 
 
@@ -181,9 +267,10 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     if a.every < 1:
         return _fail(f"--every: expected an integer ≥ 1, got {a.every}")
     marker_map = MarkerMap.load(a.markers) if a.markers else None
+    recording = video_recording(a, marker_map) or a.bag
     try:
-        out = estimate_bag_offset(a.bag, _topics(a), tuple(a.search), plot_dir=a.plot, marker_map=marker_map,
-                                  every=a.every, progress=not a.quiet)
+        out = estimate_bag_offset(recording, _topics(a), tuple(a.search) if a.search else None, plot_dir=a.plot,
+                                  marker_map=marker_map, every=a.every, progress=not a.quiet)
     except TimeSyncError as e:
         return _fail(f"no time offset: {e}", 1)
     est, base = out["timesync"], out["timesync_baseline"]
@@ -209,7 +296,8 @@ def cmd_timesync(a: argparse.Namespace) -> int:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
                      "weak: record longer, with more turns of varying rate, or give --markers)", 1)
     markers = shlex.quote(a.markers) if a.markers else "<markers.yaml>"
-    print(f"use: {process_command(a.bag, markers, est.offset)}" + ("" if a.markers else "   (give your marker map)"))
+    hint = "" if a.markers else "   (give your marker map)"
+    print(f"use: {process_command(recording, markers, est.offset)}{hint}")
     return 0
 
 
@@ -235,6 +323,20 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_markers(a: argparse.Namespace) -> int:
+    from ..survey import marker_map_from_points, read_points
+
+    if not a.size > 0 or not a.tolerance > 0 or not a.sigma > 0:
+        return _fail("--size, --tolerance and --sigma: expected positive numbers (metres)")
+    mm = marker_map_from_points(read_points(a.survey), a.dictionary, a.size, a.tolerance, a.sigma, a.origin,
+                                source=a.survey)
+    mm.save(a.out)
+    with_normal = sum(m.normal is not None for m in mm)
+    print(f"wrote {a.out}: {len(mm)} marker(s) ({with_normal} from their corners, with normals), {a.dictionary}, "
+          f"size {a.size:g} m" + (f", origin {a.origin}" if a.origin else ""))
+    return 0
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     from ..calibration import CalibrationError
     from .evaluate import EvaluateError
@@ -242,11 +344,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
-        if getattr(a, "bag", None) is not None:
+        if getattr(a, "bag", None):
             a.bag = expand_bags(a.bag)
         if a.command == "calibrate":
             return a.func(a)
-        return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate}[a.command](a)
+        return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate,
+                "markers": cmd_markers}[a.command](a)
     except (MarkerMapError, BagError, PipelineError, EvaluateError, CalibrationError) as e:
         return _fail(str(e))
     except KeyboardInterrupt:
