@@ -132,7 +132,7 @@ def format_gsi(points: Sequence[Tuple[str, Sequence[float]]], gsi16: bool = True
         words = [f"11{(k + 1) % 10000:04d}+{str(name).rjust(width, '0')[-width:]}"]
         for wi, v in zip((81, 82, 83), xyz):
             n = int(round(float(v) / scale))
-            words.append(f"{wi}..{unit}{'+' if n >= 0 else '-'}{str(abs(n)).rjust(width, '0')[-width:]}")
+            words.append(f"{wi}..0{unit}{'+' if n >= 0 else '-'}{str(abs(n)).rjust(width, '0')[-width:]}")
         for wi, text in sorted((extra[k] if extra else {}).items()):
             words.append(f"{wi}....{'-' if text.startswith('-') else '+'}{text.lstrip('+-').rjust(width, '0')}")
         lines.append(("*" if gsi16 else "") + " ".join(words))
