@@ -56,8 +56,9 @@ def test_a_hand_written_gsi16_block_reads_as_its_numbers(tmp_path):
     assert pts[0].where == f"{path}:1"
 
 
-@pytest.mark.parametrize("gsi16,unit,offset,atol", [(True, "8", LV95, 0.5e-5), (True, "0", LV95, 0.5e-3),
-                                                    (False, "0", np.zeros(3), 0.5e-3), (False, "6", np.zeros(3), 0.5e-4)])
+@pytest.mark.parametrize("gsi16,unit,offset,atol", [
+    (True, "8", LV95, 0.5e-5), (True, "0", LV95, 0.5e-3), (False, "0", np.zeros(3), 0.5e-3),
+    (False, "6", np.zeros(3), 0.5e-4)])
 def test_gsi_round_trip(tmp_path, gsi16, unit, offset, atol):
     rng = np.random.default_rng(3)
     xyz = offset + rng.uniform([-80, -80, -5], [80, 80, 5], (12, 3))
@@ -119,8 +120,9 @@ def test_a_marker_of_another_size_is_rejected():
 
 def test_gsi_with_an_unknown_word_index_names_file_line_and_word(tmp_path):
     path = tmp_path / "bad.gsi"
-    path.write_text("*110001+0000000000000001 81..00+0000000000001000 82..00+0000000000002000 83..00+0000000000000500\n"
-                    "*110002+0000000000000002 81..00+0000000000001000 99..00+0000000000002000 83..00+0000000000000500\n")
+    xyz = "81..00+0000000000001000 82..00+0000000000002000 83..00+0000000000000500"
+    path.write_text(f"*110001+0000000000000001 {xyz}\n"
+                    f"*110002+0000000000000002 {xyz.replace('82..00', '99..00')}\n")
     with pytest.raises(SurveyError, match=r"bad\.gsi:2: word '99\.\.00\+0000000000002000': unknown word index 99"):
         read_gsi(str(path))
 

@@ -3,7 +3,7 @@
 ``export_video(scenario_dir)`` writes into ``scenario_dir/video`` (or ``out_dir``):
 
 - ``video.mp4``: the scenario's frames (mp4v through ``cv2.VideoWriter``, at the scenario's frame
-  rate; ``codec="ffv1"``: ``video.mkv``, lossless); its clock starts at 0 at the first frame, and
+  rate; ``codec="png"``: ``video.mov``, lossless); its clock starts at 0 at the first frame, and
   its ``mvhd`` creation time is the first frame's camera stamp (whole seconds), as a camera writes it;
 - ``vo.tum``: the odometry (``odom → base_link`` of the bag, or of the camera with ``frame``) on the
   video's clock (stamps − the first frame's camera stamp), as stella_vslam writes it for a video;
@@ -58,14 +58,15 @@ def lever_arms_yaml(base_T_camera: np.ndarray, base_T_prism: np.ndarray) -> str:
             f"base_link_to_prism: {entry(base_T_prism)}\n")
 
 
-CODECS = {"mp4v": "video.mp4", "ffv1": "video.mkv"}   # lossy as a camera's MP4; lossless (the same pixels)
+# lossy as a camera's MP4; lossless PNG frames in a MOV (the same pixels; MKV would round the stamps to 1 ms)
+CODECS = {"mp4v": ("video.mp4", "mp4v"), "png": ("video.mov", "png ")}
 
 
 def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = "base_link",
                  origin: Optional[Sequence[float]] = None, prism_format: str = "csv",
                  codec: str = "mp4v") -> ExportedVideo:
     """Write the files (module docstring) of the scenario in ``scenario_dir``; frames are streamed from the
-    bag one by one (memory stays flat). ``codec``: mp4v (``video.mp4``) or ffv1 (``video.mkv``, lossless:
+    bag one by one (memory stays flat). ``codec``: mp4v (``video.mp4``) or png (``video.mov``, lossless:
     the bag's decoded frames exactly, to tell the cost of compression from the rest)."""
     import cv2
 
@@ -76,7 +77,7 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
     bag = os.path.join(scenario_dir, "scenario.bag")
     data = read_bag_data(bag)
     shift = np.zeros(3) if origin is None else np.asarray(origin, dtype=float)
-    video = os.path.join(out_dir, CODECS[codec])
+    video = os.path.join(out_dir, CODECS[codec][0])
     writer = None
     stamps: List[float] = []
     try:
@@ -84,7 +85,7 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
             grey = decode_jpeg(payload) if isinstance(payload, bytes) else payload
             if writer is None:
                 fps = 1.0 / float(np.median(np.diff(data.odom.stamps)))
-                fourcc = cv2.VideoWriter_fourcc(*codec.upper() if codec == "ffv1" else codec)
+                fourcc = cv2.VideoWriter_fourcc(*CODECS[codec][1])
                 writer = cv2.VideoWriter(video, fourcc, fps, (grey.shape[1], grey.shape[0]), False)
                 if not writer.isOpened():
                     raise RuntimeError(f"{video}: OpenCV cannot write {codec} video here")
@@ -94,8 +95,7 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
         if writer is not None:
             writer.release()
     t0 = stamps[0]
-    if codec == "mp4v":
-        set_mp4_creation_time(video, t0)
+    set_mp4_creation_time(video, t0)
     T = data.odom.transforms
     if frame in ("camera", "camera_optical"):
         T = T @ data.base_T_camera
@@ -112,7 +112,7 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
                                             extra=[{71: f"{t:.3f}"} for t in data.prism_stamps]))
     else:
         prism = os.path.join(out_dir, "prism.csv")
-        atomic_write_text(prism, "t,x,y,z\n" + "".join(f"{t:.6f},{p[0]:.5f},{p[1]:.5f},{p[2]:.5f}\n"
+        atomic_write_text(prism, "t,x,y,z\n" + "".join(f"{t:.9f},{p[0]:.7f},{p[1]:.7f},{p[2]:.7f}\n"
                                                        for t, p in zip(data.prism_stamps, full)))
     levers = os.path.join(out_dir, "lever_arms.yaml")
     atomic_write_text(levers, lever_arms_yaml(data.base_T_camera, data.base_T_prism))
@@ -136,7 +136,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--origin", type=float, nargs=3, metavar=("E", "N", "H"),
                    help="place the scenario at these full coordinates (prism log, markers.yaml, truth.tum)")
     p.add_argument("--prism-format", choices=("csv", "gsi"), default="csv")
-    p.add_argument("--codec", choices=sorted(CODECS), default="mp4v", help="mp4v (video.mp4) or ffv1 (lossless mkv)")
+    p.add_argument("--codec", choices=sorted(CODECS), default="mp4v",
+                   help="mp4v (video.mp4) or png (lossless, video.mov)")
     a = p.parse_args(argv)
     r = export_video(a.scenario, a.out, a.frame, a.origin, a.prism_format, a.codec)
     print(f"wrote {r.out_dir}/: {os.path.basename(r.video)} ({r.frames} frames), {os.path.basename(r.trajectory)}, "
