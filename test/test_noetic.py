@@ -37,12 +37,15 @@ HOW_TO_GET_ONE = (
 #: the versions of Ubuntu 20.04's python3-* packages a Noetic robot runs (requirements-noetic.txt)
 NOETIC_VERSIONS = {"python": "3.8", "numpy": "1.17.4", "cv2": "4.2.0", "yaml": "5.3.1", "serial": "3.4",
                    "scipy": "1.3.3", "matplotlib": "3.1.2", "rosbags": "0.9.23"}
-#: the core unit tests run on those versions: everything ROS-free but the docs and the renderer's own
-#: test (which checks the renderer with OpenCV ≥ 4.7's ArucoDetector; detection covers the renderer on 4.2)
-CORE_TESTS = ["camera", "transforms", "markers", "tum", "detection", "tracking", "solver", "correction",
-              "startup_anywhere",
-              "timesync", "calibration", "evaluation", "geocom_protocol", "geocom_client", "geocom_clock",
-              "geocom_tracker", "geocom_sim_cli", "synthetic_scenario", "synthetic_bag", "offline"]
+#: the core unit tests run on those versions (paths in test/unit/; a folder: all its tests): everything
+#: ROS-free but the docs and the renderer's own test (which checks the renderer with OpenCV ≥ 4.7's
+#: ArucoDetector; detection covers the renderer on 4.2)
+CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_tum.py", "detection",
+              "test_tracking.py", "test_solver.py", "test_correction.py", "test_startup_anywhere.py", "timesync",
+              "test_calibration.py", "test_evaluation.py", "geocom/test_protocol.py", "geocom/test_client.py",
+              "geocom/test_clock.py", "geocom/test_tracker.py", "geocom/test_sim_cli.py",
+              "synthetic/test_scenario.py", "synthetic/test_bag.py", "offline/test_process.py", "test_layering.py",
+              "test_survey.py"]
 #: the only reasons a test may skip there: it needs ROS, or geocompy (the independent GeoCOM client of the
 #: tests needs Python ≥ 3.11: it checks the simulator in the main venv)
 ROS_ONLY = re.compile(r"\brospy\b|\brosbag\b|\bROS\b|\bgeocompy\b")
@@ -93,7 +96,7 @@ class CoreRun:
     def __init__(self):
         self.dir = Path(tempfile.mkdtemp(prefix="noetic-core-"))
         self.report = self.dir / "junit.xml"
-        files = [str(ROOT / "test" / "unit" / f"test_{name}.py") for name in CORE_TESTS]
+        files = [str(ROOT / "test" / "unit" / name) for name in CORE_TESTS]
         self.log = self.dir / "pytest.log"
         with open(str(self.log), "w") as log:  # the child keeps its own descriptor
             self.proc = subprocess.Popen(

@@ -58,6 +58,7 @@ from typing import Dict, Optional, Tuple
 
 import numpy as np
 
+from .errors import GeometryError
 from .markers import MarkerMap
 from .solver import yaw_consensus
 from .timesync import TimeSyncError, heading_from_track
@@ -76,7 +77,7 @@ __all__ = [
 ]
 
 
-class CalibrationError(ValueError):
+class CalibrationError(GeometryError, ValueError):
     """The recording cannot determine the calibration, or the inputs are malformed; the message says why."""
 
 

@@ -26,6 +26,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
+from .errors import ConfigurationError
+
 __all__ = [
     "CameraModelError",
     "Equirect",
@@ -36,7 +38,7 @@ __all__ = [
 ]
 
 
-class CameraModelError(ValueError):
+class CameraModelError(ConfigurationError, ValueError):
     """Invalid camera model parameters (image size, view size, field of view)."""
 
 

@@ -76,6 +76,7 @@ from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .errors import ConfigurationError
 from .solver import yaw_consensus
 from .transforms import make_T, rot_z, transform_points, wrap_angle, yaw_of
 
@@ -95,7 +96,7 @@ def _ez_cross(v: np.ndarray) -> np.ndarray:
     return np.array([-v[1], v[0], 0.0])
 
 
-class CorrectionError(ValueError):
+class CorrectionError(ConfigurationError, ValueError):
     """Malformed input to the map→odom filter (wrong shapes, bad parameters)."""
 
 

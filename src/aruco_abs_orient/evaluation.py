@@ -25,6 +25,7 @@ from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .errors import InputFileError
 from .transforms import wrap_angle
 from .tum import atomic_write_bytes, atomic_write_text, sorted_series
 
@@ -58,7 +59,7 @@ DEFAULT_THRESHOLDS = (math.radians(0.5), math.radians(1.0), math.radians(2.0))
 _EXACT = 1e-6  # s: stamps this close are the same instant (the same image)
 
 
-class EvaluationError(ValueError):
+class EvaluationError(InputFileError, ValueError):
     """Inputs that cannot be evaluated (empty, mismatched lengths, no common times); says why."""
 
 

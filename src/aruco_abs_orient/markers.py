@@ -26,6 +26,8 @@ from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 
+from .errors import InputFileError
+
 __all__ = ["MarkerMapError", "Marker", "MarkerMap", "ARUCO_DICTIONARIES"]
 
 # Names accepted for ``dictionary`` (cv2.aruco predefined dictionaries).
@@ -35,7 +37,7 @@ ARUCO_DICTIONARIES = tuple(
      "DICT_APRILTAG_36h11")
 
 
-class MarkerMapError(ValueError):
+class MarkerMapError(InputFileError, ValueError):
     """A marker map that cannot be used: the message names the file and the field."""
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
+from .errors import ConfigurationError
 from .markers import MarkerMap
 from .solver import SolverError, fuse_yaws, yaw_from_marker
 from .tracking import MarkerTracker, TrackingStats
@@ -30,7 +31,7 @@ __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationRes
            "PrismBuffer", "all_param_fields"]
 
 
-class PipelineError(ValueError):
+class PipelineError(ConfigurationError, ValueError):
     """Bad pipeline configuration (lever arms, parameters): names the field."""
 
 

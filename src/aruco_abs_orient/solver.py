@@ -33,6 +33,7 @@ from typing import NamedTuple, Optional, Tuple
 import numpy as np
 
 from .camera import angle_between
+from .errors import GeometryError
 from .transforms import make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
 
 __all__ = [
@@ -50,7 +51,7 @@ __all__ = [
 ]
 
 
-class SolverError(ValueError):
+class SolverError(GeometryError, ValueError):
     """Inputs the solver cannot use (wrong shapes, too few markers, non-finite values)."""
 
 

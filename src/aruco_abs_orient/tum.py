@@ -14,13 +14,14 @@ from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from .errors import InputFileError
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
 __all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp",
            "read_yaml", "sorted_series"]
 
 
-class TumError(ValueError):
+class TumError(InputFileError, ValueError):
     """A TUM file that cannot be read: names the file and the line."""
 
 

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_docs import code_lines
+
+from .test_docs import code_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCUMENTS = sorted((ROOT / "doc").glob("*.md")) + [ROOT / "README.md"]

@@ -23,6 +23,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 
 import serial
 
+from ..errors import InstrumentError
 from .protocol import (
     AUT_CLOCKWISE,
     TMC_AUTO_INC,
@@ -44,7 +45,7 @@ _REPLY_START = b"%R1P,"
 _MAX_LINE = 4096
 
 
-class GeoComError(Exception):
+class GeoComError(InstrumentError):
     """Base class of the client's errors."""
 
 

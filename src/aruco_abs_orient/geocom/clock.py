@@ -26,10 +26,12 @@ from __future__ import annotations
 import collections
 from typing import Deque, List, Optional, Tuple
 
+from ..errors import InstrumentError
+
 __all__ = ["ClockError", "InstrumentClock", "lower_envelope_line"]
 
 
-class ClockError(ValueError):
+class ClockError(InstrumentError, ValueError):
     """A clock query before any sample, or bad clock parameters."""
 
 

@@ -64,6 +64,8 @@ import enum
 import math
 from typing import NamedTuple, Optional, Sequence, Tuple, Union
 
+from ..errors import InstrumentError
+
 __all__ = [
     "GeoComProtocolError", "Byte", "RcClass", "Rpc", "RC", "Request", "Reply", "CoordinateReading",
     "classify_rc", "rc_name", "crc16", "format_double", "encode_request", "parse_request", "encode_reply",
@@ -78,7 +80,7 @@ __all__ = [
 Param = Union[int, float, str, bool]
 
 
-class GeoComProtocolError(ValueError):
+class GeoComProtocolError(InstrumentError, ValueError):
     """A line that is not a well-formed GeoCOM request or reply (the message quotes it)."""
 
 

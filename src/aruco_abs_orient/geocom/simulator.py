@@ -69,6 +69,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple, 
 
 import numpy as np
 
+from ..errors import InstrumentError
 from .protocol import (
     AUT_ANTICLOCKWISE,
     AUT_CLOCKWISE,
@@ -108,7 +109,7 @@ _MAX_REMEASURE = 20  # then send late rather than never (a host too loaded to ke
 _STALE_PERIODS = 3   # a tracking distance older than this many EDM periods is no distance
 
 
-class SimulatorError(ValueError):
+class SimulatorError(InstrumentError, ValueError):
     """Bad simulator settings (names the setting) or a trajectory that cannot be played."""
 
 

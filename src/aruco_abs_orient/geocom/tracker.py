@@ -56,6 +56,7 @@ import threading
 import time
 from typing import Callable, Deque, Dict, NamedTuple, Optional, Tuple
 
+from ..errors import InstrumentError
 from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout, rpc_name
 from .clock import InstrumentClock
 from .protocol import (
@@ -91,7 +92,7 @@ _MAX_REPOLLS = 3       # polls in a row that may repeat the old distance before 
 _POLL_MARGIN_S = 0.003  # a poll reaches the instrument this long after the expected distance
 
 
-class TrackerError(ValueError):
+class TrackerError(InstrumentError, ValueError):
     """Bad tracker settings (names the setting)."""
 
 

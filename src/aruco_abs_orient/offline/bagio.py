@@ -19,6 +19,7 @@ from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from ..errors import BagFileError
 from ..transforms import make_T, quat_to_matrix
 from ..tum import Trajectory
 
@@ -66,7 +67,7 @@ def bag_name(bags: Bags) -> str:
 
 
 
-class BagError(RuntimeError):
+class BagError(BagFileError, RuntimeError):
     """A bag that cannot be used: names the file and the topic/frame."""
 
 

@@ -32,10 +32,11 @@ from ..calibration import (
     static_tf_yaml,
 )
 from ..detection import DetectionError, DetectorParams, decode_jpeg
-from ..markers import MarkerMap, MarkerMapError
+from ..errors import AbsOrientError
+from ..markers import MarkerMap
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
-from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
+from .bagio import BagData, BagTopics, bag_name, iter_images, read_bag_data
 from .cli import add_video_inputs, process_command, video_recording
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
@@ -125,7 +126,7 @@ def _until_broken(images, skipped: dict):
             item = next(images)
         except StopIteration:
             return
-        except BagError as e:
+        except AbsOrientError as e:  # the bag or video reader's own errors
             skipped[f"reading stopped: {e}"] = 1
             return
         yield k, item
@@ -224,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         data = read_bag_data(recording, topics)
         obs = collect_observations(recording, marker_map, topics, progress=not args.quiet, data=data,
                                    every=args.every)
-    except (MarkerMapError, BagError) as e:
+    except AbsOrientError as e:
         return _fail(str(e))
     try:
         cal = calibrate_bag(recording, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,

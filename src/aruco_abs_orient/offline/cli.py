@@ -16,9 +16,10 @@ import shlex
 import sys
 from typing import List, Optional
 
-from ..markers import MarkerMap, MarkerMapError
-from ..pipeline import PipelineError, PipelineParams
-from .bagio import BagError, Bags, BagTopics, bag_name, bags_for_shell, expand_bags
+from ..errors import AbsOrientError, ConfigurationError
+from ..markers import MarkerMap
+from ..pipeline import PipelineParams
+from .bagio import Bags, BagTopics, bag_name, bags_for_shell, expand_bags
 from .evaluate import parse_after
 
 VIDEO_EXAMPLES = """video input (no bag: a 360° video, its VO trajectory, the prism log; doc/field_guide.md):
@@ -66,23 +67,27 @@ def add_video_inputs(p: argparse.ArgumentParser) -> None:
                    help="the video clock starts at 0 or at the creation time in its metadata (default zero)")
 
 
+class InputOptionsError(ConfigurationError):
+    """The options do not name one complete recording: which option is missing or too much."""
+
+
 def video_recording(a: argparse.Namespace, marker_map: Optional[MarkerMap] = None):
-    """The VideoRecording the options describe, or None when no --video was given; BagError for an incomplete
-    set (which option is missing) or a video given together with bags."""
+    """The VideoRecording the options describe, or None when no --video was given; InputOptionsError for an
+    incomplete set (which option is missing) or a video given together with bags."""
     if not getattr(a, "video", None):
         if getattr(a, "bag", None) in (None, [], ""):
-            raise BagError("no input: expected a bag, or --video with --trajectory, --prism and --lever-arms")
+            raise InputOptionsError("no input: expected a bag, or --video with --trajectory, --prism and --lever-arms")
         return None
     from ..calibration import load_calibration
     from .video import VideoRecording
 
     if a.bag:
-        raise BagError("a bag and --video given: expected one recording (a bag, or a video with its files)")
+        raise InputOptionsError("a bag and --video given: expected one recording (a bag, or a video with its files)")
     missing = [o for o, v in (("--trajectory", a.trajectory), ("--prism", a.prism),
                               ("--lever-arms (or --calibration)", a.lever_arms or getattr(a, "calibration", None)))
                if not v]
     if missing:
-        raise BagError(f"--video {a.video}: missing {', '.join(missing)}")
+        raise InputOptionsError(f"--video {a.video}: missing {', '.join(missing)}")
     levers = load_calibration(a.lever_arms or a.calibration)
     origin = marker_map.origin if marker_map is not None and marker_map.origin is not None else (0.0, 0.0, 0.0)
     return VideoRecording(a.video, a.trajectory, a.prism, levers["camera"], levers["prism"], a.trajectory_frame,
@@ -338,9 +343,6 @@ def cmd_markers(a: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    from ..calibration import CalibrationError
-    from .evaluate import EvaluateError
-
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
@@ -350,7 +352,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate,
                 "markers": cmd_markers}[a.command](a)
-    except (MarkerMapError, BagError, PipelineError, EvaluateError, CalibrationError) as e:
+    except AbsOrientError as e:  # every error of the package: its message says what, where, what was expected
         return _fail(str(e))
     except KeyboardInterrupt:
         return _fail("interrupted", 130)

@@ -21,6 +21,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .. import evaluation as ev
+from ..errors import InputFileError
 from ..transforms import wrap_angle, yaw_of
 from ..tum import TumError, read_tum
 
@@ -28,7 +29,7 @@ __all__ = ["EvaluateError", "read_observations", "read_summary", "parse_after", 
            "first_stamp", "fused_errors", "overview_figure"]
 
 
-class EvaluateError(ValueError):
+class EvaluateError(InputFileError, ValueError):
     """Inputs that cannot be evaluated: names the file and what is missing."""
 
 

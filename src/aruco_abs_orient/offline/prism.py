@@ -17,8 +17,8 @@ from typing import Dict, List, NamedTuple
 
 import numpy as np
 
+from ..errors import InputFileError
 from ..survey import SurveyError, gsi_blocks, gsi_number
-from .bagio import BagError
 
 __all__ = ["PrismLogError", "PrismLog", "read_prism", "GSI_TIME_WORD", "PRISM_FORMATS"]
 
@@ -28,7 +28,7 @@ _COLUMNS = {"t": ("t", "time", "stamp", "timestamp"), "x": ("x", "e", "east", "e
             "y": ("y", "n", "north", "northing"), "z": ("z", "h", "height", "up")}
 
 
-class PrismLogError(BagError):
+class PrismLogError(InputFileError, ValueError):
     """A prism log that cannot be used: names the file, the line, what was expected."""
 
 

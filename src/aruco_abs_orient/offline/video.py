@@ -31,9 +31,10 @@ from typing import Iterator, List, Optional, Tuple
 
 import numpy as np
 
+from ..errors import InputFileError
 from ..transforms import make_T
 from ..tum import Trajectory, TumError, read_tum
-from .bagio import BagData, BagError, BagTopics
+from .bagio import BagData, BagTopics
 from .prism import read_prism
 
 __all__ = ["VideoError", "VideoRecording", "TRAJECTORY_FRAMES", "video_frames", "mp4_creation_time",
@@ -47,7 +48,7 @@ MP4_EPOCH = 2082844800  # s from 1904-01-01 (QuickTime) to 1970-01-01 (Unix)
 GAP_FACTOR = 1.5        # a frame interval longer than this × the median is a dropped frame (or more)
 
 
-class VideoError(BagError):
+class VideoError(InputFileError, RuntimeError):
     """A video recording that cannot be used: names the file, the frame or line, what was expected."""
 
 

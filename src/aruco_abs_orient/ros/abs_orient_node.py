@@ -56,6 +56,7 @@ from typing import Deque, Dict, Optional, Tuple
 import numpy as np
 
 from ..calibration import CalibrationError, load_calibration
+from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import RollingSelfCheck
@@ -69,7 +70,7 @@ RECONFIGURABLE_NODE_PARAMS = ("time_offset",)
 """Node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)."""
 
 
-class NodeConfigError(ValueError):
+class NodeConfigError(ConfigurationError, ValueError):
     """A node parameter with a bad value: names the parameter."""
 
 

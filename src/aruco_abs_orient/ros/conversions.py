@@ -1,7 +1,7 @@
 """ROS message ⇄ numpy conversions for the abs_orient node (the node's only message code).
 
 Everything here is a pure function of its arguments: no node, no master, no tf listener, so it is
-unit-tested directly (``test/unit/test_ros_conversions.py``). Units: metres, radians, seconds;
+unit-tested directly (``test/unit/ros/test_conversions.py``). Units: metres, radians, seconds;
 covariances in m² / rad². Transforms named ``a_T_b`` are 4×4 matrices mapping b-coordinates into a.
 
 Covariance layout of ``PoseWithCovarianceStamped`` (REP-103): row-major 6×6 over
@@ -33,6 +33,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker as VizMarker
 from visualization_msgs.msg import MarkerArray
 
+from ..errors import InputFileError
 from ..markers import MarkerMap
 from ..msg import MarkerObservation, MarkerObservations
 from ..transforms import make_T, matrix_to_quat, matrix_to_rpy, quat_to_matrix, rpy_to_matrix
@@ -62,7 +63,7 @@ UNOBSERVED_VARIANCE = 1.0e6
 """Variance (m² or rad²) written for the parts of a pose a message does not measure."""
 
 
-class ConversionError(ValueError):
+class ConversionError(InputFileError, ValueError):
     """A message that cannot be turned into numbers: the text names the message field."""
 
 

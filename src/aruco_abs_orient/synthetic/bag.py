@@ -30,6 +30,7 @@ from typing import Iterator, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from ..errors import InputFileError
 from ..transforms import matrix_to_quat
 from ..tum import Trajectory, write_tum
 from .render import PROFILES, encode_jpeg, render_equirect
@@ -46,7 +47,7 @@ TOPICS = {
 }
 
 
-class GenerateError(RuntimeError):
+class GenerateError(InputFileError, RuntimeError):
     """The scenario could not be written (output directory, existing files)."""
 
 

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ..camera import Equirect, bearing_to_azel
+from ..errors import ConfigurationError
 from ..markers import ARUCO_DICTIONARIES
 from ..transforms import rot_x, rot_z
 
@@ -41,7 +42,7 @@ __all__ = [
 QUIET_ZONE_BITS = 1
 
 
-class RenderError(ValueError):
+class RenderError(ConfigurationError, ValueError):
     """Invalid rendering input: image width, profile name, marker geometry, dictionary, id."""
 
 

@@ -25,6 +25,7 @@ from typing import Dict, List, Tuple
 
 import numpy as np
 
+from ..errors import ConfigurationError
 from ..markers import ARUCO_DICTIONARIES, Marker, MarkerMap
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
 from ..tum import atomic_write_text, read_yaml
@@ -36,7 +37,7 @@ _DT = 0.002  # s, integration grid of the motion and of the VO
 _TAIL = 5.0  # s of motion computed beyond the duration (late stamps, offsets)
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ConfigurationError, ValueError):
     """An invalid scenario parameter or hidden-parameters file (the message names the field)."""
 
 

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("rosgraph")
 
-SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+SCRIPTS = Path(__file__).resolve().parents[3] / "scripts"
 
 
 def _dead_master_uri():

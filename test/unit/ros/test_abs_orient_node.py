@@ -14,7 +14,7 @@ import pytest
 from aruco_abs_orient.pipeline import all_param_fields
 from aruco_abs_orient.ros.abs_orient_node import Mailbox, NodeConfig, NodeConfigError, reconfigurable_names
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _getter(values):

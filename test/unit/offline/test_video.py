@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 
-from aruco_abs_orient.offline.bagio import BagError
+from aruco_abs_orient.errors import InputFileError
 from aruco_abs_orient.offline.cli import main
 from aruco_abs_orient.offline.prism import PrismLogError, read_prism
 from aruco_abs_orient.offline.video import VideoError, VideoRecording, mp4_creation_time, video_frames
@@ -180,4 +180,4 @@ def test_prism_logs_csv_gsi16_and_bad_lines(ci_runs, tmp_path):
     named.write_text("t,east,north,height,state\n1.0,5.0,6.0,7.0,locked\n2.0,5.5,6.5,7.5,locked\n")
     log = read_prism(str(named))
     np.testing.assert_allclose(log.positions, [[5.0, 6.0, 7.0], [5.5, 6.5, 7.5]])
-    assert isinstance(PrismLogError("x"), BagError)
+    assert isinstance(PrismLogError("x"), InputFileError)

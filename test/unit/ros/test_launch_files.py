@@ -8,7 +8,7 @@ import roslaunch.config
 import roslaunch.core
 import roslaunch.xmlloader
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def load(name, **args):

@@ -80,7 +80,7 @@ def _start_driver(uri, tmp_path, port, *params):
     import sys
     from pathlib import Path
 
-    script = Path(__file__).resolve().parents[2] / "scripts" / "ms60_driver"
+    script = Path(__file__).resolve().parents[3] / "scripts" / "ms60_driver"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), ROS_MASTER_URI=uri, ROS_HOSTNAME="localhost",
                ROS_HOME=str(tmp_path))
     return subprocess.Popen([sys.executable, str(script), f"_port:={port}", *params], env=env, stdout=subprocess.PIPE,
