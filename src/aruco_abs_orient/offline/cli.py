@@ -223,6 +223,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--origin", type=float, nargs=3, metavar=("E", "N", "H"),
                    help="local origin for national grids (the MS60 driver's ~origin must be the same)")
     p.add_argument("--out", required=True, metavar="YAML", help="marker map to write (atomically)")
+
+    p = sub.add_parser(
+        "video-to-bag", help="a video recording (video + VO trajectory + prism log) as a ROS 1 bag for rosbag play",
+        description="Write the video, its VO trajectory and the prism log as a ROS 1 bag in the package's topic "
+                    "layout (JPEG images, /tf, /tf_static, the prism), streamed frame by frame. The frames and the "
+                    "odometry are moved onto the total station's clock with --time-offset (from `timesync`), so "
+                    "the bag is processed with --time-offset 0 and plays with one clock.",
+        epilog="example:\n  aruco-abs-orient video-to-bag --video run.mp4 --trajectory vo.tum --prism prism.csv "
+               "--lever-arms lever_arms.yaml --time-offset -1699999999.633 --out run.bag",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, metavar="BAG", help="bag to write (atomically)")
+    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
+                   help="video clock = total-station clock + S seconds (see `timesync`; default 0)")
+    p.add_argument("--quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100 (default 90)")
+    p.add_argument("--markers", metavar="YAML", help="marker map: its origin is subtracted from the prism positions")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_topics(p)
+    add_video_inputs(p)
     return parser
 
 
@@ -342,6 +360,23 @@ def cmd_markers(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_video_to_bag(a: argparse.Namespace) -> int:
+    from .video_to_bag import video_to_bag
+
+    if not 1 <= a.quality <= 100:
+        return _fail(f"--quality: expected 1-100, got {a.quality}")
+    a.bag = None
+    recording = video_recording(a, MarkerMap.load(a.markers) if a.markers else None)  # raises without --video
+    r = video_to_bag(recording, a.out, a.time_offset, a.quality, progress=not a.quiet, topics=_topics(a))
+    print(f"wrote {r.path}: {r.frames} images (JPEG quality {a.quality}), {r.prism_samples} prism samples, "
+          f"{os.path.getsize(r.path) / 1e6:.1f} MB in {r.seconds:.1f} s; process it with --time-offset 0")
+    if r.skipped:
+        print(f"aruco-abs-orient: warning: {r.skipped} frame(s) outside the trajectory left out", file=sys.stderr)
+    if r.stopped:
+        print(f"aruco-abs-orient: warning: {r.stopped}", file=sys.stderr)
+    return 0 if r.frames else 1
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
@@ -351,7 +386,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if a.command == "calibrate":
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate,
-                "markers": cmd_markers}[a.command](a)
+                "markers": cmd_markers, "video-to-bag": cmd_video_to_bag}[a.command](a)
     except AbsOrientError as e:  # every error of the package: its message says what, where, what was expected
         return _fail(str(e))
     except KeyboardInterrupt:

@@ -181,3 +181,65 @@ def test_prism_logs_csv_gsi16_and_bad_lines(ci_runs, tmp_path):
     log = read_prism(str(named))
     np.testing.assert_allclose(log.positions, [[5.0, 6.0, 7.0], [5.5, 6.5, 7.5]])
     assert isinstance(PrismLogError("x"), InputFileError)
+
+
+def test_video_to_bag_is_read_by_debians_rosbag_and_processes_like_the_video(ci_runs, tmp_path, capsys):
+    import tracemalloc
+
+    rosbag = pytest.importorskip("rosbag", reason="Debian's rosbag (Noetic's) reads the bag")
+    exp = ci_runs["mp4v_export"]
+    out = str(tmp_path / "from_video.bag")
+    tracemalloc.start()
+    assert main(["video-to-bag", *_video_args(exp), "--time-offset", str(VIDEO_OFFSET), "--quality", "90",
+                 "--out", out, "--quiet"]) == 0
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert "wrote " + out + ": 300 images (JPEG quality 90), " in capsys.readouterr().out
+    assert peak < 30e6 < os.path.getsize(out), f"peak {peak / 1e6:.1f} MB"  # streamed: less than the bag holds
+    with rosbag.Bag(out) as bag:
+        info = bag.get_type_and_topic_info().topics
+        assert {t: (i.msg_type, i.message_count) for t, i in info.items()} == {
+            "/camera/image/compressed": ("sensor_msgs/CompressedImage", 300), "/tf": ("tf2_msgs/TFMessage", 300),
+            "/tf_static": ("tf2_msgs/TFMessage", 1), "/ms60/prism": ("geometry_msgs/PointStamped", 358)}
+        stamps = [m.header.stamp.to_sec() for _, m, _ in bag.read_messages(["/camera/image/compressed"])]
+        latched = [c.header.get("latching") for c in bag._get_connections(["/tf_static"])]
+    np.testing.assert_allclose(stamps, 1_700_000_000.0 + np.arange(300) / 15.0, atol=1e-6)  # total-station clock
+    assert latched == [b"1"]
+    res = tmp_path / "res"
+    assert main(["process", out, "--markers", exp.markers, "--out", str(res), "--quiet"]) == 0
+    d = _heading_difference_deg(read_tum(str(res / "trajectory.tum")), ci_runs["mp4v"])
+    assert len(d) >= 290 and np.max(np.abs(d)) < 0.05  # the same frames, JPEG-compressed once more
+
+
+def test_national_grid_coordinates_with_and_without_the_origin(ci_runs, tmp_path):
+    """The scenario placed in LV95 (E 2 600 000): with the map's origin everything the pipeline (and ROS) works
+    in stays below 10⁴ m, without it the same values are 10⁶ m; both write the TUM in full coordinates, equal
+    to the local run's + the origin to 0.1 mm, with the same heading."""
+    import yaml
+
+    from aruco_abs_orient.markers import MarkerMap
+
+    origin = np.array([2600000.0, 1200000.0, 400.0])
+    exp = export_video(ci_runs["scenario"].out_dir, str(tmp_path / "lv95"), origin=origin)
+    local = ci_runs["mp4v"]
+    plain = tmp_path / "markers_full.yaml"  # the same map in full coordinates, no origin
+    with open(exp.markers) as f:
+        doc = yaml.safe_load(f)
+    assert doc.pop("origin") == origin.tolist()
+    plain.write_text(yaml.safe_dump(doc))
+    for markers, small in ((exp.markers, True), (str(plain), False)):
+        mm = MarkerMap.load(markers)
+        rec = VideoRecording(exp.video, exp.trajectory, exp.prism, np.eye(4), np.eye(4),
+                             origin=tuple(mm.origin) if mm.origin is not None else (0.0, 0.0, 0.0))
+        in_ros = np.abs(np.concatenate([rec.read_data().prism_positions, mm.positions()]))
+        assert (in_ros.max() < 1e4) if small else (in_ros.max() > 1e6)
+        out = tmp_path / ("with" if small else "without")
+        assert main(["process", *_video_args(exp), "--markers", markers, "--out", str(out), "--time-offset",
+                     str(VIDEO_OFFSET), "--quiet", "--full-coordinates"]) == 0
+        traj = read_tum(str(out / "trajectory.tum"))
+        np.testing.assert_allclose(traj.stamps, local.stamps, atol=1e-6)
+        np.testing.assert_allclose(traj.positions, local.positions + origin, rtol=0, atol=1e-4)
+        assert np.max(np.abs(_heading_difference_deg(traj, local))) < 1e-3
+        rows = np.loadtxt(str(out / "trajectory.csv"), delimiter=",", skiprows=1)
+        np.testing.assert_allclose(rows[:, 1:4], traj.positions, atol=1e-4)                 # E, N, H
+        np.testing.assert_allclose(rows[:, 6], np.degrees(yaw_of(traj.rotations)), atol=1e-3)  # heading
