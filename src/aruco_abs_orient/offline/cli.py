@@ -191,9 +191,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="judge the fused output from T s after the start of the recording on (e.g. 5), or from "
                         "an absolute total-station stamp with the suffix abs (e.g. 1700000000.5abs); default: "
                         "1 s after its first absolute yaw")
-    p.add_argument("--overview", nargs=2, metavar=("BAG", "MARKERS"),
-                   help="also draw overview.png (first in the report): a frame of BAG with its markers above the "
-                        "trajectory")
+    p.add_argument("--overview", nargs=2, metavar=("BAG_OR_VIDEO", "MARKERS"),
+                   help="also draw overview.png (first in the report): a frame of the bag or video (.mp4, .mov, "
+                        ".mkv) with its markers above the trajectory")
 
     from .calibrate import add_parser as add_calibrate
 

@@ -37,7 +37,7 @@ from ..tum import Trajectory, TumError, read_tum
 from .bagio import BagData, BagTopics
 from .prism import read_prism
 
-__all__ = ["VideoError", "VideoRecording", "TRAJECTORY_FRAMES", "video_frames", "mp4_creation_time",
+__all__ = ["VideoError", "VideoRecording", "TRAJECTORY_FRAMES", "VIDEO_EXTENSIONS", "video_frames", "mp4_creation_time",
            "video_summary"]
 
 # the frame a VO trajectory gives: base_link; our camera frame (x = image centre column, y left, z up);
@@ -45,6 +45,7 @@ __all__ = ["VideoError", "VideoRecording", "TRAJECTORY_FRAMES", "video_frames", 
 TRAJECTORY_FRAMES = ("base_link", "camera", "camera_optical")
 ROS_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 MP4_EPOCH = 2082844800  # s from 1904-01-01 (QuickTime) to 1970-01-01 (Unix)
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".mkv", ".avi", ".m4v")
 GAP_FACTOR = 1.5        # a frame interval longer than this × the median is a dropped frame (or more)
 
 
