@@ -243,3 +243,36 @@ def test_national_grid_coordinates_with_and_without_the_origin(ci_runs, tmp_path
         rows = np.loadtxt(str(out / "trajectory.csv"), delimiter=",", skiprows=1)
         np.testing.assert_allclose(rows[:, 1:4], traj.positions, atol=1e-4)                 # E, N, H
         np.testing.assert_allclose(rows[:, 6], np.degrees(yaw_of(traj.rotations)), atol=1e-3)  # heading
+
+
+def test_a_marker_seen_from_behind_its_surveyed_face_is_not_used(scenario_factory, tmp_path):
+    """The marker map's normals (the scenario's hidden true ones): the right way round nothing changes; turned
+    round, every detection is one "from behind" (as a false id would be) and is not used."""
+    import csv
+
+    import yaml
+
+    from aruco_abs_orient.synthetic.scenario import Scenario
+
+    scen = scenario_factory("tiny")
+    normals = Scenario.from_hidden(scen.hidden).marker_normals
+    with open(scen.markers) as f:
+        doc = yaml.safe_load(f)
+    results = {}
+    for sign in (None, 1.0, -1.0):
+        for m in doc["markers"]:
+            m.pop("normal", None)
+            if sign is not None:
+                m["normal"] = [sign * float(x) for x in normals[m["id"]]]
+        path = tmp_path / f"markers_{sign}.yaml"
+        path.write_text(yaml.safe_dump(doc))
+        out = tmp_path / f"run_{sign}"
+        main(["process", scen.bag, "--markers", str(path), "--out", str(out), "--time-offset", "0.367", "--quiet"])
+        with open(out / "observations.csv") as f:
+            rows = [(row["reason"], row["accepted"]) for row in csv.DictReader(f)]
+        results[sign] = (len(read_tum(str(out / "trajectory.tum")).stamps), rows)
+    assert results[None][0] > 40 and results[1.0] == results[None]
+    behind = [r for r, _ in results[-1.0][1] if r.startswith("seen from behind")]
+    others = {r for r, _ in results[-1.0][1] if not r.startswith("seen from behind")}
+    assert results[-1.0][0] == 0 and len(behind) > 40 and all(a == "0" for _, a in results[-1.0][1])
+    print(f"turned round: {len(behind)} detections seen from behind; the others: {others}")
