@@ -276,3 +276,26 @@ def test_a_marker_seen_from_behind_its_surveyed_face_is_not_used(scenario_factor
     others = {r for r, _ in results[-1.0][1] if not r.startswith("seen from behind")}
     assert results[-1.0][0] == 0 and len(behind) > 40 and all(a == "0" for _, a in results[-1.0][1])
     print(f"turned round: {len(behind)} detections seen from behind; the others: {others}")
+
+
+@pytest.mark.parametrize("frame", ["camera", "camera_optical"])
+def test_a_trajectory_of_the_camera_gives_base_links_odometry(scenario_factory, tmp_path, frame):
+    """A VO trajectory of the camera (ours, or stella_vslam's optical frame with its own world axes) is turned
+    into odom → base_link with the lever arms: the bag's odometry, on the video's clock."""
+    from aruco_abs_orient.calibration import load_calibration
+    from aruco_abs_orient.offline.bagio import read_bag_data
+
+    scen = scenario_factory("tiny")
+    exp = export_video(scen.out_dir, str(tmp_path / frame), frame=frame)
+    levers = load_calibration(exp.lever_arms)
+    odom = VideoRecording(exp.video, exp.trajectory, exp.prism, levers["camera"], levers["prism"],
+                          trajectory_frame=frame).odometry(exp.clock_start)
+    truth = read_bag_data(scen.bag).odom
+    np.testing.assert_allclose(odom.stamps, truth.stamps, atol=1e-6)
+    np.testing.assert_allclose(odom.positions, truth.positions, atol=2e-6)
+    np.testing.assert_allclose(np.einsum("nij,nij->n", odom.rotations, truth.rotations), 3.0, atol=1e-9)
+    raw = read_tum(exp.trajectory).positions
+    k = int(np.argmax(np.linalg.norm(raw - raw[0], axis=1) > 0.3))  # the first 30 cm driven forward
+    d = (raw[k] - raw[0]) / np.linalg.norm(raw[k] - raw[0])
+    forward, down = (d[0], -d[2]) if frame == "camera" else (d[2], d[1])  # stella_vslam: z forward, y down
+    assert forward > 0.9 and abs(down) < 0.1
