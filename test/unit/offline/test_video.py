@@ -299,3 +299,67 @@ def test_a_trajectory_of_the_camera_gives_base_links_odometry(scenario_factory, 
     d = (raw[k] - raw[0]) / np.linalg.norm(raw[k] - raw[0])
     forward, down = (d[0], -d[2]) if frame == "camera" else (d[2], d[1])  # stella_vslam: z forward, y down
     assert forward > 0.9 and abs(down) < 0.1
+
+
+def _with_sample_deltas(src: str, dst: str, runs) -> None:
+    """A copy of the MP4 ``src`` whose video timestamps follow ``runs`` [(count, multiple of the frame period)]:
+    its one-entry ``stts`` box replaced and the durations (mvhd, tkhd, mdhd, the edit list) stretched to match
+    (the ``moov`` at the end grows; the ``mdat`` before it stays where the chunk offsets point)."""
+    import struct
+
+    with open(src, "rb") as f:
+        data = bytearray(f.read())
+
+    def find(begin, end, name):
+        i = begin
+        while i < end:
+            size, kind = struct.unpack(">I4s", data[i:i + 8])
+            if kind == name:
+                return i, size
+            i += size
+        raise AssertionError(f"no {name} box")
+
+    moov = find(0, len(data), b"moov")
+    assert find(0, len(data), b"mdat")[0] < moov[0], "expected the index after the media data"
+    trak = find(moov[0] + 8, sum(moov), b"trak")
+    mdia = find(trak[0] + 8, sum(trak), b"mdia")
+    minf = find(mdia[0] + 8, sum(mdia), b"minf")
+    stbl = find(minf[0] + 8, sum(minf), b"stbl")
+    stts = find(stbl[0] + 8, sum(stbl), b"stts")
+    count, delta = struct.unpack(">II", data[stts[0] + 16:stts[0] + 24])
+    assert struct.unpack(">I", data[stts[0] + 12:stts[0] + 16])[0] == 1 and sum(c for c, _ in runs) == count
+    stretch = sum(c * d for c, d in runs) / count
+    for box, at in ((find(moov[0] + 8, sum(moov), b"mvhd"), 24), (find(trak[0] + 8, sum(trak), b"tkhd"), 28),
+                    (find(mdia[0] + 8, sum(mdia), b"mdhd"), 24)):
+        assert data[box[0] + 8] == 0  # version 0 boxes: 32-bit durations
+        old = struct.unpack(">I", data[box[0] + at:box[0] + at + 4])[0]
+        data[box[0] + at:box[0] + at + 4] = struct.pack(">I", int(round(old * stretch)))
+    edts = find(trak[0] + 8, sum(trak), b"edts")
+    elst = find(edts[0] + 8, sum(edts), b"elst")
+    for k in range(struct.unpack(">I", data[elst[0] + 12:elst[0] + 16])[0]):
+        at = elst[0] + 16 + 12 * k
+        data[at:at + 4] = struct.pack(">I", int(round(struct.unpack(">I", data[at:at + 4])[0] * stretch)))
+    body = struct.pack(">II", 0, len(runs)) + b"".join(struct.pack(">II", c, d * delta) for c, d in runs)
+    new = struct.pack(">I4s", 8 + len(body), b"stts") + body
+    data[stts[0]:sum(stts)] = new
+    for box in (moov, trak, mdia, minf, stbl):
+        data[box[0]:box[0] + 4] = struct.pack(">I", box[1] + len(new) - stts[1])
+    with open(dst, "wb") as f:
+        f.write(bytes(data))
+
+
+def test_variable_frame_rate_and_dropped_frames_keep_their_container_times(scenario_factory, tmp_path):
+    """Frame times are the container's timestamps: a stretch at half the rate and a gap of two dropped frames
+    are read as recorded (the frames after them keep their own times) and the gap is reported."""
+    from aruco_abs_orient.offline.video import frame_times
+
+    exp = export_video(scenario_factory("tiny").out_dir, str(tmp_path / "in"))   # 80 frames at 10 fps
+    vfr = str(tmp_path / "vfr.mp4")
+    _with_sample_deltas(exp.video, vfr, [(30, 1), (20, 2), (1, 3), (29, 1)])     # 5 fps for 2 s, 2 dropped
+    expected = np.concatenate([[0.0], np.cumsum([0.1] * 30 + [0.2] * 20 + [0.3] + [0.1] * 28)])
+    times, notes = frame_times(vfr)
+    np.testing.assert_allclose(times, expected, atol=1e-6)
+    np.testing.assert_allclose([t for _, t, _ in video_frames(vfr)], expected, atol=1e-6)
+    rec = VideoRecording(vfr, exp.trajectory, exp.prism, np.eye(4), np.eye(4))
+    warnings = " ".join(rec.read_data().warnings)
+    assert "gap(s) in the frame timestamps" in warnings and "the frames keep their own times" in warnings
