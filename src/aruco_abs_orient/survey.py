@@ -148,10 +148,12 @@ def read_csv_points(path: str) -> List[SurveyPoint]:
             lines = f.read().splitlines()
     except OSError as e:
         raise SurveyError(f"{path}: cannot read: {e.strerror}") from None
+    first = True
     for lineno, line in enumerate(lines, 1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
+        header, first = first, False
         fields = [x.strip() for x in next(csv.reader([text.replace(";", ",")]))]
         if len(fields) == 1:
             fields = text.split()
@@ -160,8 +162,8 @@ def read_csv_points(path: str) -> List[SurveyPoint]:
         try:
             xyz = np.array([float(x) for x in fields[1:4]])
         except ValueError:
-            if not points and lineno == next(i for i, x in enumerate(lines, 1) if x.strip()):
-                continue  # the header
+            if header:
+                continue  # the header line
             raise SurveyError(f"{path}:{lineno}: expected numbers for E, N, H, got {fields[1:4]}") from None
         if not np.all(np.isfinite(xyz)):
             raise SurveyError(f"{path}:{lineno}: NaN or inf in E, N, H")

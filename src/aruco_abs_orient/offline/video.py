@@ -274,7 +274,6 @@ class VideoRecording:
         start = self.clock_start()
         odom = self.odometry(start)
         prism = read_prism(self.prism, self.prism_format)
-        n, _, _ = video_summary(self.video)
         times, warnings = frame_times(self.video, start)
         if len(times) == 0:
             raise VideoError(f"{self.video}: no frame could be decoded")
@@ -301,7 +300,7 @@ class VideoRecording:
         positions = prism.positions - np.asarray(self.origin, dtype=float)
         return BagData(path=self.video, odom=odom, base_T_camera=np.asarray(self.base_T_camera, dtype=float),
                        base_T_prism=np.asarray(self.base_T_prism, dtype=float), prism_stamps=prism.stamps,
-                       prism_positions=positions, image_count=len(times) or n, image_format="raw",
+                       prism_positions=positions, image_count=len(times), image_format="raw",
                        start=float(min(times[0], odom.stamps[0])), end=float(max(times[-1], odom.stamps[-1])),
                        skipped=dict(prism.skipped), warnings=warnings + prism.warnings, separate_clocks=True)
 
