@@ -74,7 +74,8 @@ def test_csv_round_trip_through_the_marker_map_with_an_origin(tmp_path):
     rng = np.random.default_rng(5)
     xyz = np.round(LV95 + rng.uniform(-50, 50, (6, 3)), 5)  # as written: 1/100 mm
     path = tmp_path / "p.csv"
-    path.write_text("# LV95, surveyed from station S1\nid;E;N;H\n" + "".join(f"M{i};{p[0]:.5f};{p[1]:.5f};{p[2]:.5f}\n" for i, p in enumerate(xyz)))
+    rows = "".join(f"M{i};{p[0]:.5f};{p[1]:.5f};{p[2]:.5f}\n" for i, p in enumerate(xyz))
+    path.write_text("# LV95, surveyed from station S1\nid;E;N;H\n" + rows)
     mm = marker_map_from_points(read_points(str(path)), "DICT_4X4_50", 0.19, origin=LV95.tolist())
     np.testing.assert_allclose(mm.positions(), xyz - LV95, atol=1e-8)  # ROS works relative to the origin
     out = tmp_path / "m.yaml"
