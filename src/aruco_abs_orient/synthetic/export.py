@@ -122,8 +122,9 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
     markers.save(markers_path)
     truth = read_tum(os.path.join(scenario_dir, "truth.tum"))
     truth_path = os.path.join(out_dir, "truth.tum")
+    full_note = " (full coordinates)" if origin is not None else ""
     write_tum(truth_path, truth._replace(positions=truth.positions + shift),
-              header="base_link in map at each image's true capture time" + (" (full coordinates)" if origin else ""))
+              header=f"base_link in map at each image's true capture time{full_note}")
     return ExportedVideo(out_dir, video, trajectory, prism, levers, markers_path, truth_path, len(stamps), t0)
 
 
