@@ -10,7 +10,9 @@
 #   4. replay the bag through the ROS node and the real robot_localization EKF
 #      (roslaunch aruco_abs_orient postprocess.launch use_ekf:=true), recording the outputs,
 #   5. the report (Markdown + JSON, plots): what the run shows by itself, and the errors of both against the
-#      scenario's truth (its reference trajectory; the report's other figures need none).
+#      scenario's truth (its reference trajectory; the report's other figures need none);
+#   then the video path: the same scenario as a camera user has it (MP4 + VO trajectory + prism CSV, no
+#   bag): timesync over the separate clocks, process, the heading against the truth (DEMO_VIDEO=0 skips it).
 set -eo pipefail
 ROOT=$(cd -- "$(dirname -- "${BASH_SOURCE[0]}")/.." && pwd -P)
 PRESET=${DEMO_PRESET:-demo}
@@ -87,6 +89,18 @@ fi
 step "5/5 the report (and the errors against the scenario's truth)"
 aruco-abs-orient evaluate "$RUN" --reference "$SCEN/truth.tum" "${FUSED[@]}" \
   --overview "$SCEN/scenario.bag" "$SCEN/markers.yaml"
+
+if [[ ${DEMO_VIDEO:-1} != 0 ]]; then
+  step "video path: the scenario as MP4 + VO trajectory + prism CSV, timesync, process (no bag)"
+  VID=$OUT/video
+  [[ -f $VID/truth.tum && ${DEMO_FORCE:-0} != 1 ]] || python -m aruco_abs_orient.synthetic.export "$SCEN" --out "$VID"
+  IN=(--video "$VID/video.mp4" --trajectory "$VID/vo.tum" --prism "$VID/prism.csv" --lever-arms "$VID/lever_arms.yaml")
+  aruco-abs-orient timesync "${IN[@]}" --markers "$VID/markers.yaml" --quiet | tee "$VID/timesync.txt"
+  VOFFSET=$(sed -n 's/.*--time-offset \([-0-9.]*\).*/\1/p' "$VID/timesync.txt")
+  aruco-abs-orient process "${IN[@]}" --markers "$VID/markers.yaml" --out "$VID/run" --time-offset "$VOFFSET" \
+    "${CAL[@]}" --quiet
+  aruco-abs-orient evaluate "$VID/run" --reference "$VID/truth.tum" | grep -i "heading" || true
+fi
 
 printf '\n\033[1mdemo outputs\033[0m in %s:\n' "$RUN"
 (cd "$RUN" && ls -1 trajectory.tum observations.csv summary.json report.md report.json ./*.png)

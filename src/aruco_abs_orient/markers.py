@@ -9,7 +9,14 @@ markers:
   - {id: 7, position: [3.5, -2.0, 1.1], size: 0.30}   # per-marker override
 ```
 Positions in metres in ``frame_id``. Optional per-marker ``sigma`` (survey 1-σ, metres,
-default the map's ``survey_sigma``, itself default 0.002 m).
+default the map's ``survey_sigma``, itself default 0.002 m) and ``normal`` (unit vector out of the
+marker's face, from its surveyed corners: ``aruco-abs-orient markers``; a marker is not looked for
+from behind).
+
+National grids: with ``origin: [E, N, H]`` the positions are written as surveyed (full coordinates,
+LV95 E ≈ 2 600 000) and the map holds them relative to the origin, as everything in ROS is (float32
+consumers such as rviz lose millimetres at 10⁶ m); ``to_dict``/``save`` give full coordinates back.
+The MS60 driver's ``~origin`` must be the same.
 """
 
 from __future__ import annotations
@@ -35,26 +42,36 @@ class MarkerMapError(InputFileError, ValueError):
 
 
 class Marker(NamedTuple):
-    """One surveyed marker: ``id``, centre ``position`` (3,) in metres, black-square ``size``
-    in metres, survey 1-σ ``sigma`` in metres."""
+    """One surveyed marker: ``id``, centre ``position`` (3,) in metres (relative to the map's origin),
+    black-square ``size`` in metres, survey 1-σ ``sigma`` in metres, ``normal`` (3,) unit vector out
+    of its face or None (not surveyed)."""
 
     id: int
     position: np.ndarray
     size: float
     sigma: float
+    normal: Optional[np.ndarray] = None
+
+    def visible_from(self, point, margin: float = 0.0) -> bool:
+        """False when ``point`` (map, relative to the origin) is more than ``margin`` m behind the plane
+        of the marker's face (its normal known): a marker "seen" from there is a false detection."""
+        if self.normal is None:
+            return True
+        return float(np.dot(np.asarray(point, dtype=float) - self.position, self.normal)) > -margin
 
 
 class MarkerMap:
     """Markers by id, their ArUco dictionary and frame."""
 
     def __init__(self, markers: List[Marker], dictionary: str = "DICT_4X4_50", frame_id: str = "map",
-                 source: str = "<memory>"):
+                 source: str = "<memory>", origin=None):
         if dictionary not in ARUCO_DICTIONARIES:
             raise MarkerMapError(f"{source}: dictionary: unknown ArUco dictionary {dictionary!r}; "
                                  f"expected one of {', '.join(ARUCO_DICTIONARIES)}")
         self.dictionary = dictionary
         self.frame_id = frame_id
         self.source = source
+        self.origin = None if origin is None else np.asarray(origin, dtype=float).reshape(3)
         self.markers: Dict[int, Marker] = {}
         for m in markers:
             if m.id in self.markers:
@@ -84,6 +101,11 @@ class MarkerMap:
             raise MarkerMapError(f"{source}: expected a mapping with 'dictionary', 'size', 'markers'")
         default_size = _positive(data.get("size"), source, "size") if "size" in data else None
         survey_sigma = _positive(data.get("survey_sigma", 0.002), source, "survey_sigma")
+        origin = data.get("origin")
+        if origin is not None and (not isinstance(origin, (list, tuple)) or len(origin) != 3
+                                   or not all(_is_finite_number(x) for x in origin)):
+            raise MarkerMapError(f"{source}: origin: expected [E, N, H] in metres, got {origin!r}")
+        shift = np.zeros(3) if origin is None else np.array(origin, dtype=float)
         items = data.get("markers")
         if not isinstance(items, list) or not items:
             raise MarkerMapError(f"{source}: markers: expected a non-empty list of {{id, position}}")
@@ -106,9 +128,15 @@ class MarkerMap:
             else:
                 raise MarkerMapError(f"{source}: {where}.size: no size here and no top-level 'size'")
             sigma = _positive(item.get("sigma", survey_sigma), source, where + ".sigma")
-            markers.append(Marker(mid, np.array(pos, dtype=float), size, sigma))
+            normal = item.get("normal")
+            if normal is not None:
+                if (not isinstance(normal, (list, tuple)) or len(normal) != 3
+                        or not all(_is_finite_number(x) for x in normal) or not 0.9 < np.linalg.norm(normal) < 1.1):
+                    raise MarkerMapError(f"{source}: {where}.normal: expected a unit vector [x, y, z], got {normal!r}")
+                normal = np.array(normal, dtype=float) / np.linalg.norm(normal)
+            markers.append(Marker(mid, np.array(pos, dtype=float) - shift, size, sigma, normal))
         return cls(markers, str(data.get("dictionary", "DICT_4X4_50")), str(data.get("frame_id", "map")),
-                   source)
+                   source, origin)
 
     @classmethod
     def load(cls, path: str) -> MarkerMap:
@@ -118,15 +146,24 @@ class MarkerMap:
         return cls.from_dict(read_yaml(path, MarkerMapError), source=path)
 
     def to_dict(self) -> dict:
-        return {
-            "dictionary": self.dictionary,
-            "frame_id": self.frame_id,
-            "markers": [
-                {"id": m.id, "position": [round(float(x), 6) for x in m.position], "size": m.size,
-                 "sigma": m.sigma}
-                for m in self
-            ],
-        }
+        """The YAML document: positions in full coordinates (origin added back), normals where known."""
+        shift = np.zeros(3) if self.origin is None else self.origin
+        out = {"dictionary": self.dictionary, "frame_id": self.frame_id}
+        if self.origin is not None:
+            out["origin"] = [round(float(x), 6) for x in self.origin]
+        out["markers"] = []
+        for m in self:
+            item = {"id": m.id, "position": [round(float(x), 6) for x in m.position + shift], "size": m.size,
+                    "sigma": m.sigma}
+            if m.normal is not None:
+                item["normal"] = [round(float(x), 6) for x in m.normal]
+            out["markers"].append(item)
+        return out
+
+    def to_full(self, xyz) -> np.ndarray:
+        """Map coordinates (relative to the origin) → full coordinates (E, N, H); (..., 3)."""
+        xyz = np.asarray(xyz, dtype=float)
+        return xyz if self.origin is None else xyz + self.origin
 
     def save(self, path: str) -> None:
         """Write the map as YAML, atomically."""

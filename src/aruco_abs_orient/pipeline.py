@@ -557,6 +557,11 @@ class AbsOrientPipeline:
                     self._count("no_prism_at_row_time")
                     res.observations.append(ObservationResult(o, reason="no prism position at its row's time"))
                     continue
+            if not m.visible_from(p_o, margin=float(np.linalg.norm(self.base_T_camera[:3, 3]
+                                                                       - self.base_T_prism[:3, 3]))):
+                self._count("rejected_behind")
+                res.observations.append(ObservationResult(o, reason="seen from behind its surveyed face (wrong id)"))
+                continue
             try:
                 est = yaw_from_marker(
                     o.centre, m.position, p_o, roll_o, pitch_o, self.base_T_camera,

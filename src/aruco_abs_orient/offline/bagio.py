@@ -31,6 +31,8 @@ Bags = Union[str, Sequence[str]]   # one bag, or the files of one recording
 
 def bag_paths(bags: Bags) -> List[str]:
     """The file(s) of a recording as a list."""
+    if hasattr(bags, "files"):
+        return list(bags.files)
     return [str(bags)] if isinstance(bags, (str, Path)) else [str(b) for b in bags]
 
 
@@ -51,11 +53,15 @@ def expand_bags(args: Sequence[str]) -> Bags:
 
 def bags_for_shell(bags: Bags) -> str:
     """The recording's file(s) as shell words, for the commands the tools print."""
+    if hasattr(bags, "shell_args"):
+        return bags.shell_args()
     return " ".join(shlex.quote(p) for p in bag_paths(bags))
 
 
 def bag_name(bags: Bags) -> str:
     """How messages name a recording: its path, or the first path and how many files follow."""
+    if hasattr(bags, "name"):
+        return bags.name
     paths = bag_paths(bags)
     return paths[0] if len(paths) == 1 else f"{paths[0]} (+ {len(paths) - 1} more bag(s))"
 
@@ -102,6 +108,7 @@ class BagData:
     warnings: List[str] = field(default_factory=list)
     imu_stamps: np.ndarray = field(default_factory=lambda: np.zeros(0))       # (K,) s, camera/VO clock
     imu_tilts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (K, 3) roll, pitch, σ in rad
+    separate_clocks: bool = False          # camera and total station unsynchronised (video input)
 
 
 def open_reader(path: Bags):
@@ -141,7 +148,10 @@ def _stamp(header) -> float:
 
 
 def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
-    """First pass over a bag: odometry tf, static lever arms, prism positions, image count."""
+    """First pass over a bag: odometry tf, static lever arms, prism positions, image count. ``path`` may
+    also be a recording without a bag (:class:`.video.VideoRecording`): the same data from its files."""
+    if hasattr(path, "read_data"):
+        return path.read_data(topics)
     topics = topics or BagTopics()
     reader = open_reader(path)
     try:
@@ -256,8 +266,12 @@ def iter_images(path: Bags, topics: Optional[BagTopics] = None) -> Iterator[Tupl
     """Stream ``(stamp s, payload)`` of the image topic in bag order.
 
     The payload is JPEG/PNG ``bytes`` for CompressedImage and a uint8 array (H, W) or (H, W, 3)
-    for raw Image (mono8, bgr8, rgb8); a message that cannot be decoded yields ``None``.
+    for raw Image (mono8, bgr8, rgb8); a message that cannot be decoded yields ``None``. A
+    :class:`.video.VideoRecording` yields its decoded frames (grey arrays).
     """
+    if hasattr(path, "iter_images"):
+        yield from path.iter_images(topics)
+        return
     topics = topics or BagTopics()
     reader = open_reader(path)
     try:

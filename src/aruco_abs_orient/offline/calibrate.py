@@ -32,13 +32,14 @@ from ..calibration import (
     static_tf_yaml,
 )
 from ..detection import DetectionError, DetectorParams, decode_jpeg
-from ..markers import MarkerMap, MarkerMapError
+from ..errors import AbsOrientError
+from ..markers import MarkerMap
 from ..params import load_params
 from ..pipeline import row_fraction
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
-from .bagio import BagData, BagError, BagTopics, bag_name, iter_images, read_bag_data
-from .cli import add_params_option, process_command
+from .bagio import BagData, BagTopics, bag_name, iter_images, read_bag_data
+from .cli import add_params_option, add_video_inputs, process_command, video_recording
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
 
@@ -95,8 +96,9 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
         from tqdm import tqdm
 
         bar = tqdm(total=data.image_count, unit="frame", desc=label, dynamic_ncols=True)
+    images = iter_images(bag, topics)
     try:
-        for k, (stamp, payload) in enumerate(iter_images(bag, topics)):
+        for k, (stamp, payload) in _until_broken(images, skipped):
             if bar is not None:
                 bar.update(1)
             if k % every:
@@ -122,6 +124,22 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
         if bar is not None:
             bar.close()
     return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped, rows)
+
+
+def _until_broken(images, skipped: dict):
+    """``enumerate(images)`` up to a recording broken half-way (a video that cannot be decoded to its end):
+    the frames before are kept, the reason is counted in ``skipped``."""
+    k = 0
+    while True:
+        try:
+            item = next(images)
+        except StopIteration:
+            return
+        except AbsOrientError as e:  # the bag or video reader's own errors
+            skipped[f"reading stopped: {e}"] = 1
+            return
+        yield k, item
+        k += 1
 
 
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
@@ -164,7 +182,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "calibration.launch: the same static tfs by static_transform_publisher, to roslaunch or "
                     "<include>).",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several "
+    p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several "
                    "bags or a quoted glob ('run_*.bag') are one split recording")
     p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
@@ -194,6 +212,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
     add_params_option(p)
+    add_video_inputs(p)
     p.set_defaults(func=run)
     return p
 
@@ -223,19 +242,20 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"{args.out}: the directory {out_dir} does not exist or is not writable")
     try:
         marker_map = MarkerMap.load(args.markers)
-        data = read_bag_data(args.bag, topics)
-        obs = collect_observations(args.bag, marker_map, topics, progress=not args.quiet, data=data,
+        recording = video_recording(args, marker_map) or args.bag
+        data = read_bag_data(recording, topics)
+        obs = collect_observations(recording, marker_map, topics, progress=not args.quiet, data=data,
                                    every=args.every, detector_params=load_params(args.params).detection)
-    except (MarkerMapError, BagError) as e:
+    except AbsOrientError as e:
         return _fail(str(e))
     try:
         params = CalibrationParams(vo_track_heading=True) if args.vo_track_heading else None
-        cal = calibrate_bag(args.bag, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
+        cal = calibrate_bag(recording, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
                             params=params,
                             observations=obs, estimate_time_offset=args.refine_time_offset,
                             estimate_readout=args.readout)
     except CalibrationError as e:
-        return _fail(f"{bag_name(args.bag)}: cannot calibrate: {e}", 1)
+        return _fail(f"{bag_name(recording)}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
     snippet = launch_snippet(cal, data.base_T_camera, data.base_T_prism, topics.base_frame, topics.camera_frame,
                              topics.prism_frame)
@@ -251,5 +271,5 @@ def run(args: argparse.Namespace) -> int:
         offset = args.time_offset + cal.time_offset_delta
         print(f"time offset refined with the marker bearings: {1e3 * offset:+.1f} ms ± "
               f"{1e3 * cal.time_offset_sigma:.1f} ms (given {1e3 * args.time_offset:+.1f} ms)")
-        print(f"use: {process_command(args.bag, shlex.quote(args.markers), offset, args.out)}")
+        print(f"use: {process_command(recording, shlex.quote(args.markers), offset, args.out)}")
     return 0

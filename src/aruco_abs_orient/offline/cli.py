@@ -17,13 +17,20 @@ import sys
 from dataclasses import replace
 from typing import List, Optional
 
-from ..errors import AbsOrientError
+from ..errors import AbsOrientError, ConfigurationError
 from ..markers import MarkerMap
 from ..params import defaults_yaml, load_params
 from ..pipeline import PipelineParams
 from ..tum import atomic_write_text
-from .bagio import Bags, BagTopics, bag_paths, bags_for_shell, expand_bags
+from .bagio import Bags, BagTopics, bag_name, bag_paths, bags_for_shell, expand_bags
 from .evaluate import parse_after
+
+VIDEO_EXAMPLES = """video input (no bag: a 360° video, its VO trajectory, the prism log; doc/field_guide.md):
+  aruco-abs-orient timesync --video run.mp4 --trajectory frame_trajectory.txt --trajectory-frame camera_optical \
+      --prism prism.gsi --lever-arms lever_arms.yaml
+  aruco-abs-orient process --video run.mp4 --trajectory frame_trajectory.txt --trajectory-frame camera_optical \
+      --prism prism.gsi --lever-arms lever_arms.yaml --markers markers.yaml --out results/ --time-offset -1699999999.633
+"""
 
 BAGS_HELP = ("; several bags (a `rosbag record --split` recording, in any order) or a quoted glob such as "
              "'run_*.bag' are read as one recording in time order")
@@ -39,7 +46,57 @@ EXAMPLES = """examples:
       --calibration calibration.yaml
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --image-topic /theta/image/compressed
   aruco-abs-orient process run.bag --markers markers.yaml --out results/ --no-prism --imu-topic /imu/data
-"""
+""" + VIDEO_EXAMPLES
+
+
+def add_video_inputs(p: argparse.ArgumentParser) -> None:
+    """The options of a recording without a bag (video + VO trajectory + prism log)."""
+    from .prism import PRISM_FORMATS
+    from .video import TRAJECTORY_FRAMES
+
+    g = p.add_argument_group("video input, instead of a bag (doc/field_guide.md: The video workflow)")
+    g.add_argument("--video", metavar="FILE", help="equirectangular MP4/MOV/MKV (frame times: container timestamps)")
+    g.add_argument("--trajectory", metavar="TUM", help="VO trajectory on the video's clock (stella_vslam's "
+                   "frame_trajectory.txt, evo): t x y z qx qy qz qw")
+    g.add_argument("--trajectory-frame", choices=TRAJECTORY_FRAMES, default="base_link",
+                   help="the frame the trajectory gives: base_link, camera (x forward at the image centre, y "
+                        "left, z up) or camera_optical (stella_vslam/OpenVSLAM: x right, y down, z forward); "
+                        "default base_link")
+    g.add_argument("--prism", metavar="FILE", help="prism log on the total station's clock: CSV t,x,y,z, the "
+                   "ms60_driver ~log, or a GSI-16 tracking export (time in word 71)")
+    g.add_argument("--prism-format", choices=PRISM_FORMATS, default="auto", help="(default auto)")
+    g.add_argument("--lever-arms", metavar="YAML", help="base_link_to_camera / base_link_to_prism {xyz, rpy_deg} "
+                   "(the format `calibrate` writes; --calibration works too)")
+    g.add_argument("--video-start", choices=("zero", "creation"), default="zero",
+                   help="the video clock starts at 0 or at the creation time in its metadata (default zero)")
+
+
+class InputOptionsError(ConfigurationError):
+    """The options do not name one complete recording: which option is missing or too much."""
+
+
+def video_recording(a: argparse.Namespace, marker_map: Optional[MarkerMap] = None):
+    """The VideoRecording the options describe, or None when no --video was given; InputOptionsError for an
+    incomplete set (which option is missing) or a video given together with bags."""
+    if not getattr(a, "video", None):
+        if getattr(a, "bag", None) in (None, [], ""):
+            raise InputOptionsError("no input: expected a bag, or --video with --trajectory, --prism and --lever-arms")
+        return None
+    from ..calibration import load_calibration
+    from .video import VideoRecording
+
+    if a.bag:
+        raise InputOptionsError("a bag and --video given: expected one recording (a bag, or a video with its files)")
+    missing = [o for o, v in (("--trajectory", a.trajectory), ("--prism", a.prism),
+                              ("--lever-arms (or --calibration)", a.lever_arms or getattr(a, "calibration", None)))
+               if not v]
+    if missing:
+        raise InputOptionsError(f"--video {a.video}: missing {', '.join(missing)}")
+    levers = load_calibration(a.lever_arms or a.calibration)
+    origin = marker_map.origin if marker_map is not None and marker_map.origin is not None else (0.0, 0.0, 0.0)
+    return VideoRecording(a.video, a.trajectory, a.prism, levers["camera"], levers["prism"], a.trajectory_frame,
+                          a.video_start, tuple(float(x) for x in origin), a.prism_format,
+                          lever_arms=a.lever_arms or a.calibration)
 
 
 def _add_topics(p: argparse.ArgumentParser) -> None:
@@ -76,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "observations.csv and summary.json to --out, and check the run's own consistency "
                        "(self-checks: warnings with the likely cause and the command that fixes it).",
                        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="+", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
+    p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
     p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
     p.add_argument("--out", required=True, help="output directory (created; files are replaced atomically)")
     p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
@@ -90,9 +147,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-prism", action="store_true",
                    help="markers only: ignore the prism, each frame's pose from a resection on its markers (>= 3, "
                         "or 2 with the tilt); see the field guide, 'Without a total station'")
+    p.add_argument("--full-coordinates", action="store_true",
+                   help="also write trajectory.csv: t, E, N, H (the map origin added back) and roll, pitch, heading "
+                        "in degrees, for a surveyor")
     add_params_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
+    add_video_inputs(p)
 
     p = sub.add_parser("timesync", help="camera/VO ↔ total-station time offset of a recording",
                        description="The camera/VO ↔ total-station time offset of a recording: phase coherence of "
@@ -102,18 +163,20 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog="examples:\n  aruco-abs-orient timesync run.bag --plot results/\n"
                        "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="+", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
+    p.add_argument("bag", nargs="*", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
                    "with --markers)" + BAGS_HELP)
     p.add_argument("--markers", metavar="YAML", help="marker map: refine the offset with the marker bearings")
     p.add_argument("--every", type=int, default=3, metavar="N",
                    help="with --markers: search every N-th image (default 3)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--search", type=float, nargs=2, default=(-1.0, 1.0), metavar=("MIN", "MAX"),
-                   help="offsets searched, seconds (default -1 1)")
+    p.add_argument("--search", type=float, nargs=2, metavar=("MIN", "MAX"),
+                   help="offsets searched, seconds (default -1 1 for a bag; for a video every offset at which the "
+                        "trajectory and the prism log overlap by 10 s or more)")
     p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
     p.add_argument("--min-confidence", type=float, default=0.3, metavar="C",
                    help="refuse an estimate whose confidence (0-1) is below C (default 0.3)")
     _add_topics(p)
+    add_video_inputs(p)
 
     p = sub.add_parser(
         "evaluate", help="report of a processed run: markers agree?, residuals, coverage; errors vs a reference",
@@ -140,9 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="judge the fused output from T s after the start of the recording on (e.g. 5), or from "
                         "an absolute total-station stamp with the suffix abs (e.g. 1700000000.5abs); default: "
                         "1 s after its first absolute yaw")
-    p.add_argument("--overview", nargs=2, metavar=("BAG", "MARKERS"),
-                   help="also draw overview.png (first in the report): a frame of BAG with its markers above the "
-                        "trajectory")
+    p.add_argument("--overview", nargs=2, metavar=("BAG_OR_VIDEO", "MARKERS"),
+                   help="also draw overview.png (first in the report): a frame of the bag or video (.mp4, .mov, "
+                        ".mkv) with its markers above the trajectory")
 
     from .calibrate import add_parser as add_calibrate
 
@@ -157,6 +220,48 @@ def build_parser() -> argparse.ArgumentParser:
                               "--params my_params.yaml",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", metavar="YAML", help="write it here (default: print it)")
+    from ..markers import ARUCO_DICTIONARIES
+
+    p = sub.add_parser(
+        "markers", help="marker map YAML from a survey: CSV id,E,N,H, Leica GSI-8/16, or four corners per marker",
+        description="Build the marker map from the survey: points named by the marker id (7 or M7) are centres; "
+                    "7.1 .. 7.4 are a marker's corners measured reflectorless (top-left, top-right, bottom-right, "
+                    "bottom-left seen from the front), from which its centre and face normal come, after a check "
+                    "that they form a square of --size in a plane (the offending point is named). The YAML gets "
+                    "each marker's normal (the detector then ignores a marker seen from behind) and, with --origin, "
+                    "the local origin that ROS works relative to.",
+        epilog="examples:\n  aruco-abs-orient markers survey.gsi --size 0.19 --out markers.yaml\n"
+               "  aruco-abs-orient markers corners.csv --size 0.19 --dictionary DICT_4X4_50 "
+               "--origin 2600000 1200000 400 --out markers.yaml",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("survey", help="CSV (id, E, N, H) or GSI-8/16 file of the surveyed points")
+    p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
+    p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
+                   help="ArUco dictionary (default DICT_4X4_50)")
+    p.add_argument("--tolerance", type=float, default=0.01, metavar="M",
+                   help="largest distance of a corner from the fitted square (default 0.01 m)")
+    p.add_argument("--sigma", type=float, default=0.002, metavar="M", help="survey 1-σ per marker (default 0.002 m)")
+    p.add_argument("--origin", type=float, nargs=3, metavar=("E", "N", "H"),
+                   help="local origin for national grids (the MS60 driver's ~origin must be the same)")
+    p.add_argument("--out", required=True, metavar="YAML", help="marker map to write (atomically)")
+
+    p = sub.add_parser(
+        "video-to-bag", help="a video recording (video + VO trajectory + prism log) as a ROS 1 bag for rosbag play",
+        description="Write the video, its VO trajectory and the prism log as a ROS 1 bag in the package's topic "
+                    "layout (JPEG images, /tf, /tf_static, the prism), streamed frame by frame. The frames and the "
+                    "odometry are moved onto the total station's clock with --time-offset (from `timesync`), so "
+                    "the bag is processed with --time-offset 0 and plays with one clock.",
+        epilog="example:\n  aruco-abs-orient video-to-bag --video run.mp4 --trajectory vo.tum --prism prism.csv "
+               "--lever-arms lever_arms.yaml --time-offset -1699999999.633 --out run.bag",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, metavar="BAG", help="bag to write (atomically)")
+    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
+                   help="video clock = total-station clock + S seconds (see `timesync`; default 0)")
+    p.add_argument("--quality", type=int, default=90, metavar="Q", help="JPEG quality 1-100 (default 90)")
+    p.add_argument("--markers", metavar="YAML", help="marker map: its origin is subtracted from the prism positions")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_topics(p)
+    add_video_inputs(p)
     return parser
 
 
@@ -170,7 +275,7 @@ def add_params_option(p: argparse.ArgumentParser) -> None:
 def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
     """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s) and marker
     map as given (``markers`` already shell-quoted or a placeholder), the output in ``results/<bag name>``."""
-    stem = os.path.splitext(os.path.basename(bag_paths(bag)[0]))[0] or "run"
+    stem = os.path.splitext(os.path.basename(bag_name(bag)))[0] or "run"
     cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} --out {shlex.quote('results/' + stem)} "
            f"--time-offset {time_offset:.4f}")
     return cmd + (f" --calibration {shlex.quote(calibration)}" if calibration else "")
@@ -191,6 +296,7 @@ def cmd_process(a: argparse.Namespace) -> int:
                      f"{len(marker_map)}")
     calibration = load_calibration(a.calibration) if a.calibration else None
     tunables = load_params(a.params)
+    recording = video_recording(a, marker_map) or a.bag
     try:
         os.makedirs(a.out, exist_ok=True)
     except OSError as e:
@@ -199,14 +305,15 @@ def cmd_process(a: argparse.Namespace) -> int:
         return _fail(f"{a.out}: output directory is not writable")
     params = tunables.pipeline if a.jpeg_reduce is None else replace(tunables.pipeline, jpeg_reduce=a.jpeg_reduce)
     params = replace(params, markers_only=a.no_prism)
-    result = process_bag(a.bag, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
+    result = process_bag(recording, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
                          progress=not a.quiet, calibration=calibration, detector_params=tunables.detection,
-                         filter_params=tunables.filter)
+                         filter_params=tunables.filter, full_coordinates=a.full_coordinates)
     s = result.summary
     print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
     for w in s["warnings"]:
         print(f"aruco-abs-orient: warning: {w}", file=sys.stderr)
-    print(f"wrote {result.trajectory_path}\n      {result.observations_path}\n      {result.summary_path}")
+    print(f"wrote {result.trajectory_path}\n      {result.observations_path}\n      {result.summary_path}"
+          + "".join(f"\n      {p}" for p in result.extra_paths))
     return 0 if s["frames_with_pose"] else 1
 
 
@@ -217,9 +324,10 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     if a.every < 1:
         return _fail(f"--every: expected an integer ≥ 1, got {a.every}")
     marker_map = MarkerMap.load(a.markers) if a.markers else None
+    recording = video_recording(a, marker_map) or a.bag
     try:
-        out = estimate_bag_offset(a.bag, _topics(a), tuple(a.search), plot_dir=a.plot, marker_map=marker_map,
-                                  every=a.every, progress=not a.quiet)
+        out = estimate_bag_offset(recording, _topics(a), tuple(a.search) if a.search else None, plot_dir=a.plot,
+                                  marker_map=marker_map, every=a.every, progress=not a.quiet)
     except TimeSyncError as e:
         return _fail(f"no time offset: {e}", 1)
     est, base = out["timesync"], out["timesync_baseline"]
@@ -245,7 +353,8 @@ def cmd_timesync(a: argparse.Namespace) -> int:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
                      "weak: record longer, with more turns of varying rate, or give --markers)", 1)
     markers = shlex.quote(a.markers) if a.markers else "<markers.yaml>"
-    print(f"use: {process_command(a.bag, markers, est.offset)}" + ("" if a.markers else "   (give your marker map)"))
+    hint = "" if a.markers else "   (give your marker map)"
+    print(f"use: {process_command(recording, markers, est.offset)}{hint}")
     return 0
 
 
@@ -281,16 +390,47 @@ def cmd_params(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_markers(a: argparse.Namespace) -> int:
+    from ..survey import marker_map_from_points, read_points
+
+    if not a.size > 0 or not a.tolerance > 0 or not a.sigma > 0:
+        return _fail("--size, --tolerance and --sigma: expected positive numbers (metres)")
+    mm = marker_map_from_points(read_points(a.survey), a.dictionary, a.size, a.tolerance, a.sigma, a.origin,
+                                source=a.survey)
+    mm.save(a.out)
+    with_normal = sum(m.normal is not None for m in mm)
+    print(f"wrote {a.out}: {len(mm)} marker(s) ({with_normal} from their corners, with normals), {a.dictionary}, "
+          f"size {a.size:g} m" + (f", origin {a.origin}" if a.origin else ""))
+    return 0
+
+
+def cmd_video_to_bag(a: argparse.Namespace) -> int:
+    from .video_to_bag import video_to_bag
+
+    if not 1 <= a.quality <= 100:
+        return _fail(f"--quality: expected 1-100, got {a.quality}")
+    a.bag = None
+    recording = video_recording(a, MarkerMap.load(a.markers) if a.markers else None)  # raises without --video
+    r = video_to_bag(recording, a.out, a.time_offset, a.quality, progress=not a.quiet, topics=_topics(a))
+    print(f"wrote {r.path}: {r.frames} images (JPEG quality {a.quality}), {r.prism_samples} prism samples, "
+          f"{os.path.getsize(r.path) / 1e6:.1f} MB in {r.seconds:.1f} s; process it with --time-offset 0")
+    if r.skipped:
+        print(f"aruco-abs-orient: warning: {r.skipped} frame(s) outside the trajectory left out", file=sys.stderr)
+    if r.stopped:
+        print(f"aruco-abs-orient: warning: {r.stopped}", file=sys.stderr)
+    return 0 if r.frames else 1
+
+
 def main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
-        if getattr(a, "bag", None) is not None:
+        if getattr(a, "bag", None):
             a.bag = expand_bags(a.bag)
         if a.command == "calibrate":
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate,
-                "params": cmd_params}[a.command](a)
+                "params": cmd_params, "markers": cmd_markers, "video-to-bag": cmd_video_to_bag}[a.command](a)
     except AbsOrientError as e:  # every error of the package: its message says what, where, what was expected
         return _fail(str(e))
     except KeyboardInterrupt:

@@ -369,26 +369,34 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
 
 
 def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str], marker_map, topics=None) -> str:
-    """One picture of a run (the README's): the 360° frame from the middle of the bag with the
-    markers found in it outlined and labelled, above the corrected trajectory of base_link vs the
-    reference (when given), with its absolute heading and the markers. Returns ``path`` (PNG)."""
+    """One picture of a run (the README's): the 360° frame from the middle of the bag (or of a video:
+    ``bag`` with a video file's extension) with the markers found in it outlined and labelled, above the
+    corrected trajectory of base_link vs the reference (when given), with its absolute heading and the
+    markers, in the trajectory's coordinates (full ones with a map origin). Returns ``path`` (PNG)."""
     from matplotlib.figure import Figure
 
     from ..detection import decode_jpeg
     from ..tracking import MarkerTracker
     from .bagio import BagTopics, iter_images, open_reader
+    from .video import VIDEO_EXTENSIONS, video_frames, video_summary
 
     topics = topics or BagTopics()
-    reader = open_reader(bag)
-    middle = sum(c.msgcount for c in reader.connections if c.topic == topics.image) // 2
-    reader.close()
-    frames = iter_images(bag, topics)
     grey = None
-    for i, (_, payload) in enumerate(frames):
-        if i >= middle and isinstance(payload, bytes):
-            grey = decode_jpeg(payload)
-            break
-    frames.close()
+    if os.path.splitext(bag)[1].lower() in VIDEO_EXTENSIONS:
+        middle = video_summary(bag)[0] // 2
+        video = video_frames(bag)
+        grey = next((image for k, _, image in video if k >= middle), None)
+        video.close()
+    else:
+        reader = open_reader(bag)
+        middle = sum(c.msgcount for c in reader.connections if c.topic == topics.image) // 2
+        reader.close()
+        frames = iter_images(bag, topics)
+        for i, (_, payload) in enumerate(frames):
+            if i >= middle and isinstance(payload, bytes):
+                grey = decode_jpeg(payload)
+                break
+        frames.close()
     if grey is None:
         raise EvaluateError(f"{bag}: no decodable image from the middle of the bag on")
     obs = MarkerTracker(marker_map).process(grey).observations
@@ -414,10 +422,11 @@ def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str],
     yaw = yaw_of(est.rotations[::step])
     ax2.quiver(est.positions[::step, 0], est.positions[::step, 1], np.cos(yaw), np.sin(yaw), color="C0",
                scale=30, width=0.003, label="absolute heading")
-    pos = marker_map.positions()
+    pos = marker_map.to_full(marker_map.positions())
     ax2.plot(pos[:, 0], pos[:, 1], "s", color="k", ms=6, label="markers")
     for m in marker_map:
-        ax2.annotate(str(m.id), m.position[:2], xytext=(4, 4), textcoords="offset points", fontsize=8)
+        ax2.annotate(str(m.id), marker_map.to_full(m.position)[:2], xytext=(4, 4), textcoords="offset points",
+                     fontsize=8)
     ax2.set_aspect("equal")
     ax2.set_xlabel("map x [m]")
     ax2.set_ylabel("map y [m]")

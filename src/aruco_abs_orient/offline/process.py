@@ -6,7 +6,9 @@ then the images streamed through a bounded queue by a reader thread that also de
 stays flat with the length of the recording.
 
 Outputs in ``out_dir`` (each written atomically: complete or absent):
-- ``trajectory.tum``: base_link in map, one line per image with a pose, stamps in total-station time;
+- ``trajectory.tum``: base_link in map, one line per image with a pose, stamps in total-station time,
+  positions in full coordinates (the marker map's ``origin`` added back);
+- ``trajectory.csv`` (``full_coordinates``): t, E, N, H, roll, pitch, heading (degrees), for a surveyor;
 - ``observations.csv``: one row per marker observation;
 - ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, and
   the self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too).
@@ -65,6 +67,7 @@ class ProcessResult:
     observations_path: str
     summary_path: str
     summary: Dict[str, object] = field(default_factory=dict)
+    extra_paths: List[str] = field(default_factory=list)
 
 
 def _deg(x: float) -> str:
@@ -100,8 +103,8 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
             else:
                 item = (stamp, payload)
             out.put(item)
-    except Exception as e:  # a bag broken half-way: keep what was read, say why it stopped
-        out.put((float("nan"), f"bag reading stopped: {e}"))
+    except Exception as e:  # a bag or video broken half-way: keep what was read, say why it stopped
+        out.put((float("nan"), f"reading stopped: {e}"))
     finally:
         out.put(None)
 
@@ -126,21 +129,22 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
 def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: float = 0.0,
                 topics: Optional[BagTopics] = None, params: Optional[PipelineParams] = None,
                 progress: bool = True, data: Optional[BagData] = None, calibration: Optional[Dict] = None,
-                **pipeline_kwargs) -> ProcessResult:
+                full_coordinates: bool = False, **pipeline_kwargs) -> ProcessResult:
     """Process ``bag`` (one bag, or the files of one split recording, read as one in time order) into
     ``out_dir`` (created if needed).
 
     ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the
     timesync tool estimates). ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}``
     (``calibration.load_calibration``) used instead of the bag's /tf_static lever arms, with its
-    rolling-shutter ``"readout"`` (s) when it has one. Raises
-    BagError when the bag cannot be used at all.
+    rolling-shutter ``"readout"`` (s) when it has one. ``bag`` may also be a
+    :class:`.video.VideoRecording` (a video, its VO trajectory and prism log). Raises
+    BagError when the bag cannot be used at all. ``full_coordinates``: also write ``trajectory.csv``.
     """
     topics = topics or BagTopics()
     params = params or PipelineParams()
     t_start = time.perf_counter()
     os.makedirs(out_dir, exist_ok=True)
-    readable, salvaged, notes = bag_paths(bag), [], []
+    readable, salvaged, notes = (bag if hasattr(bag, "iter_images") else bag_paths(bag)), [], []
     if data is None:
         try:
             data = read_bag_data(bag, topics)
@@ -150,7 +154,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: flo
             data.warnings.extend(notes)
     try:
         return _process(bag, readable, data, marker_map, out_dir, time_offset, topics, params, progress,
-                        calibration, t_start, pipeline_kwargs)
+                        calibration, t_start, full_coordinates, pipeline_kwargs)
     finally:
         for path in salvaged:
             if os.path.exists(path):
@@ -176,7 +180,7 @@ def _salvage(paths: List[str], out_dir: str):
 
 
 def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, topics, params, progress, calibration,
-             t_start, pipeline_kwargs) -> ProcessResult:
+             t_start, full_coordinates, pipeline_kwargs) -> ProcessResult:
     """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
     if calibration is not None:
@@ -222,6 +226,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                 if bar is not None:
                     bar.update(1)
                 if isinstance(image, str):
+                    if image.startswith("reading stopped"):
+                        data.warnings.append(image)
                     errors[image.split(":")[0]] = errors.get(image.split(":")[0], 0) + 1
                     continue
                 T_odom, valid = data.odom.transforms_at(stamp)
@@ -257,8 +263,13 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
                     poses.append(res.map_T_base)
         stop.set()
         traj_path = os.path.join(out_dir, "trajectory.tum")
-        write_tum(traj_path, Trajectory.from_transforms(stamps, np.array(poses).reshape(-1, 4, 4)),
-                  header="base_link in map (aruco_abs_orient process); t in total-station time")
+        traj = Trajectory.from_transforms(stamps, np.array(poses).reshape(-1, 4, 4))
+        traj = traj._replace(positions=marker_map.to_full(traj.positions))
+        origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
+                                                       f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
+        write_tum(traj_path, traj,
+                  header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time")
+        extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
         obs_path = os.path.join(out_dir, "observations.csv")
         os.replace(obs_tmp, obs_path)
     except BaseException:
@@ -275,7 +286,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     if reason:
         data.warnings.append(f"no pose in {frames} frame(s): the map→odom filter never started: {reason}")
     summary = {
-        "bag": os.path.abspath(bag) if isinstance(bag, str) else [os.path.abspath(b) for b in bag_paths(bag)],
+        "bag": (os.path.abspath(bag) if isinstance(bag, str) else os.path.abspath(bag.video) if hasattr(bag, "video")
+                else [os.path.abspath(b) for b in bag_paths(bag)]),
         "markers": marker_map.source,
         "time_offset_s": time_offset,
         "lever_arms": "calibration file" if calibration is not None else "bag /tf_static",
@@ -305,4 +317,17 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag)
     summary_path = os.path.join(out_dir, "summary.json")
     atomic_write_text(summary_path, json.dumps(summary, indent=2, default=float) + "\n")
-    return ProcessResult(traj_path, obs_path, summary_path, summary)
+    return ProcessResult(traj_path, obs_path, summary_path, summary, extra)
+
+
+def write_full_csv(path: str, traj: Trajectory) -> str:
+    """``t, E, N, H, roll_deg, pitch_deg, heading_deg`` of a trajectory in full coordinates (heading: yaw,
+    counter-clockwise from E as in the map frame), mm and mdeg resolution; returns ``path``."""
+    from ..transforms import matrix_to_rpy
+
+    lines = ["t,E,N,H,roll_deg,pitch_deg,heading_deg"]
+    for t, p, R in zip(traj.stamps, traj.positions, traj.rotations):
+        r, pi, y = (math.degrees(float(a)) for a in matrix_to_rpy(R))
+        lines.append(f"{t:.6f},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f},{r:.4f},{pi:.4f},{y:.4f}")
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return path

@@ -43,13 +43,29 @@ def marker_offset_estimate(coarse: float, cal: Calibration) -> timesync.OffsetEs
                                    extra={"boresight_rpy_deg": [math.degrees(float(a)) for a in cal.boresight_rpy]})
 
 
-def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tuple[float, float] = (-1.0, 1.0),
+def default_search(data: BagData, min_overlap: float = 10.0) -> Tuple[float, float]:
+    """Offsets (s) to search when none are given: ±1 s for a bag (one clock, a small latency); for
+    separate clocks (a video) every offset at which the VO and the prism track overlap by
+    ``min_overlap`` s or more (an offset of hundreds of seconds, or of an epoch, is found as well)."""
+    if not data.separate_clocks or len(data.prism_stamps) < 2:
+        return (-1.0, 1.0)
+    lo = data.odom.stamps[0] - data.prism_stamps[-1] + min_overlap
+    hi = data.odom.stamps[-1] - data.prism_stamps[0] - min_overlap
+    if hi <= lo:
+        raise timesync.TimeSyncError(
+            f"the trajectory ({data.odom.stamps[-1] - data.odom.stamps[0]:.1f} s) and the prism log "
+            f"({data.prism_stamps[-1] - data.prism_stamps[0]:.1f} s) cannot overlap by {min_overlap:g} s")
+    return (float(lo), float(hi))
+
+
+def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Optional[Tuple[float, float]] = None,
                         data: Optional[BagData] = None, plot_dir: Optional[str] = None,
                         marker_map: Optional[MarkerMap] = None, every: int = 3,
                         progress: bool = False) -> Dict[str, object]:
     """``{"timesync": OffsetEstimate, "timesync_baseline": OffsetEstimate or reason}`` of a bag, and
     with ``marker_map`` ``"timesync_markers"``: the estimate refined with the marker bearings of every
-    ``every``-th image (an OffsetEstimate, or the reason it is not possible).
+    ``every``-th image (an OffsetEstimate, or the reason it is not possible). ``search``: the offsets
+    searched (default :func:`default_search`).
 
     Offsets in seconds, camera stamps = total-station time + offset. Raises
     ``timesync.TimeSyncError`` when the recording cannot determine it (no motion, too short).
@@ -58,6 +74,7 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Tu
     if len(data.prism_stamps) < 2:
         raise timesync.TimeSyncError(f"{bag_name(bag)}: no prism track: the time offset needs the total "
                                      "station's positions")
+    search = search or default_search(data)
     t_vo, yaw_vo = data.odom.stamps, yaw_of(data.odom.rotations)
     t_tr, xy = data.prism_stamps, data.prism_positions[:, :2]
     est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, prism_in_base=data.base_T_prism[:3, 3])

@@ -25,7 +25,10 @@ Private parameters (each checked; a bad one ends the node with one line and exit
 ``socket://``), ``~frame_id`` (map), ``~prism_constant_mm`` (optional), ``~min_latency_ms`` (the
 instrument's shortest measurement-to-reply time, 0), ``~station/x``, ``~station/y``,
 ``~station/z``, ``~station/instrument_height`` (m, optional, all of x, y, z together) and
-``~station/orientation_deg`` (optional).
+``~station/orientation_deg`` (optional), ``~origin`` ([E, N, H], default [0, 0, 0]: subtracted from every
+published position, the marker map's ``origin``, so that nothing in ROS carries national-grid coordinates),
+``~log`` (optional path: every fix appended as ``t,east,north,height`` in full coordinates, the prism
+log ``aruco-abs-orient process --prism`` reads).
 
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
@@ -37,7 +40,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from typing import Any, Dict, Tuple
+from typing import Any, Dict, Optional, Tuple
 
 import diagnostic_updater
 import rospy
@@ -49,7 +52,7 @@ from ..geocom.client import default_byte_timing
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 from . import exit_without_master
 
-__all__ = ["config_from_params", "stats_to_json", "main"]
+__all__ = ["config_from_params", "output_from_params", "log_line", "stats_to_json", "main"]
 
 
 def _number(params: Dict[str, Any], name: str, default=None, kind=float, prefix: str = ""):
@@ -120,6 +123,27 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     return config, frame_id.strip()
 
 
+def output_from_params(params: Dict[str, Any]) -> Tuple[Tuple[float, float, float], Optional[str]]:
+    """``(origin (E, N, H), log path or None)`` from the private parameters ``~origin`` and ``~log``.
+    Raises TrackerError naming the parameter."""
+    origin = params.get("origin", [0.0, 0.0, 0.0])
+    if (not isinstance(origin, (list, tuple)) or len(origin) != 3
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in origin)):
+        raise TrackerError(f"~origin: expected [E, N, H] in metres (the marker map's origin), got {origin!r}")
+    log = params.get("log", "")
+    if not isinstance(log, str):
+        raise TrackerError(f"~log: expected a file path, got {log!r}")
+    return (float(origin[0]), float(origin[1]), float(origin[2])), (log.strip() or None)
+
+
+LOG_HEADER = "t,east,north,height\n"
+
+
+def log_line(sample: PrismSample) -> str:
+    """One ``~log`` row: stamp (s, ROS time) and the position in full coordinates (0.01 mm)."""
+    return f"{sample.stamp_s:.6f},{sample.east:.5f},{sample.north:.5f},{sample.height:.5f}\n"
+
+
 def stats_to_json(stats: TrackerStats) -> str:
     """The ``ms60/status`` JSON text (drift in ppm; NaN as null)."""
     d = stats._asdict()
@@ -164,8 +188,17 @@ def main() -> None:
         sys.exit(2)
     try:
         config, frame_id = config_from_params(rospy.get_param("~", {}))
+        origin, log_path = output_from_params(rospy.get_param("~", {}))
+        log = None
+        if log_path:
+            log = open(log_path, "a", buffering=1)  # noqa: SIM115 (open while the node spins, closed after)
+            if log.tell() == 0:
+                log.write(LOG_HEADER)
     except TrackerError as e:
         rospy.logfatal(f"ms60_driver: {e}")
+        sys.exit(2)
+    except OSError as e:
+        rospy.logfatal(f"ms60_driver: ~log: cannot write {log_path}: {e.strerror}")
         sys.exit(2)
     prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
     status_pub = rospy.Publisher("ms60/status", String, queue_size=5, latch=True)
@@ -184,10 +217,13 @@ def main() -> None:
         # instrument time → host wall time (clock fit) = ROS time (sim time is refused at start-up)
         msg.header.stamp = rospy.Time.from_sec(sample.stamp_s)
         msg.header.frame_id = frame_id
-        msg.point.x, msg.point.y, msg.point.z = sample.east, sample.north, sample.height
+        msg.point.x, msg.point.y, msg.point.z = (sample.east - origin[0], sample.north - origin[1],
+                                                 sample.height - origin[2])
         prism_pub.publish(msg)
         positions.tick()
         stamp_offset.tick(sample.stamp_s)
+        if log is not None:
+            log.write(log_line(sample))
 
     def on_state(state: TrackerState) -> None:
         if state == TrackerState.ERROR:
@@ -212,3 +248,5 @@ def main() -> None:
     rospy.spin()
     timer.shutdown()
     tracker.stop()
+    if log is not None:
+        log.close()

@@ -37,7 +37,8 @@ from .render import PROFILES, encode_jpeg
 from .scenario import Scenario, ScenarioConfig
 from .world import render_frame
 
-__all__ = ["GenerateError", "GeneratedScenario", "generate", "describe", "OUTPUT_FILES", "TOPICS", "make_typestore"]
+__all__ = ["GenerateError", "GeneratedScenario", "generate", "describe", "OUTPUT_FILES", "TOPICS", "make_typestore",
+           "Messages"]
 
 OUTPUT_FILES = ("scenario.bag", "truth.tum", "markers.yaml", "hidden.yaml")
 TOPICS = {
@@ -112,7 +113,7 @@ def _ns(t: float) -> int:
     return int(round(t * 1e9))
 
 
-class _Messages:
+class Messages:
     """Builds and serialises the bag's messages with a rosbags typestore."""
 
     def __init__(self, store):
@@ -199,7 +200,7 @@ def generate(config: ScenarioConfig, out_dir: str, progress: bool = True, force:
     n = frame_times.size
     odom_T_base = scenario.odom_T_base(frame_times)
     store = make_typestore()
-    msgs = _Messages(store)
+    msgs = Messages(store)
     bag_path = os.path.join(out_dir, "scenario.bag")
     fd, tmp_bag = tempfile.mkstemp(prefix=".scenario.bag.", suffix=".tmp", dir=out_dir)
     os.close(fd)

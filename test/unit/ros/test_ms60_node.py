@@ -1,12 +1,15 @@
 """ms60_driver parameter validation (no ROS master needed) and the status JSON."""
 import json
 import math
+import os
+import re
 
+import numpy as np
 import pytest
 
 pytest.importorskip("rospy")
 from aruco_abs_orient.geocom.tracker import TrackerError, TrackerStats  # noqa: E402
-from aruco_abs_orient.ros.ms60_node import config_from_params, stats_to_json  # noqa: E402
+from aruco_abs_orient.ros.ms60_node import config_from_params, output_from_params, stats_to_json  # noqa: E402
 
 
 def test_defaults_and_full_station():
@@ -71,7 +74,7 @@ def master():
         proc.wait(timeout=10)
 
 
-def _start_driver(uri, tmp_path, port):
+def _start_driver(uri, tmp_path, port, *params):
     import os
     import subprocess
     import sys
@@ -80,7 +83,7 @@ def _start_driver(uri, tmp_path, port):
     script = Path(__file__).resolve().parents[3] / "scripts" / "ms60_driver"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), ROS_MASTER_URI=uri, ROS_HOSTNAME="localhost",
                ROS_HOME=str(tmp_path))
-    return subprocess.Popen([sys.executable, str(script), f"_port:={port}"], env=env, stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, str(script), f"_port:={port}", *params], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
@@ -113,3 +116,47 @@ def test_sim_time_left_on_the_master_is_refused_in_one_line(master, tmp_path, si
     else:
         assert proc.returncode in (0, -15), err   # ran until terminated
         assert "Traceback" not in err and sim.requests > 10
+
+
+@pytest.mark.parametrize("params,message", [
+    ({"origin": [2600000, 1200000]}, "~origin: expected [E, N, H]"),
+    ({"origin": "2600000 1200000 400"}, "~origin: expected [E, N, H]"),
+    ({"log": 3}, "~log: expected a file path")])
+def test_bad_origin_or_log_names_itself(params, message):
+    with pytest.raises(TrackerError, match=re.escape(message)):
+        output_from_params(params)
+
+
+def test_origin_is_subtracted_from_what_is_published_and_the_log_keeps_full_coordinates(master, tmp_path):
+    """An instrument set up in LV95 (E 2 600 000): with ~origin, ms60/prism carries values below 10⁴ m and
+    the ~log CSV the full coordinates; log − origin = published, to 0.01 mm (the log's resolution)."""
+    import subprocess
+    import time
+
+    from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig, builtin_track
+    from aruco_abs_orient.offline.prism import read_prism
+
+    origin = np.array([2600000.0, 1200000.0, 400.0])
+    sim = Ms60Simulator(SimConfig(), track=lambda t: origin + [123.0, 45.0, 6.0] + builtin_track(t), seed=2)
+    log = tmp_path / "prism_log.csv"
+    proc = _start_driver(master, tmp_path, f"socket://127.0.0.1:{sim.serve_tcp(0)}", "_origin:=[2600000.0, "
+                         "1200000.0, 400.0]", f"_log:={log}")
+    try:
+        echo = subprocess.run(["rostopic", "echo", "-p", "-n", "20", "/ms60/prism"], capture_output=True, text=True,
+                              timeout=60, env=dict(os.environ, ROS_MASTER_URI=master, ROS_HOSTNAME="localhost"))
+        time.sleep(0.5)
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)
+        sim.close()
+    rows = [line.split(",") for line in echo.stdout.splitlines() if line and not line.startswith("%")]
+    published = {round(int(r[2]) * 1e-9, 6): np.array([float(x) for x in r[4:7]]) for r in rows}
+    assert len(published) >= 15, echo.stdout + echo.stderr
+    assert all(np.all(np.abs(p) < 1e4) for p in published.values())
+    logged = read_prism(str(log))
+    full = {round(t, 6): p for t, p in zip(logged.stamps, logged.positions)}
+    assert np.all(logged.positions[:, 0] > 2.6e6)
+    common = sorted(set(published) & set(full))
+    assert len(common) >= 15
+    for t in common:
+        np.testing.assert_allclose(full[t] - origin, published[t], atol=1e-5)
