@@ -22,7 +22,7 @@ from ..markers import MarkerMap
 from ..params import defaults_yaml, load_params
 from ..pipeline import PipelineParams
 from ..tum import atomic_write_text
-from .bagio import Bags, BagTopics, bag_name, bag_paths, bags_for_shell, expand_bags
+from .bagio import Bags, BagTopics, bag_name, bags_for_shell, expand_bags
 from .evaluate import parse_after
 
 VIDEO_EXAMPLES = """video input (no bag: a 360° video, its VO trajectory, the prism log; doc/field_guide.md):
