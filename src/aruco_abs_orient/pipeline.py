@@ -394,12 +394,12 @@ class AbsOrientPipeline:
             res = FrameResult(stamp=float(t))
             odom_T_base = np.asarray(odom_T_base, dtype=float)
             prism = self._prism_at(t)
-        odom_roll, odom_pitch, _ = (float(a) for a in matrix_to_rpy(odom_T_base[:3, :3]))
+        odom_roll, odom_pitch, odom_yaw = (float(a) for a in matrix_to_rpy(odom_T_base[:3, :3]))
         clock = time.perf_counter()
         self._count("observations", len(observations))
         if prism is None:
             self._count("markers_only_frames" if self.params.markers_only else "no_prism")
-            tilt = self.tilt.tilt(t, odom_roll, odom_pitch)
+            tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             self._resect_frame(t, res, observations, tilt, odom_T_base, gated)
         else:
             p, extra_sigma = prism
@@ -407,10 +407,10 @@ class AbsOrientPipeline:
             s2 = self.params.prism_sigma ** 2 + extra_sigma ** 2
             prism_cov = np.eye(3) * s2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
-            tilt = self.tilt.tilt(t, odom_roll, odom_pitch)
+            tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             if tilt.source != "imu" and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll,
-                                                                odom_pitch):
-                tilt = self.tilt.tilt(t, odom_roll, odom_pitch)
+                                                                odom_pitch, odom_yaw):
+                tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             rows = self._row_times(t, list(observations) + list(gated), image_height, odom_T_base)
             self._solve_frame(t, res, observations, p, prism_cov, tilt, odom_T_base, gated, rows)
         res.tilt_source = tilt.source
@@ -459,7 +459,8 @@ class AbsOrientPipeline:
             return None
         return self.prism.at(t, self.params.prism_max_gap, self.params.prism_max_extrapolation)
 
-    def _tilt_from_markers(self, t, observations, prism_p, prism_cov, tilt: Tilt, odom_roll, odom_pitch) -> bool:
+    def _tilt_from_markers(self, t, observations, prism_p, prism_cov, tilt: Tilt, odom_roll, odom_pitch,
+                           odom_yaw) -> bool:
         """Roll and pitch from a frame's ≥ 2 well-spread markers and the prism (:func:`attitude_from_markers`)
         as a gated update of the tilt; True when it was taken."""
         if len(observations) < 2:
@@ -474,7 +475,7 @@ class AbsOrientPipeline:
         except SolverError:
             self._count("tilt_from_markers_refused")
             return False
-        taken = self.tilt.update(t, est.roll, est.pitch, est.cov[:2, :2], odom_roll, odom_pitch)
+        taken = self.tilt.update(t, est.roll, est.pitch, est.cov[:2, :2], odom_roll, odom_pitch, odom_yaw=odom_yaw)
         self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
         return taken
 
@@ -534,8 +535,9 @@ class AbsOrientPipeline:
         prior = np.array([tilt.roll, tilt.pitch])
         post = prior + wrap_angle(np.array([est.roll, est.pitch]) - prior)
         x = C @ (info_post @ post - info_prior @ prior)
-        odom_roll, odom_pitch, _ = matrix_to_rpy(odom_T_base[:3, :3])
-        taken = self.tilt.update(t, float(x[0]), float(x[1]), C, float(odom_roll), float(odom_pitch))
+        odom_roll, odom_pitch, odom_yaw = matrix_to_rpy(odom_T_base[:3, :3])
+        taken = self.tilt.update(t, float(x[0]), float(x[1]), C, float(odom_roll), float(odom_pitch),
+                                 odom_yaw=float(odom_yaw))
         self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
 
     def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, tilt: Tilt,

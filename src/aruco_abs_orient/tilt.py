@@ -1,9 +1,11 @@
 """Roll and pitch of base_link (gravity), from the best source at hand (issue 15).
 
 The odometry's roll and pitch drift (a VO that started tilted, or drifts in tilt), and a tilt error
-biases the marker yaw through the marker's elevation and the lever arm. :class:`TiltEstimator` keeps
-the odometry's tilt error, ``offset = (roll, pitch)_true − (roll, pitch)_odom`` (rad), as a random walk
-in a two-state Kalman filter, updated by absolute tilts with χ² gating:
+biases the marker yaw through the marker's elevation and the lever arm. A VO's tilt error is a tilt of
+its odom frame against gravity, fixed in odom while the platform turns under it: base_link's roll and
+pitch error is that tilt seen from the platform's heading ψ, ``(roll, pitch)_true − (roll, pitch)_odom =
+Rz(−ψ)·δ`` to first order. :class:`TiltEstimator` keeps ``δ`` (rad, about odom's x and y axes) as a random
+walk in a two-state Kalman filter, updated by absolute tilts with χ² gating:
 
 * an IMU (``sensor_msgs/Imu``): its orientation's roll and pitch, or, when the orientation is unknown
   (REP-145: covariance[0] = −1) or not finite, gravity from its acceleration at standstill
@@ -118,14 +120,20 @@ class TiltEstimator:
         self._imu_t: List[float] = []
         self._imu: List[Tuple[float, float, float]] = []
 
+    @staticmethod
+    def _seen_from(odom_yaw: float) -> np.ndarray:
+        """H: base_link's (roll, pitch) error = H · δ at the heading ``odom_yaw`` (rad)."""
+        c, s = math.cos(odom_yaw), math.sin(odom_yaw)
+        return np.array([[c, s], [-s, c]])
+
     def _predict(self, t: float) -> np.ndarray:
         dt = max(0.0, t - self.t) if math.isfinite(self.t) else 0.0
         return self.P + np.eye(2) * self.params.offset_walk ** 2 * dt
 
     def update(self, t: float, roll: float, pitch: float, cov, odom_roll: float, odom_pitch: float,
-               source: str = "markers") -> bool:
-        """An absolute tilt (rad, covariance 2×2 rad² or a σ) at ``t`` (s) with the odometry's then;
-        False when gated or not finite."""
+               source: str = "markers", odom_yaw: float = 0.0) -> bool:
+        """An absolute tilt (rad, covariance 2×2 rad² or a σ) at ``t`` (s) with the odometry's roll, pitch
+        and yaw then; False when gated or not finite."""
         C = np.asarray(cov, dtype=float)
         C = C * C * np.eye(2) if C.ndim == 0 else C
         z = wrap_angle(np.array([roll - odom_roll, pitch - odom_pitch]))
@@ -133,14 +141,15 @@ class TiltEstimator:
             self.rejected += 1
             return False
         P = self._predict(t)
-        S = P + C
-        nu = z - self.offset
+        H = self._seen_from(odom_yaw)
+        S = H @ P @ H.T + C
+        nu = z - H @ self.offset
         if float(nu @ np.linalg.solve(S, nu)) > self.params.gate_chi2:
             self.rejected += 1
             return False
-        K = P @ np.linalg.inv(S)
+        K = P @ H.T @ np.linalg.inv(S)
         self.offset = self.offset + K @ nu
-        self.P = (np.eye(2) - K) @ P
+        self.P = (np.eye(2) - K @ H) @ P
         self.t = max(t, self.t)
         if source == "imu":
             self.imu_updates += 1
@@ -176,14 +185,15 @@ class TiltEstimator:
                 return self._imu[j]
         return None
 
-    def tilt(self, t: float, odom_roll: float, odom_pitch: float) -> Tilt:
-        """The tilt of base_link at ``t`` (s) given the odometry's roll and pitch then (rad)."""
+    def tilt(self, t: float, odom_roll: float, odom_pitch: float, odom_yaw: float = 0.0) -> Tilt:
+        """The tilt of base_link at ``t`` (s) given the odometry's roll, pitch and yaw then (rad)."""
         imu = self.imu_at(t)
         if imu is not None:
-            self.update(t, imu[0], imu[1], imu[2], odom_roll, odom_pitch, source="imu")
+            self.update(t, imu[0], imu[1], imu[2], odom_roll, odom_pitch, source="imu", odom_yaw=odom_yaw)
             return Tilt(imu[0], imu[1], imu[2], "imu")
         if self.marker_updates or self.imu_updates:
-            P = self._predict(t)
-            return Tilt(odom_roll + float(self.offset[0]), odom_pitch + float(self.offset[1]),
-                        math.sqrt(max(P[0, 0], P[1, 1])), self.last_source)
+            P = self._predict(t)   # H is a rotation: the largest σ is the same in odom and in base_link
+            d = self._seen_from(odom_yaw) @ self.offset
+            return Tilt(odom_roll + float(d[0]), odom_pitch + float(d[1]),
+                        math.sqrt(float(np.linalg.eigvalsh(P)[-1])), self.last_source)
         return Tilt(odom_roll, odom_pitch, self.params.odometry_sigma, "odometry")
