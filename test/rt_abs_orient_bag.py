@@ -106,12 +106,12 @@ def with_odometry_at(directory: Path, hz: float) -> Path:
         return out
     from rosbags.rosbag1 import Reader, Writer
 
-    from aruco_abs_orient.synthetic.bag import _Messages, make_typestore
+    from aruco_abs_orient.synthetic.bag import Messages, make_typestore
     from aruco_abs_orient.synthetic.scenario import Scenario
 
     sc = Scenario.from_hidden(str(directory / "hidden.yaml"))
     offset = float(sc.config.camera_time_offset)
-    msgs = _Messages(make_typestore())
+    msgs = Messages(make_typestore())
     stamps = sc.camera_stamps
     extra = np.arange(stamps[0], stamps[-1], 1.0 / hz)
     extra = extra[np.min(np.abs(extra[:, None] - stamps[None, :]), axis=1) > 1e-3]  # not at a frame's stamp
