@@ -451,11 +451,18 @@ class BagRun(unittest.TestCase):
         self.assertEqual(stamps_only_go_forward(self.rec), [], "a map->odom stamp went back")
         end = self.truth.stamps[-1] + self.offset  # the bag's last odometry: its clock runs on with the prism
         looked = [x for x in consumer.lookups if x[1] <= end]
+        # a lookup that failed because the odometry itself had not reached this process yet (the player or
+        # this process lagging on a loaded machine) says nothing about the owner: reported, left out (≤ 2 %)
+        late_odometry = {(k, t) for k, t, cause, _ in consumer.failures if cause == "odometry" and t <= end}
+        self.report(f"{ARGS.owner} owner: lookups failed for want of odometry (left out)", len(late_odometry),
+                    0.02 * len(looked), "")
+        self.assertLessEqual(len(late_odometry), 0.02 * len(looked), "the odometry lagged: the test says little")
         for kind in ("now", "scan"):
-            ok = [T is not None for k, _, T in looked if k == kind]
+            ok = [T is not None for k, t, T in looked if k == kind and (k, t) not in late_odometry]
             self.report(f"{ARGS.owner} owner: lookups at {kind} that succeeded (of {len(ok)})",
                         100.0 * float(np.mean(ok)) if ok else 0.0, 99.5, "%")
-            failed = [(round(t, 3), why) for k, t, T, why in consumer.failures if k == kind and t <= end][:5]
+            failed = [(round(t, 3), cause, why) for k, t, cause, why in consumer.failures
+                      if k == kind and t <= end and cause != "odometry"][:5]
             rospy.loginfo("lookups at %s: the first failures: %s", kind, failed)
             self.assertGreaterEqual(np.mean(ok), 0.995, f"lookups at {kind}: {len(ok) - sum(ok)} of {len(ok)} "
                                                         f"failed, the first: {failed}")
