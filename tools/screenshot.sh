@@ -4,7 +4,7 @@
 #   - installs rviz, xvfb and imagemagick with apt when missing (on demand only: `make setup` does not, they
 #     would slow a fresh `make test`);
 #   - the recording: SCREENSHOT_SCENARIO=<dir> (a generated scenario: scenario.bag, markers.yaml, hidden.yaml);
-#     default the demo scenario when `make demo` has rendered it (.cache/demo/scenario), else the ci preset
+#     default the demo scenario when `make demo` has rendered it (.cache/easy/scenario), else the ci preset
 #     rendered once into .cache/screenshot/scenario (about 2 minutes);
 #   - SCREENSHOT_AT=<s>: wall seconds after playback starts (default 22), SCREENSHOT_OUT=<png>.
 # Replays with `roslaunch aruco_abs_orient postprocess.launch use_ekf:=true rviz:=true` on its own master.
@@ -27,8 +27,8 @@ fi
 
 SCEN=${SCREENSHOT_SCENARIO:-}
 if [[ -z $SCEN ]]; then
-  if [[ -f $ROOT/.cache/demo/scenario/scenario.bag ]]; then
-    SCEN=$ROOT/.cache/demo/scenario
+  if [[ -f $ROOT/.cache/easy/scenario/scenario.bag ]]; then
+    SCEN=$ROOT/.cache/easy/scenario
   else
     SCEN=$ROOT/.cache/screenshot/scenario
     if [[ ! -f $SCEN/scenario.bag ]]; then
