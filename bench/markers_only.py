@@ -106,8 +106,8 @@ def tilt() -> None:
     print("\n## VO roll/pitch drifting 1°/min, with the prism, 10 markers, 60 s, seeds 0-2 (yaw RMSE from 2 s)")
     cases = [("perfect VO tilt", {"vo_tilt_drift_deg_per_min": 0.0}, {}),
              ("drift + IMU (100 Hz, 0.02°)", {"imu_rate": 100.0}, {}),
-             ("drift, no IMU: tilt from the markers", {}, {}),
-             ("drift, uncorrected (VO tilt only)", {}, {"attitude_min_spread_deg": 90.0})]
+             ("drift, no IMU: tilt from the markers", {}, {"tilt_from_markers": True}),
+             ("drift, uncorrected (VO tilt only)", {}, {})]
     out = {}
     for name, extra, pp in cases:
         errs = []

@@ -90,6 +90,10 @@ class PipelineParams:
       from the camera, is refused (degrees).
     - ``attitude_min_spread_deg``: with the prism, a frame whose markers span at least this angle (degrees)
       also measures roll and pitch (``solver.attitude_from_markers``), a gated update of the tilt.
+    - ``tilt_from_markers``: use that measurement (and, without a prism, a resection's roll and pitch) to
+      correct the odometry's tilt. Off by default: the markers measure the CAMERA's attitude, so an
+      uncalibrated camera roll or pitch (boresight) would be taken for a platform tilt (and the self-check
+      could no longer see it); turn it on after ``calibrate``, or rely on an IMU.
     """
 
     prism_sigma: float = 0.005
@@ -105,6 +109,7 @@ class PipelineParams:
     markers_only: bool = False
     resection_min_cone_deg: float = 10.0
     attitude_min_spread_deg: float = 20.0
+    tilt_from_markers: bool = False
 
     def validate(self) -> None:
         for f in fields(self):
@@ -408,8 +413,8 @@ class AbsOrientPipeline:
             prism_cov = np.eye(3) * s2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
             tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
-            if tilt.source != "imu" and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll,
-                                                                odom_pitch, odom_yaw):
+            if (self.params.tilt_from_markers and tilt.source != "imu"
+                    and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll, odom_pitch, odom_yaw)):
                 tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             rows = self._row_times(t, list(observations) + list(gated), image_height, odom_T_base)
             self._solve_frame(t, res, observations, p, prism_cov, tilt, odom_T_base, gated, rows)
@@ -513,7 +518,7 @@ class AbsOrientPipeline:
         cov4 = est.cov[np.ix_([5, 0, 1, 2], [5, 0, 1, 2])]
         update = self.filter.add_pose(t, est.position, est.yaw, cov4, odom_T_base, sources=used)
         res.marker_pose, res.marker_pose_cov, res.marker_pose_accepted = est.map_T_base, est.cov, update.accepted
-        if update.accepted and len(obs) >= 3 and tilt.source != "imu":
+        if update.accepted and len(obs) >= 3 and tilt.source != "imu" and self.params.tilt_from_markers:
             self._tilt_from_resection(t, est, tilt, odom_T_base)
         for r, ok in zip(rows, inlier):
             r.yaw = est.yaw

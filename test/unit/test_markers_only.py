@@ -184,7 +184,7 @@ def test_a_drifting_odometry_tilt_is_corrected_by_the_imu_or_the_markers(imu):
     """VO roll/pitch drifting 3°/min: with the prism, the markers' attitude (or the IMU) keep the tilt used for
     the yaws on the truth while the odometry's is degrees off."""
     cfg = replace(HALL, seed=4, duration=40.0, vo_tilt_drift_deg_per_min=3.0, imu_rate=50.0 if imu else 0.0)
-    rel, eh, _, results, pipe = errors(cfg)
+    rel, eh, _, results, pipe = errors(cfg, PipelineParams(tilt_from_markers=True))
     sc = Scenario(cfg)
     t_end = sc.frame_times[-1]
     true_rp = np.array(matrix_to_rpy(sc.map_T_base(t_end)[:3, :3])[:2])

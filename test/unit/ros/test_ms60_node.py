@@ -151,12 +151,12 @@ def test_origin_is_subtracted_from_what_is_published_and_the_log_keeps_full_coor
         sim.close()
     rows = [line.split(",") for line in echo.stdout.splitlines() if line and not line.startswith("%")]
     published = {round(int(r[2]) * 1e-9, 6): np.array([float(x) for x in r[4:7]]) for r in rows}
-    assert len(published) >= 15, echo.stdout + echo.stderr
+    assert len(published) >= 10, echo.stdout + echo.stderr  # of 20 echoed (a loaded machine drops some)
     assert all(np.all(np.abs(p) < 1e4) for p in published.values())
     logged = read_prism(str(log))
     full = {round(t, 6): p for t, p in zip(logged.stamps, logged.positions)}
     assert np.all(logged.positions[:, 0] > 2.6e6)
     common = sorted(set(published) & set(full))
-    assert len(common) >= 15
+    assert len(common) >= 10
     for t in common:
         np.testing.assert_allclose(full[t] - origin, published[t], atol=1e-5)
