@@ -399,7 +399,8 @@ class AbsOrientPipeline:
             res = FrameResult(stamp=float(t))
             odom_T_base = np.asarray(odom_T_base, dtype=float)
             prism = self._prism_at(t)
-        odom_roll, odom_pitch, odom_yaw = (float(a) for a in matrix_to_rpy(odom_T_base[:3, :3]))
+        odom_rpy = np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float)
+        odom_roll, odom_pitch, odom_yaw = (float(a) for a in odom_rpy)
         clock = time.perf_counter()
         self._count("observations", len(observations))
         if prism is None:
@@ -416,10 +417,10 @@ class AbsOrientPipeline:
             if (self.params.tilt_from_markers and tilt.source != "imu"
                     and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll, odom_pitch, odom_yaw)):
                 tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
-            rows = self._row_times(t, list(observations) + list(gated), image_height, odom_T_base)
+            rows = self._row_times(t, list(observations) + list(gated), image_height, odom_rpy)
             self._solve_frame(t, res, observations, p, prism_cov, tilt, odom_T_base, gated, rows)
         res.tilt_source = tilt.source
-        self._last_odom = (float(t), np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float))
+        self._last_odom = (float(t), odom_rpy)
         res.timings["solve"] = 1e3 * (time.perf_counter() - clock)
 
         res.initialised = self.filter.initialised
@@ -439,17 +440,16 @@ class AbsOrientPipeline:
         self.last_stamp = float(t)
         return res
 
-    def _row_times(self, t: float, observations, image_height, odom_T_base):
+    def _row_times(self, t: float, observations, image_height, odom_rpy: np.ndarray):
         """Per observation: None at a global shutter (readout 0: the frame's prism and tilt serve), else
         (row time − t in s, prism position at the row time or None, the odometry's roll, pitch and yaw
         changes from t to the row time) — at the rates between the previous frame's odometry and this
         one's (zero when there is none within ``ODOM_RATE_MAX_GAP``)."""
         if self.readout == 0.0 or not observations:
             return [None] * len(observations)
-        rpy = np.array(matrix_to_rpy(odom_T_base[:3, :3]), dtype=float)
         rate = np.zeros(3)
         if self._last_odom is not None and 0.0 < t - self._last_odom[0] <= ODOM_RATE_MAX_GAP:
-            rate = wrap_angle(rpy - self._last_odom[1]) / (t - self._last_odom[0])
+            rate = wrap_angle(odom_rpy - self._last_odom[1]) / (t - self._last_odom[0])
         dts = row_fraction(np.array([o.centre for o in observations]), image_height) * self.readout
         q = self.params
         out = []
