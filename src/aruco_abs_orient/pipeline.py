@@ -30,7 +30,8 @@ from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
-from .solver import SolverError, attitude_from_markers, fuse_yaws, resection, yaw_from_marker
+from .solver import (FitSettings, Mounting, NoiseModel, SolverError, attitude_from_markers, fuse_yaws, resection,
+                     yaw_from_marker)
 from .tilt import Tilt, TiltEstimator, TiltParams
 from .tracking import MarkerTracker, TrackingStats
 from .transforms import matrix_to_rpy, wrap_angle, yaw_of
@@ -258,6 +259,10 @@ class AbsOrientPipeline:
         self._last_odom: Optional[Tuple[float, np.ndarray]] = None   # (t, roll/pitch/yaw) of the last frame
         self._uninitialised_frames = 0
 
+    def _mounting(self) -> Mounting:
+        """The camera's and the prism's place on base_link, as the solvers take it."""
+        return Mounting(self.base_T_camera, self.base_T_prism[:3, 3])
+
     def _count(self, key: str, n: int = 1) -> None:
         self.stats[key] = self.stats.get(key, 0) + n
 
@@ -472,11 +477,12 @@ class AbsOrientPipeline:
             return False
         M = np.array([self.marker_map[o.id].position for o in observations])
         try:
+            noise = NoiseModel(bearing=np.array([o.sigma for o in observations]), prism_cov=prism_cov,
+                               marker=np.array([self.marker_map[o.id].sigma for o in observations]))
             est = attitude_from_markers(
-                np.array([o.centre for o in observations]), M, prism_p, self.base_T_camera, self.base_T_prism[:3, 3],
-                sigma_bearing=np.array([o.sigma for o in observations]), prism_cov=prism_cov,
-                marker_sigma=np.array([self.marker_map[o.id].sigma for o in observations]),
-                tilt=(tilt.roll, tilt.pitch), min_spread=math.radians(self.params.attitude_min_spread_deg))
+                np.array([o.centre for o in observations]), M, prism_p, self._mounting(), noise=noise,
+                tilt=(tilt.roll, tilt.pitch),
+                settings=FitSettings(min_spread=math.radians(self.params.attitude_min_spread_deg)))
         except SolverError:
             self._count("tilt_from_markers_refused")
             return False
@@ -502,12 +508,12 @@ class AbsOrientPipeline:
         if len(obs) == 2 and self.filter.initialised:      # two solutions possible: the one near the prediction
             start = self.filter.map_T_odom(t)[0] @ odom_T_base
         try:
+            noise = NoiseModel(bearing=np.array([o.sigma for o in obs]),
+                               marker=np.array([self.marker_map[o.id].sigma for o in obs]))
             est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
-                            self.base_T_camera, sigma_bearing=np.array([o.sigma for o in obs]),
-                            marker_sigma=np.array([self.marker_map[o.id].sigma for o in obs]),
-                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA),
-                            initial_pose=start,
-                            min_cone=math.radians(self.params.resection_min_cone_deg))
+                            self.base_T_camera, noise=noise, tilt=(tilt.roll, tilt.pitch),
+                            tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA), initial_pose=start,
+                            settings=FitSettings(min_cone=math.radians(self.params.resection_min_cone_deg)))
         except SolverError as e:
             self._count("resection_degenerate")
             for r in rows:
@@ -571,9 +577,9 @@ class AbsOrientPipeline:
                 continue
             try:
                 est = yaw_from_marker(
-                    o.centre, m.position, p_o, roll_o, pitch_o, self.base_T_camera,
-                    self.base_T_prism[:3, 3], sigma_bearing=o.sigma, prism_cov=prism_cov, marker_sigma=m.sigma,
-                    tilt_sigma=tilt.sigma, lever_sigma=q.lever_sigma, min_range=q.min_range)
+                    o.centre, m.position, p_o, (roll_o, pitch_o), self._mounting(),
+                    NoiseModel(bearing=o.sigma, prism_cov=prism_cov, marker=m.sigma, tilt=tilt.sigma,
+                               lever=q.lever_sigma), min_range=q.min_range)
             except SolverError as e:
                 self._count("degenerate")
                 res.observations.append(ObservationResult(o, reason=f"geometry: {e}"))

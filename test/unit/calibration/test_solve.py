@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, calibrate
-from aruco_abs_orient.solver import yaw_from_marker
+from aruco_abs_orient.solver import Mounting, yaw_from_marker
 from aruco_abs_orient.transforms import matrix_to_rpy, wrap_angle
 from aruco_abs_orient.tum import Trajectory
 
@@ -91,7 +91,7 @@ def test_yaw_from_marker_bias_removed_after_applying():
         yaw_true = float(matrix_to_rpy(T[:3, :3])[2]) + 0.4 + math.radians(0.05) * t[k] + \
             math.radians(0.5) * math.sin(t[k] / 17.0)
         for Tc, out in ((NOMINAL_CAMERA, err_before), (calibrated, err_after)):
-            est = yaw_from_marker(b[k], mmap[int(ids[k])].position, P, float(roll), float(pitch), Tc, PRISM[:3, 3])
+            est = yaw_from_marker(b[k], mmap[int(ids[k])].position, P, (roll, pitch), Mounting(Tc, PRISM[:3, 3]))
             out.append(float(wrap_angle(est.yaw - yaw_true)))
     assert abs(math.degrees(np.mean(err_before))) > 0.3
     assert abs(math.degrees(np.mean(err_after))) < 0.02
