@@ -30,6 +30,7 @@ from .transforms import wrap_angle
 from .tum import atomic_write_bytes, atomic_write_text, sorted_series
 
 __all__ = [
+    "EvaluationParams",
     "EvaluationError",
     "save_figure",
     "ErrorStats",
@@ -61,6 +62,33 @@ _EXACT = 1e-6  # s: stamps this close are the same instant (the same image)
 
 class EvaluationError(InputFileError, ValueError):
     """Inputs that cannot be evaluated (empty, mismatched lengths, no common times); says why."""
+
+
+@dataclass
+class EvaluationParams:
+    """What ``aruco-abs-orient evaluate`` computes (cfg/params.yaml's ``evaluation`` section).
+
+    - ``max_gap``: a pose (or a marker yaw) is compared with the reference only where the reference has
+      samples at most this far apart (s) around it: no error is interpolated across a gap.
+    - ``min_gap``: coverage lists the gaps between poses longer than this (s).
+    - ``settle``: the fused output (``--fused``) is judged from this long (s) after its first absolute yaw
+      (the EKF converges), unless ``--after`` says when.
+    """
+
+    max_gap: float = 0.2
+    min_gap: float = 0.5
+    settle: float = 1.0
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise EvaluationError naming the first out-of-range field."""
+        for name in ("max_gap", "min_gap", "settle"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise EvaluationError(f"EvaluationParams.{name}: expected a finite non-negative number of seconds, "
+                                      f"got {v!r}")
 
 
 def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:

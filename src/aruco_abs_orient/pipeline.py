@@ -30,10 +30,18 @@ from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
-from .solver import (FitSettings, Mounting, NoiseModel, SolverError, attitude_from_markers, fuse_yaws, resection,
-                     yaw_from_marker)
+from .solver import (
+    FitSettings,
+    Mounting,
+    NoiseModel,
+    SolverError,
+    attitude_from_markers,
+    fuse_yaws,
+    resection,
+    yaw_from_marker,
+)
 from .tilt import Tilt, TiltEstimator, TiltParams
-from .tracking import MarkerTracker, TrackingStats
+from .tracking import MarkerTracker, TrackingParams, TrackingStats
 from .transforms import matrix_to_rpy, wrap_angle, yaw_of
 
 __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationResult", "PipelineError",
@@ -64,7 +72,7 @@ class PipelineError(ConfigurationError, ValueError):
 
 @dataclass
 class PipelineParams:
-    """Knobs of the pipeline itself (detection and filter knobs live in their own objects).
+    """Knobs of the pipeline itself (detection, tracking and filter knobs live in their own objects).
 
     - ``prism_sigma``: 1-σ per axis of a total-station prism position (m).
     - ``prism_max_gap``: largest gap between the two prism samples around an image for
@@ -124,11 +132,12 @@ class PipelineParams:
 
 
 #: (group, params class) of every tunable the pipeline takes: cfg/params.yaml's sections, in its order
-PARAM_GROUPS = (("pipeline", PipelineParams), ("detection", DetectorParams), ("filter", FilterParams))
+PARAM_GROUPS = (("pipeline", PipelineParams), ("detection", DetectorParams), ("tracking", TrackingParams),
+                ("filter", FilterParams))
 
 
 def all_param_fields() -> List[Tuple[str, str, object]]:
-    """(group, name, default) of every tunable: pipeline, detection, filter (flat, unique names)."""
+    """(group, name, default) of every tunable: pipeline, detection, tracking, filter (flat, unique names)."""
     return [(group, f.name, f.default) for group, cls in PARAM_GROUPS for f in fields(cls)]
 
 
@@ -232,7 +241,8 @@ class AbsOrientPipeline:
 
     def __init__(self, marker_map: MarkerMap, base_T_camera, base_T_prism,
                  params: Optional[PipelineParams] = None, detector_params: Optional[DetectorParams] = None,
-                 filter_params: Optional[FilterParams] = None, readout: float = 0.0):
+                 filter_params: Optional[FilterParams] = None, readout: float = 0.0,
+                 tracking_params: Optional[TrackingParams] = None):
         for name, T in (("base_T_camera", base_T_camera), ("base_T_prism", base_T_prism)):
             T = np.asarray(T, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -246,13 +256,14 @@ class AbsOrientPipeline:
         self.params = params or PipelineParams()
         self.params.validate()
         self.detector_params = detector_params or DetectorParams()
+        self.tracking_params = tracking_params or TrackingParams()
         self.filter_params = filter_params or FilterParams()
         self.prism = PrismBuffer()
         self.stats: Dict[str, int] = {}
         self._build()
 
     def _build(self) -> None:
-        self.tracker = MarkerTracker(self.marker_map, self.detector_params)
+        self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
         self.tilt = TiltEstimator(TiltParams(odometry_sigma=math.radians(self.params.tilt_sigma_deg)))
         self.last_stamp: Optional[float] = None
@@ -269,8 +280,7 @@ class AbsOrientPipeline:
     # ------------------------------------------------------------------ configuration
     def update_params(self, **changes) -> None:
         """Change tunables by name (any of :func:`all_param_fields`), e.g. from dynamic_reconfigure."""
-        groups = {"pipeline": self.params, "detection": self.detector_params, "filter": self.filter_params}
-        per_group: Dict[str, dict] = {g: {} for g in groups}
+        per_group: Dict[str, dict] = {group: {} for group, _ in PARAM_GROUPS}
         names = {name: group for group, name, _ in all_param_fields()}
         for k, v in changes.items():
             if k not in names:
@@ -281,9 +291,11 @@ class AbsOrientPipeline:
             p.validate()
             self.params = p
             self.tilt.params.odometry_sigma = math.radians(p.tilt_sigma_deg)
-        if per_group["detection"]:
-            self.detector_params = replace(self.detector_params, **per_group["detection"])
-            self.tracker = MarkerTracker(self.marker_map, self.detector_params)
+        if per_group["detection"] or per_group["tracking"]:
+            detector = replace(self.detector_params, **per_group["detection"])  # both validated before either
+            tracking = replace(self.tracking_params, **per_group["tracking"])   # is taken
+            self.detector_params, self.tracking_params = detector, tracking
+            self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params)
         if per_group["filter"]:
             self.filter_params = replace(self.filter_params, **per_group["filter"])
             self.filter.update_params(self.filter_params)

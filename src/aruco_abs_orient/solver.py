@@ -120,8 +120,10 @@ class FitSettings:
     max_iterations: int = 50
 
 
+_EXACT = NoiseModel()
 #: the bearing noise assumed by the multi-marker solvers when the caller gives none (rad)
 _MULTI_NOISE = NoiseModel(bearing=1e-3)
+_FIT = FitSettings()
 
 
 class YawEstimate(NamedTuple):
@@ -331,7 +333,7 @@ def _rpy_jacobian(R: np.ndarray) -> np.ndarray:
 
 
 def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting: Mounting,
-                    noise: NoiseModel = NoiseModel(), *, min_range: float = 0.1,
+                    noise: NoiseModel = _EXACT, *, min_range: float = 0.1,
                     min_horizontal: float = 0.02) -> YawEstimate:
     """Yaw of base_link (rad) from one marker bearing, in closed form.
 
@@ -630,7 +632,7 @@ def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float
 
 def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise: NoiseModel = _MULTI_NOISE,
                           tilt: Tuple[float, float] = (0.0, 0.0), initial_yaw: Optional[float] = None,
-                          settings: FitSettings = FitSettings()) -> AttitudeEstimate:
+                          settings: FitSettings = _FIT) -> AttitudeEstimate:
     """Full attitude of base_link from ≥ 2 marker bearings and the prism position.
 
     Args:
@@ -717,7 +719,7 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
 
 def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NOISE,
               tilt: Tuple[float, float] = (0.0, 0.0), tilt_sigma: Optional[float] = None, initial_pose=None,
-              settings: FitSettings = FitSettings()) -> ResectionEstimate:
+              settings: FitSettings = _FIT) -> ResectionEstimate:
     """Position and attitude of base_link from ≥ 3 marker bearings (no prism), or from ≥ 2 when the
     tilt is known (``tilt_sigma`` given).
 

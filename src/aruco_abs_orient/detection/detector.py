@@ -196,15 +196,15 @@ class MarkerDetector:
 
     def detect_in_views(self, grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView],
                         maps: Sequence[Tuple[np.ndarray, np.ndarray]], expect_ids: Sequence[int],
-                        method: str = "tracked", expect_sizes: Optional[Sequence[float]] = None
-                        ) -> List[MarkerObservation]:
+                        method: str = "tracked", expect_sizes: Optional[Sequence[float]] = None, *,
+                        gate: float) -> List[MarkerObservation]:
         """The expected marker in each of several small gnomonic views, in one OpenCV call.
 
         The views (with their :meth:`view_maps`, step ≤ 4) are rendered into one mosaic
         (stacked, separated by flat grey rows), OpenCV searches it once, every find is
         assigned to its view and kept only if it is that view's ``expect_ids`` entry; its
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
-        get their rejected quads within ``gate_deg`` of the view centre decoded
+        get their rejected quads within ``gate`` (radians: the tracking gate) of the view centre decoded
         (:func:`decode_quad`), as in :meth:`detect`; with ``expect_sizes`` (predicted
         angular sizes, radians) only quads within ``view_size_tolerance`` (35 %) of that size are tried.
         """
@@ -243,7 +243,7 @@ class MarkerDetector:
 
         def near_centre(c, k):  # the expected marker's centre is within the gate of the view's
             dx = c.mean(axis=0) - (views[k].cx, views[k].cy + tops[k])
-            return float(np.hypot(*dx)) <= math.tan(math.radians(q.gate_deg)) * views[k].focal + 2.0
+            return float(np.hypot(*dx)) <= math.tan(gate) * views[k].focal + 2.0
 
         def plausible(quad, k):
             if expect_sizes is None:
@@ -303,12 +303,13 @@ class MarkerDetector:
         """Remap maps equirect → ``view`` for :meth:`detect_in_view` (``GnomonicView.remap_maps``)."""
         return view.remap_maps(equirect, step)
 
-    def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0) -> GnomonicView:
+    def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0,
+                    min_px: int = 1) -> GnomonicView:
         """A square gnomonic view of full field of view ``fov`` (radians) around a bearing, at
-        ``upsample`` × the equirect resolution, capped at ``max_view_px`` pixels."""
+        ``upsample`` × the equirect resolution, at least ``min_px`` and at most ``max_view_px`` pixels."""
         fov = min(max(fov, 1e-3), math.radians(150.0))
         native = 2.0 * math.tan(fov / 2.0) / equirect.rad_per_px
-        size = int(min(max(math.ceil(native * upsample), self.params.roi_min_px), self.params.max_view_px))
+        size = int(min(max(math.ceil(native * upsample), min_px), self.params.max_view_px))
         return GnomonicView.around(equirect, centre, fov, size=size)
 
     def _pool(self) -> Optional[ThreadPoolExecutor]:

@@ -211,7 +211,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help=f"(default {getattr(d, name)})")
     for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
-    add_params_option(p)
+    add_params_option(p, "detection section (the marker search)")
     add_video_inputs(p)
     p.set_defaults(func=run)
     return p

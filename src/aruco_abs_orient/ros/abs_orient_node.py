@@ -425,7 +425,7 @@ class AbsOrientNode:
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
 
     def _on_reconfigure(self, config, level):
-        # the server hands over every parameter each time: pass on only what changed (a detection
+        # the server hands over every parameter each time: pass on only what changed (a detection or tracking
         # parameter rebuilds the tracker, which then searches the full frame once)
         with self._param_lock:
             for k in reconfigurable_names():
@@ -548,7 +548,8 @@ class AbsOrientNode:
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
                                               readout=readout, **kwargs)
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
-                self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
+                self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3],
+                                                              params=c.tunables().timesync)
         except PipelineError as e:
             self._error("no_static_tf", f"unusable lever arms from {source}: {e}")
             return False
