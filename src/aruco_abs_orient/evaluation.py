@@ -26,6 +26,7 @@ from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from .errors import InputFileError
+from .paramcheck import Validated, check_non_negative
 from .transforms import wrap_angle
 from .tum import atomic_write_bytes, atomic_write_text, sorted_series
 
@@ -65,7 +66,7 @@ class EvaluationError(InputFileError, ValueError):
 
 
 @dataclass
-class EvaluationParams:
+class EvaluationParams(Validated):
     """What ``aruco-abs-orient evaluate`` computes (cfg/params.yaml's ``evaluation`` section).
 
     - ``max_gap``: a pose (or a marker yaw) is compared with the reference only where the reference has
@@ -79,16 +80,9 @@ class EvaluationParams:
     min_gap: float = 0.5
     settle: float = 1.0
 
-    def __post_init__(self):
-        self.validate()
-
     def validate(self) -> None:
         """Raise EvaluationError naming the first out-of-range field."""
-        for name in ("max_gap", "min_gap", "settle"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise EvaluationError(f"EvaluationParams.{name}: expected a finite non-negative number of seconds, "
-                                      f"got {v!r}")
+        check_non_negative(self, EvaluationError)
 
 
 def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:

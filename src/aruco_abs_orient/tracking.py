@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -32,6 +32,7 @@ import numpy as np
 from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
 from .detection import DetectionError, DetectorParams, MarkerDetector, MarkerObservation, dedupe_observations, to_grey
 from .markers import MarkerMap
+from .paramcheck import Validated, check_non_negative
 from .transforms import invert_T, rot_z, transform_points, wrap_angle
 
 __all__ = ["TrackingError", "TrackingParams", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
@@ -42,7 +43,7 @@ class TrackingError(DetectionError):
 
 
 @dataclass
-class TrackingParams:
+class TrackingParams(Validated):
     """The knobs of map-guided tracking (cfg/params.yaml's ``tracking`` section; those worth changing live are
     also in cfg/AbsOrient.cfg, for dynamic_reconfigure). How each ROI view and the sweep are searched is
     :class:`~aruco_abs_orient.detection.DetectorParams`' (``view_*``).
@@ -81,15 +82,9 @@ class TrackingParams:
     max_full_interval: int = 0
     lost_after_frames: int = 3
 
-    def __post_init__(self):
-        self.validate()
-
     def validate(self) -> None:
         """Raise TrackingError naming the first out-of-range field."""
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise TrackingError(f"TrackingParams.{f.name}: expected a finite non-negative number, got {v!r}")
+        check_non_negative(self, TrackingError)
         if self.sweep_period_frames < 1:
             raise TrackingError(f"TrackingParams.sweep_period_frames: expected ≥ 1, got {self.sweep_period_frames!r}")
 

@@ -80,7 +80,7 @@ def test_a_subset_changes_only_those_and_reaches_the_pipeline(tmp_path):
     ("timesync:\n  window: -60\n", r"timesync: TimeSyncParams\.window: expected a finite non-negative number"),
     ("timesync:\n  smoothing: 1.0\n", r"p\.yaml: timesync\.smoothing: unknown parameter; did you mean 'smooth'"),
     ("evaluation:\n  max_gap: -1\n", r"p\.yaml: evaluation: EvaluationParams\.max_gap: expected a finite "
-                                      r"non-negative number of seconds, got -1"),
+                                      r"non-negative number, got -1"),
     ("evaluation:\n  gate_deg: 1.0\n", r"p\.yaml: evaluation\.gate_deg: unknown parameter; it belongs in section "
                                        r"'tracking'"),
     ("- 1\n- 2\n", r"p\.yaml: expected a mapping of sections"),

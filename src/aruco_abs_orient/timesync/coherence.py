@@ -28,11 +28,12 @@ maximisation with a Newey-West sum over the track noise's correlation time.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..paramcheck import Validated, check_non_negative
 from ..tum import sorted_series
 from .estimate import OffsetEstimate, TimeSyncError, _check_search
 from .heading import _HeadingGrid
@@ -43,7 +44,7 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @dataclass
-class TimeSyncParams:
+class TimeSyncParams(Validated):
     """The knobs of the phase-coherence time-offset estimate (``aruco-abs-orient timesync``, the node's
     ``~estimate_time_offset``); cfg/params.yaml's ``timesync`` section.
 
@@ -67,15 +68,9 @@ class TimeSyncParams:
     min_turn_rate_deg: float = 2.0
     sigma_ref: float = 0.01
 
-    def __post_init__(self):
-        self.validate()
-
     def validate(self) -> None:
         """Raise TimeSyncError naming the first out-of-range field."""
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise TimeSyncError(f"TimeSyncParams.{f.name}: expected a finite non-negative number, got {v!r}")
+        check_non_negative(self, TimeSyncError)
         for name in ("smooth", "step", "sigma_ref"):
             if getattr(self, name) <= 0:
                 raise TimeSyncError(f"TimeSyncParams.{name}: expected a positive number, got {getattr(self, name)!r}")
