@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.markers import MarkerMap
-from aruco_abs_orient.offline.process import process_bag
+from aruco_abs_orient.offline.process import RunSetup, process_bag
 from aruco_abs_orient.selfcheck import RollingSelfCheck, bearing_rate, check_run
 
 DEG = math.pi / 180
@@ -124,7 +124,7 @@ def ci(scenario_factory):
 
 
 def _run(scen, out, offset, markers=None):
-    res = process_bag(scen.bag, MarkerMap.load(markers or scen.markers), str(out), time_offset=offset, progress=False)
+    res = process_bag(scen.bag, MarkerMap.load(markers or scen.markers), str(out), RunSetup(offset, progress=False))
     summary = json.loads(Path(res.summary_path).read_text())
     return summary["selfcheck"], summary
 

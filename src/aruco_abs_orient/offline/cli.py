@@ -295,7 +295,7 @@ def _fail(msg: str, code: int = 2) -> int:
 
 def cmd_process(a: argparse.Namespace) -> int:
     from ..calibration import load_calibration
-    from .process import process_bag
+    from .process import RunSetup, process_bag
 
     marker_map = MarkerMap.load(a.markers)
     if a.no_prism and len(marker_map) < 3:
@@ -311,10 +311,9 @@ def cmd_process(a: argparse.Namespace) -> int:
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
     params = tunables.pipeline if a.jpeg_reduce is None else replace(tunables.pipeline, jpeg_reduce=a.jpeg_reduce)
-    params = replace(params, markers_only=a.no_prism)
-    result = process_bag(recording, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a),
-                         progress=not a.quiet, calibration=calibration, full_coordinates=a.full_coordinates,
-                         **dict(tunables.pipeline_kwargs(), params=params))
+    setup = RunSetup(a.time_offset, _topics(a), calibration, a.full_coordinates, progress=not a.quiet)
+    result = process_bag(recording, marker_map, a.out, setup,
+                         tunables._replace(pipeline=replace(params, markers_only=a.no_prism)))
     s = result.summary
     print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
     for w in s["warnings"]:

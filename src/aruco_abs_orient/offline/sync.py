@@ -20,7 +20,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .. import timesync
-from ..calibration import Calibration, CalibrationError, CalibrationParams
+from ..calibration import Calibration, CalibrationError, CalibrationParams, Unknowns
 from ..markers import MarkerMap
 from ..params import Tunables, parse_params
 from ..transforms import yaw_of
@@ -100,7 +100,8 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
         obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data, every=every,
                                    label="timesync: detect")
         try:
-            cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs, estimate_time_offset=True,
+            cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs,
+                                unknowns=Unknowns(time_offset=True),
                                 params=CalibrationParams(max_boresight_sigma_deg=1.0))
             out["timesync_markers"] = marker_offset_estimate(est.offset, cal)
         except CalibrationError as e:
