@@ -435,7 +435,7 @@ class AbsOrientPipeline:
                     and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll, odom_pitch, odom_yaw)):
                 tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             rows = self._row_times(t, list(observations) + list(gated), image_height, odom_rpy)
-            self._solve_frame(t, res, observations, p, prism_cov, tilt, odom_T_base, gated, rows)
+            self._solve_frame(t, res, observations, (p, prism_cov), tilt, odom_T_base, gated, rows)
         res.tilt_source = tilt.source
         self._last_odom = (float(t), odom_rpy)
         res.timings["solve"] = 1e3 * (time.perf_counter() - clock)
@@ -563,11 +563,13 @@ class AbsOrientPipeline:
                                  odom_yaw=float(odom_yaw))
         self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
 
-    def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, tilt: Tilt,
-                     odom_T_base, gated=(), rows=None) -> None:
+    def _solve_frame(self, t, res: FrameResult, observations, prism, tilt: Tilt, odom_T_base, gated=(),
+                     rows=None) -> None:
         """Yaw from each marker (closed form), their fusion (shared prism/tilt errors, false ids
-        dropped), and one filter update with the fused yaw. ``rows``: :meth:`_row_times` per observation
-        (observations, then gated): each marker's yaw at its row time, referred back to ``t``."""
+        dropped), and one filter update with the fused yaw. ``prism``: (position (3,) m, its 3×3 covariance
+        m²) at ``t``. ``rows``: :meth:`_row_times` per observation (observations, then gated): each marker's
+        yaw at its row time, referred back to ``t``."""
+        prism_p, prism_cov = prism
         q = self.params
         estimates = []
         tracker_gated = {id(o) for o in gated}

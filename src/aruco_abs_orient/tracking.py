@@ -30,7 +30,15 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
-from .detection import DetectionError, DetectorParams, MarkerDetector, MarkerObservation, dedupe_observations, to_grey
+from .detection import (
+    DetectionError,
+    DetectorParams,
+    MarkerDetector,
+    MarkerObservation,
+    Wanted,
+    dedupe_observations,
+    to_grey,
+)
 from .markers import MarkerMap
 from .paramcheck import Validated, check_non_negative
 from .transforms import invert_T, rot_z, transform_points, wrap_angle
@@ -233,9 +241,9 @@ class MarkerTracker:
                 width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
                 stats.sweep_u0 = int(self.frame // every * step) % eq.width
                 # the sweep looks for what the prediction misses: OpenCV's own finds suffice
-                candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full", rescue=False,
-                                                           max_el=math.radians(q.sweep_max_el_deg),
-                                                           skip_ids={o.id for o in candidates})
+                candidates += self.detector.detect_columns(
+                    grey, eq, stats.sweep_u0, width, "full", max_el=math.radians(q.sweep_max_el_deg),
+                    wanted=Wanted(rescue=False, skip_ids={o.id for o in candidates}))
             self._since_full += 1
         accepted, gated = [], []
         for o in candidates:

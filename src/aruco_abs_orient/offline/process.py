@@ -34,7 +34,7 @@ from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..params import Tunables, parse_params
 from ..pipeline import AbsOrientPipeline, FrameResult
-from ..selfcheck import check_run
+from ..selfcheck import RunContext, check_run, observation_columns
 from ..transforms import yaw_of
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
 from .bagio import (
@@ -113,16 +113,15 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
 def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag) -> Dict:
     """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`) with the commands that fix
     what they find; each finding is also a warning of the summary."""
-    cols = list(zip(*checked)) if checked else [()] * 9
-    obs = {k: np.asarray(v) for k, v in zip(("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
-                                             "accepted", "yaw", "odom_yaw"), cols)}
+    obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
                 "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
                              f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
-    result = check_run(obs, data.prism_stamps, data.prism_positions, {m.id: m.position for m in marker_map}, stamps,
-                       yaws, summary["pipeline_stats"], summary["frames"], summary["time_offset_s"], commands)
+    result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
+                       (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"],
+                                                  summary["time_offset_s"], commands))
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
