@@ -1,6 +1,6 @@
 # aruco_abs_orient — every target sets itself up first (idempotent, seconds when nothing changed).
 #   make demo    generate the demo scenario (cached) and run the pipeline on it
-#   make test    all tests: unit tests and rostests, one pytest run
+#   make test    all tests: the rostests, then the unit tests on two workers (tools/test.sh)
 #   make bench   the benchmarks (full-size figures)
 #   make lint    ruff, catkin_lint, vermin (Python 3.8 for everything but offline/ and synthetic/)
 #   make screenshot  rviz headless during a replay -> doc/images/rviz.png (installs rviz, xvfb on demand)
@@ -18,7 +18,7 @@ setup:
 	@bash tools/setup.sh
 
 test: setup
-	@$(ENV) python -m pytest test $(PYTEST_ARGS)
+	@$(ENV) bash tools/test.sh $(PYTEST_ARGS)
 
 demo: setup
 	@$(ENV) bash tools/demo.sh

@@ -18,20 +18,33 @@ settings.load_profile("ci" if os.environ.get("CI") else "default")
 
 @pytest.fixture(scope="session")
 def scenario_factory(tmp_path_factory):
-    """Generated synthetic scenarios (bag + truth), rendered once per session and shared:
-    ``scenario_factory("ci", time_offset=0.2)`` → ``GeneratedScenario``."""
+    """Generated synthetic scenarios (bag + truth), rendered once per session and shared, between the
+    workers of ``-n 2`` too (a lock file per scenario): ``scenario_factory("ci", time_offset=0.2)`` →
+    ``GeneratedScenario``."""
+    import fcntl
+    import hashlib
+    import json
     from dataclasses import replace
 
-    from aruco_abs_orient.synthetic.bag import generate
+    from aruco_abs_orient.synthetic.bag import GeneratedScenario, generate
     from aruco_abs_orient.synthetic.scenario import PRESETS
 
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):  # the workers' base temps share this parent
+        root = root.parent
     cache = {}
 
     def make(preset: str, **changes):
         key = (preset, tuple(sorted(changes.items())))
         if key not in cache:
-            out = tmp_path_factory.mktemp(f"scenario_{preset}")
-            cache[key] = generate(replace(PRESETS[preset], **changes), str(out), progress=False)
+            out = root / f"scenario_{preset}_{hashlib.sha1(repr(key).encode()).hexdigest()[:10]}"
+            made = out.with_suffix(".json")
+            with open(str(out.with_suffix(".lock")), "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                if not made.exists():
+                    made.write_text(json.dumps(generate(replace(PRESETS[preset], **changes), str(out),
+                                                        progress=False)._asdict()))
+            cache[key] = GeneratedScenario(**json.loads(made.read_text()))
         return cache[key]
 
     return make
@@ -52,31 +65,40 @@ def generated_cfg(tmp_path_factory):
     return module
 
 
-# --------------------------------------------------------------------------- test order and the Noetic run
-NOETIC_CORE = "test_core_unit_tests_pass_on_noetics_versions"
+# --------------------------------------------------------------------------- two workers (tools/test.sh: -n 2)
+ROOT = Path(__file__).resolve().parents[1]
+#: groups handed out first, one worker each: the Python 3.8 run of the core unit tests (test_noetic.py; mostly
+#: it waits on simulated instruments and clocks) and, if they are in the run (make test runs them alone
+#: first), the rostests, one after another. The unit tests, one test file per group (its module fixtures are
+#: computed once), fill the workers as they free up.
+FIRST_GROUPS = ("noetic", "rostests")
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(session, config, items):
-    """The rostests first (their timing on a machine nobody else loads), then the unit tests, test_noetic last:
-    its Python 3.8 run of the core unit tests goes on in the background while the unit tests run (mostly it
-    waits on simulated instruments and clocks), and the test collects it at the end."""
-    def rank(item):
-        name = Path(str(item.fspath)).name
-        return 0 if name == "test_rostests.py" else 2 if name == "test_noetic.py" else 1
-    items.sort(key=rank)  # stable: the order within each group is kept
-    config._noetic_core = next((i for i in items if i.name == NOETIC_CORE), None)
+    if not config.pluginmanager.hasplugin("xdist"):  # .venv-noetic runs the core tests without it
+        return
+    for item in items:
+        path = Path(str(item.fspath))
+        group = {"test_rostests.py": "rostests", "test_noetic.py": "noetic"}.get(path.name)
+        item.add_marker(pytest.mark.xdist_group(group or path.relative_to(ROOT).as_posix()))
 
 
-def pytest_runtest_setup(item):
-    core = getattr(item.config, "_noetic_core", None)
-    if core is not None and "/test/unit/" in str(item.fspath) and not core.module.BACKGROUND.get("started"):
-        core.module.BACKGROUND["started"] = True
-        if core.module.NOETIC_PY.is_file():  # without it the test itself fails and says how to get one
-            core.module.BACKGROUND["run"] = core.module.CoreRun()
+try:
+    from xdist.scheduler import LoadGroupScheduling
+except ImportError:  # no pytest-xdist (.venv-noetic): one process runs everything in file order
+    LoadGroupScheduling = None
 
+if LoadGroupScheduling is not None:
+    class _FirstGroupsFirst(LoadGroupScheduling):
+        """pytest-xdist's --dist loadgroup, with the groups of FIRST_GROUPS handed out before the rest
+        (loadgroup orders groups by their number of tests; these have few tests that take minutes)."""
 
-def pytest_sessionfinish(session, exitstatus):
-    core = getattr(session.config, "_noetic_core", None)
-    run = core.module.BACKGROUND.pop("run", None) if core is not None else None
-    if run is not None:  # started but never collected (the session was cut short)
-        run.stop()
+        def _assign_work_unit(self, node):
+            for group in reversed(FIRST_GROUPS):
+                if group in self.workqueue:
+                    self.workqueue.move_to_end(group, last=False)
+            super()._assign_work_unit(node)
+
+    def pytest_xdist_make_scheduler(config, log):
+        return _FirstGroupsFirst(config, log) if config.getvalue("dist") == "loadgroup" else None

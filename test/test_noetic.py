@@ -92,9 +92,8 @@ def test_the_venv_has_noetics_versions():
 
 
 class CoreRun:
-    """The core unit tests in .venv-noetic, as a subprocess: started in the background while the main
-    suite's unit tests run (test/conftest.py starts it; most of its time is waiting on simulated instruments
-    and clocks), or by the test itself when it runs alone."""
+    """The core unit tests in .venv-noetic, as a subprocess (under `make test`'s two workers it runs beside
+    the rostests, test/conftest.py: most of its time is waiting on simulated instruments and clocks)."""
 
     def __init__(self):
         self.dir = Path(tempfile.mkdtemp(prefix="noetic-core-"))
@@ -122,14 +121,10 @@ class CoreRun:
             self.proc.wait()
 
 
-#: the background run (test/conftest.py), if one was started
-BACKGROUND: dict = {}
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(2400)
 def test_core_unit_tests_pass_on_noetics_versions(capsys):
-    run = BACKGROUND.pop("run", None) or CoreRun()
+    run = CoreRun()
     code, tail = run.wait(timeout=2300)
     report = run.report
     assert report.is_file(), f"the Python 3.8 pytest run wrote no report (exit {code}):\n{tail}"
