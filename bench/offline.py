@@ -5,6 +5,18 @@ each bag the same recording as a video (mp4v MP4 + VO trajectory + prism CSV, `p
 
     python bench/offline.py                    # 30 s and 120 s bags (rendered once, cached)
     python bench/offline.py --durations 10 30  # quicker
+    python bench/offline.py --speed            # only the speed section (realistic world, below)
+
+The speed section (issue 17), on the realistic world with its 30 ms rolling shutter (preset `demo`,
+--speed-seconds long, or the scenario directory --speed-scenario), every figure measured in this one run
+(the machine is shared: compare the ratios, not the absolute figures of two runs):
+  process     `process` as shipped (one OpenBLAS thread: aruco_abs_orient.offline) against the same with
+              OpenBLAS's default threads (one per core, as before), and the naive way: every frame
+              decoded whole and searched whole (MarkerDetector.detect, no tracking) on --naive-frames
+              frames; frames/s, x real time at the bag's frame rate, CPU seconds per frame;
+  render      CPU ms per frame of the preset's frames (world.render_frame + JPEG) with one OpenBLAS
+              thread (as the generator's workers run) and with the default threads, and the 60 s
+              demo's rendering time that makes on 2 workers (budget: 3 minutes).
 
 Each run is a separate process (its peak RSS is its own); the bags are rendered by the synthetic
 generator into .cache/bench/ and reused, their videos written by `synthetic.export` beside them.
@@ -12,6 +24,7 @@ generator into .cache/bench/ and reused, their videos written by `synthetic.expo
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -43,7 +56,9 @@ def video_inputs(scen: str) -> list:
             os.path.join(out, "prism.csv"), "--lever-arms", os.path.join(out, "lever_arms.yaml")]
 
 
-def run(scen: str, out: str, video: bool = False) -> dict:
+def run(scen: str, out: str, video: bool = False, env: dict = None) -> dict:
+    """`process` of scenario directory ``scen`` into ``out`` in a child process (``env``: changes to its
+    environment): frames, wall and CPU seconds, real-time factor, peak memory, ms/frame by stage."""
     import yaml
 
     with open(os.path.join(scen, "hidden.yaml")) as f:
@@ -57,8 +72,9 @@ def run(scen: str, out: str, video: bool = False) -> dict:
            "--markers", os.path.join(scen, "markers.yaml"), "--out", out, "--time-offset", repr(offset), "--quiet"]
     import psutil
 
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, env=None if env is None else {**os.environ, **env})
     peak = 0
     ps = psutil.Process(proc.pid)
     while proc.poll() is None:  # sample the child's resident memory (ru_maxrss would mix the runs)
@@ -68,19 +84,111 @@ def run(scen: str, out: str, video: bool = False) -> dict:
             break
         time.sleep(0.05)
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode:
         raise SystemExit(f"process failed ({proc.returncode}): {' '.join(cmd)}")
     with open(os.path.join(out, "summary.json")) as f:
         summary = json.load(f)
     return {"bag_s": summary["bag_duration_s"], "frames": summary["frames"], "wall_s": wall,
             "rtf": summary["bag_duration_s"] / wall, "peak_rss_mb": peak / 2**20,
+            "cpu_s": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
             "ms": summary["mean_ms_per_frame"], "modes": summary["search_modes"]}
+
+
+def speed_scenario(seconds: float) -> str:
+    """The realistic world with its rolling shutter (preset ``demo``), ``seconds`` long (rendered once)."""
+    from aruco_abs_orient.synthetic.bag import generate
+    from aruco_abs_orient.synthetic.scenario import PRESETS
+
+    out = os.path.join(ROOT, ".cache", "bench", f"offline_demo_{seconds:g}s")
+    if not os.path.exists(os.path.join(out, "scenario.bag")):
+        print(f"rendering a {seconds:g} s realistic scenario (preset demo) into {out} (once)", file=sys.stderr)
+        generate(replace(PRESETS["demo"], duration=seconds), out, progress=True, force=True)
+    return out
+
+
+def naive(scen: str, frames: int) -> dict:
+    """The naive way in this process: each frame decoded whole and searched whole (no tracking)."""
+    import itertools
+
+    from aruco_abs_orient.detection import DetectorParams, MarkerDetector, decode_jpeg
+    from aruco_abs_orient.markers import MarkerMap
+    from aruco_abs_orient.offline.bagio import iter_images
+
+    detector = MarkerDetector(MarkerMap.load(os.path.join(scen, "markers.yaml")).dictionary, DetectorParams())
+    payloads = [p for _, p in itertools.islice(iter_images(os.path.join(scen, "scenario.bag")), frames)]
+    c0, t0 = time.process_time(), time.perf_counter()
+    for p in payloads:
+        detector.detect(decode_jpeg(p))
+    return {"frames": len(payloads), "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
+
+_RENDER_SNIPPET = """
+import sys, time
+from aruco_abs_orient.synthetic.bag import encode_jpeg
+from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
+from aruco_abs_orient.synthetic.world import render_frame
+import cv2
+cv2.setNumThreads(1)  # as the generator's workers
+sc = Scenario(PRESETS["demo"])
+n = int(sys.argv[1])
+step = sc.frame_times.size // n
+render_frame(sc, 0)  # caches
+t0 = time.process_time()
+for i in range(0, step * n, step):
+    encode_jpeg(render_frame(sc, i), sc.config.jpeg_quality)
+print((time.process_time() - t0) / n, sc.frame_times.size)
+"""
+
+
+def render_cost(frames: int, blas_threads: str) -> tuple:
+    """(CPU s/frame of a demo frame rendered + JPEG-encoded, the demo's frame count), in a child process
+    with ``OPENBLAS_NUM_THREADS=blas_threads``."""
+    out = subprocess.run([sys.executable, "-c", _RENDER_SNIPPET, str(frames)], capture_output=True, text=True,
+                         check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": blas_threads}).stdout.split()
+    return float(out[0]), int(out[1])
+
+
+def speed(a) -> None:
+    scen = a.speed_scenario or speed_scenario(a.speed_seconds)
+    cores = str(os.cpu_count() or 2)
+    base = os.path.join(ROOT, ".cache", "bench", "offline_speed")
+    ours = run(scen, base + "_ours")  # the package's own default (aruco_abs_orient.offline)
+    before = run(scen, base + "_blas_threads", env={"OPENBLAS_NUM_THREADS": cores})
+    nv = naive(scen, a.naive_frames)
+    fps = ours["frames"] / ours["bag_s"] if ours["bag_s"] > 0 else 30.0  # the bag's frame rate
+    print(f"\nspeed: process on {scen} ({ours['frames']} frames, {ours['bag_s']:.1f} s at {fps:.0f} fps); "
+          f"load average {os.getloadavg()[0]:.1f} on {cores} cores")
+    print(f"{'way':<58} {'frames/s':>9} {'x real time':>12} {'CPU ms/frame':>13}")
+    rows = [("process (one OpenBLAS thread, as shipped)", ours["frames"], ours["wall_s"], ours["cpu_s"]),
+            (f"process with OpenBLAS's {cores} threads (before)", before["frames"], before["wall_s"], before["cpu_s"]),
+            (f"naive: decode + full-frame search of every frame ({nv['frames']})", nv["frames"], nv["wall_s"],
+             nv["cpu_s"])]
+    for name, n, wall, cpu in rows:
+        print(f"{name:<58} {n / wall:>9.1f} {n / wall / fps:>12.2f} {1e3 * cpu / n:>13.1f}")
+    r_ours, r_before, r_naive = (n / wall for _, n, wall, _ in rows)
+    print(f"ratios: shipped / before {r_ours / r_before:.2f}x, shipped / naive {r_ours / r_naive:.2f}x (frames/s); "
+          f"stages of the shipped run, ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in ours["ms"].items()))
+    one, n_demo = render_cost(a.render_frames, "1")
+    threads, _ = render_cost(a.render_frames, cores)
+    print(f"render: demo preset ({a.render_frames} frames, render + JPEG, one process): {1e3 * one:.0f} ms/frame "
+          f"CPU with one OpenBLAS thread (the generator's workers), {1e3 * threads:.0f} with {cores} "
+          f"({threads / one:.2f}x); the 60 s demo ({n_demo} frames) on 2 workers: {n_demo * one / 2:.0f} s "
+          f"(before {n_demo * threads / 2:.0f} s; budget 180 s)")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--durations", type=float, nargs="+", default=[30.0, 120.0], help="bag lengths, s")
+    ap.add_argument("--speed", action="store_true", help="only the speed section")
+    ap.add_argument("--speed-seconds", type=float, default=20.0, help="length of the speed section's bag, s")
+    ap.add_argument("--speed-scenario", help="a scenario directory for the speed section instead (read only)")
+    ap.add_argument("--naive-frames", type=int, default=20, help="frames of the naive way (full search each)")
+    ap.add_argument("--render-frames", type=int, default=10, help="demo frames timed for the render figure")
     a = ap.parse_args()
+    if a.speed:
+        speed(a)
+        return 0
     rows = []
     for d in sorted(a.durations):
         scen = scenario(d)
@@ -99,6 +207,7 @@ def main() -> int:
         if len(peaks) >= 2:
             print(f"peak memory ratio, {kind}, {max(a.durations):g} s / {min(a.durations):g} s: "
                   f"{peaks[-1] / peaks[0]:.2f} (flat = 1)")
+    speed(a)
     return 0
 
 
