@@ -120,6 +120,9 @@ class DetectorParams:
       (0 = only at start-up and after a loss).
     - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
       after which tracking falls back to full-frame search.
+    - ``lost_backoff_max_frames``: after a full-frame search that found no marker off its
+      prediction, the next one waits for twice the misses, up to this many frames
+      (``lost_after_frames`` or less: no back-off).
     """
 
     min_marker_perimeter_px: float = 28.0
@@ -186,6 +189,7 @@ class DetectorParams:
     sweep_max_el_deg: float = 60.0
     max_full_interval: int = 0
     lost_after_frames: int = 3
+    lost_backoff_max_frames: int = 24
 
     def __post_init__(self):
         self.validate()
