@@ -10,13 +10,16 @@ each bag the same recording as a video (mp4v MP4 + VO trajectory + prism CSV, `p
 The speed section (issue 17), on the realistic world with its 30 ms rolling shutter (preset `demo`,
 --speed-seconds long, or the scenario directory --speed-scenario), every figure measured in this one run
 (the machine is shared: compare the ratios, not the absolute figures of two runs):
-  process     `process` as shipped (one OpenBLAS thread: aruco_abs_orient.offline) against the same with
-              OpenBLAS's default threads (one per core, as before), and the naive way: every frame
-              decoded whole and searched whole (MarkerDetector.detect, no tracking) on --naive-frames
-              frames; frames/s, x real time at the bag's frame rate, CPU seconds per frame;
-  render      CPU ms per frame of the preset's frames (world.render_frame + JPEG) with one OpenBLAS
-              thread (as the generator's workers run) and with the default threads, and the 60 s
-              demo's rendering time that makes on 2 workers (budget: 3 minutes).
+  process     `process` as shipped (one OpenBLAS thread: aruco_abs_orient.offline; recovery searches
+              backing off) against the same as before issue 17's speed work (OpenBLAS's default threads,
+              one per core; detection.lost_backoff_max_frames 0; only the JPEG decoding in two threads
+              instead of one stays), and the naive way: every frame decoded whole and searched whole
+              (MarkerDetector.detect, no tracking) on --naive-frames frames; frames/s, x real time at
+              the bag's frame rate, CPU ms per frame, and the heading RMSE of both runs against the
+              scenario's truth.tum (`evaluate --reference`: the speed must not cost accuracy);
+  render      CPU seconds per frame of the demo preset's frames (world.render_frame + JPEG, one OpenCV
+              thread as in the generator's workers) and the 60 s demo's rendering time that makes on
+              2 workers (budget: 3 minutes).
 
 Each run is a separate process (its peak RSS is its own); the bags are rendered by the synthetic
 generator into .cache/bench/ and reused, their videos written by `synthetic.export` beside them.
@@ -56,9 +59,10 @@ def video_inputs(scen: str) -> list:
             os.path.join(out, "prism.csv"), "--lever-arms", os.path.join(out, "lever_arms.yaml")]
 
 
-def run(scen: str, out: str, video: bool = False, env: dict = None) -> dict:
+def run(scen: str, out: str, video: bool = False, env: dict = None, extra: tuple = ()) -> dict:
     """`process` of scenario directory ``scen`` into ``out`` in a child process (``env``: changes to its
-    environment): frames, wall and CPU seconds, real-time factor, peak memory, ms/frame by stage."""
+    environment; ``extra``: more options): frames, wall and CPU seconds, real-time factor, peak memory,
+    ms/frame by stage."""
     import yaml
 
     with open(os.path.join(scen, "hidden.yaml")) as f:
@@ -69,7 +73,8 @@ def run(scen: str, out: str, video: bool = False, env: dict = None) -> dict:
         inputs = video_inputs(scen)
         offset = -float(hidden["config"]["start_time"])
     cmd = [sys.executable, "-m", "aruco_abs_orient.offline.cli", "process", *inputs,
-           "--markers", os.path.join(scen, "markers.yaml"), "--out", out, "--time-offset", repr(offset), "--quiet"]
+           "--markers", os.path.join(scen, "markers.yaml"), "--out", out, "--time-offset", repr(offset), "--quiet",
+           *extra]
     import psutil
 
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -93,6 +98,15 @@ def run(scen: str, out: str, video: bool = False, env: dict = None) -> dict:
             "rtf": summary["bag_duration_s"] / wall, "peak_rss_mb": peak / 2**20,
             "cpu_s": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
             "ms": summary["mean_ms_per_frame"], "modes": summary["search_modes"]}
+
+
+def heading_rmse(scen: str, out: str) -> float:
+    """Heading RMSE (degrees) of the run in ``out`` against the scenario's truth (`evaluate --reference`)."""
+    subprocess.run([sys.executable, "-m", "aruco_abs_orient.offline.cli", "evaluate", out, "--reference",
+                    os.path.join(scen, "truth.tum"), "--out", out + "_eval"], stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL, check=True)
+    with open(os.path.join(out + "_eval", "report.json")) as f:
+        return float(json.load(f)["heading_ape"]["rmse_deg"])
 
 
 def speed_scenario(seconds: float) -> str:
@@ -123,30 +137,27 @@ def naive(scen: str, frames: int) -> dict:
     return {"frames": len(payloads), "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
 
 
-_RENDER_SNIPPET = """
-import sys, time
-from aruco_abs_orient.synthetic.bag import encode_jpeg
-from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
-from aruco_abs_orient.synthetic.world import render_frame
-import cv2
-cv2.setNumThreads(1)  # as the generator's workers
-sc = Scenario(PRESETS["demo"])
-n = int(sys.argv[1])
-step = sc.frame_times.size // n
-render_frame(sc, 0)  # caches
-t0 = time.process_time()
-for i in range(0, step * n, step):
-    encode_jpeg(render_frame(sc, i), sc.config.jpeg_quality)
-print((time.process_time() - t0) / n, sc.frame_times.size)
-"""
+def render_cost(frames: int) -> tuple:
+    """(CPU s per frame of the ``demo`` preset, rendered and JPEG-encoded as a generator worker does it
+    (one OpenCV thread), the demo's frame count)."""
+    import cv2
 
+    from aruco_abs_orient.synthetic.render import encode_jpeg
+    from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
+    from aruco_abs_orient.synthetic.world import render_frame
 
-def render_cost(frames: int, blas_threads: str) -> tuple:
-    """(CPU s/frame of a demo frame rendered + JPEG-encoded, the demo's frame count), in a child process
-    with ``OPENBLAS_NUM_THREADS=blas_threads``."""
-    out = subprocess.run([sys.executable, "-c", _RENDER_SNIPPET, str(frames)], capture_output=True, text=True,
-                         check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": blas_threads}).stdout.split()
-    return float(out[0]), int(out[1])
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        sc = Scenario(PRESETS["demo"])
+        step = sc.frame_times.size // frames
+        render_frame(sc, 0)  # caches
+        t0 = time.process_time()
+        for i in range(0, step * frames, step):
+            encode_jpeg(render_frame(sc, i), sc.config.jpeg_quality)
+        return (time.process_time() - t0) / frames, int(sc.frame_times.size)
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def speed(a) -> None:
@@ -154,27 +165,33 @@ def speed(a) -> None:
     cores = str(os.cpu_count() or 2)
     base = os.path.join(ROOT, ".cache", "bench", "offline_speed")
     ours = run(scen, base + "_ours")  # the package's own default (aruco_abs_orient.offline)
-    before = run(scen, base + "_blas_threads", env={"OPENBLAS_NUM_THREADS": cores})
+    os.makedirs(os.path.dirname(base), exist_ok=True)
+    with open(base + "_no_backoff.yaml", "w") as f:
+        f.write("detection:\n  lost_backoff_max_frames: 0\n")
+    before = run(scen, base + "_before", env={"OPENBLAS_NUM_THREADS": cores},
+                 extra=("--params", base + "_no_backoff.yaml"))
     nv = naive(scen, a.naive_frames)
     fps = ours["frames"] / ours["bag_s"] if ours["bag_s"] > 0 else 30.0  # the bag's frame rate
     print(f"\nspeed: process on {scen} ({ours['frames']} frames, {ours['bag_s']:.1f} s at {fps:.0f} fps); "
           f"load average {os.getloadavg()[0]:.1f} on {cores} cores")
-    print(f"{'way':<58} {'frames/s':>9} {'x real time':>12} {'CPU ms/frame':>13}")
-    rows = [("process (one OpenBLAS thread, as shipped)", ours["frames"], ours["wall_s"], ours["cpu_s"]),
-            (f"process with OpenBLAS's {cores} threads (before)", before["frames"], before["wall_s"], before["cpu_s"]),
-            (f"naive: decode + full-frame search of every frame ({nv['frames']})", nv["frames"], nv["wall_s"],
-             nv["cpu_s"])]
-    for name, n, wall, cpu in rows:
-        print(f"{name:<58} {n / wall:>9.1f} {n / wall / fps:>12.2f} {1e3 * cpu / n:>13.1f}")
+    print(f"{'way':<66} {'frames/s':>9} {'x real time':>12} {'CPU ms/frame':>13} {'heading RMSE':>13}")
+    rmse = [f"{heading_rmse(scen, base + k):.4f} deg" for k in ("_ours", "_before")] + ["-"]
+    rows = [("process (one OpenBLAS thread, recovery searches back off)", ours["frames"], ours["wall_s"],
+             ours["cpu_s"]),
+            (f"before: OpenBLAS's {cores} threads, recovery searches without back-off", before["frames"],
+             before["wall_s"], before["cpu_s"]),
+            (f"naive: decode + full-frame search of every frame ({nv['frames']} frames)", nv["frames"],
+             nv["wall_s"], nv["cpu_s"])]
+    for (name, n, wall, cpu), err in zip(rows, rmse):
+        print(f"{name:<66} {n / wall:>9.1f} {n / wall / fps:>12.2f} {1e3 * cpu / n:>13.1f} {err:>13}")
     r_ours, r_before, r_naive = (n / wall for _, n, wall, _ in rows)
-    print(f"ratios: shipped / before {r_ours / r_before:.2f}x, shipped / naive {r_ours / r_naive:.2f}x (frames/s); "
+    print(f"ratios: shipped / before {r_ours / r_before:.2f}x frames/s, {before['cpu_s'] / ours['cpu_s']:.2f}x less "
+          f"CPU; shipped / naive {r_ours / r_naive:.2f}x frames/s; "
           f"stages of the shipped run, ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in ours["ms"].items()))
-    one, n_demo = render_cost(a.render_frames, "1")
-    threads, _ = render_cost(a.render_frames, cores)
-    print(f"render: demo preset ({a.render_frames} frames, render + JPEG, one process): {1e3 * one:.0f} ms/frame "
-          f"CPU with one OpenBLAS thread (the generator's workers), {1e3 * threads:.0f} with {cores} "
-          f"({threads / one:.2f}x); the 60 s demo ({n_demo} frames) on 2 workers: {n_demo * one / 2:.0f} s "
-          f"(before {n_demo * threads / 2:.0f} s; budget 180 s)")
+    per, n_demo = render_cost(a.render_frames)
+    print(f"render: demo preset, {a.render_frames} frames rendered + JPEG-encoded as a generator worker does: "
+          f"{per:.3f} s/frame CPU; the 60 s demo ({n_demo} frames) on 2 workers: {n_demo * per / 2:.0f} s "
+          "(budget 180 s)")
 
 
 def main() -> int:
