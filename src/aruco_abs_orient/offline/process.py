@@ -155,7 +155,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: flo
     """
     topics = topics or BagTopics()
     params = params or PipelineParams()
-    t_start = time.perf_counter()
+    t_start = (time.perf_counter(), time.process_time(), time.thread_time())  # wall, CPU, this thread's CPU
     os.makedirs(out_dir, exist_ok=True)
     readable, salvaged, notes = (bag if hasattr(bag, "iter_images") else bag_paths(bag)), [], []
     if data is None:
@@ -295,7 +295,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
         decoders.shutdown(wait=False)
         if bar is not None:
             bar.close()
-    wall = time.perf_counter() - t_start
+    wall, cpu, pipeline_cpu = (now - then for now, then in zip(
+        (time.perf_counter(), time.process_time(), time.thread_time()), t_start))
     duration = max(data.end - data.start, 0.0)
     reason = pipe.waiting_reason if with_pose == 0 else ""
     if reason:
@@ -327,6 +328,9 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
         "bag_duration_s": duration,
         "wall_time_s": wall,
         "real_time_factor": duration / wall if wall > 0 else None,
+        # CPU seconds of all threads, and of the one running the pipeline (the others read and decode): on N
+        # free cores the wall time would be about max(pipeline, all / N)
+        "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
     }
     summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag)
