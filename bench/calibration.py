@@ -49,11 +49,12 @@ import time
 import numpy as np
 import yaml
 
+from aruco_abs_orient.calibration import CalibrationParams, Recording, Unknowns, calibrate
 from aruco_abs_orient.evaluation import error_by_frame_position, interp_yaw, yaw_ape
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.offline.bagio import read_bag_data
 from aruco_abs_orient.offline.calibrate import calibrate_bag, collect_observations
-from aruco_abs_orient.offline.process import process_bag
+from aruco_abs_orient.offline.process import RunSetup, process_bag
 from aruco_abs_orient.offline.sync import estimate_bag_offset
 from aruco_abs_orient.synthetic.bag import generate
 from aruco_abs_orient.synthetic.scenario import PRESETS
@@ -121,7 +122,6 @@ def honesty(a) -> int:
     ``--prism-noise`` prism, the VO's drift and random walk and a ``--readout`` rolling shutter: calibrate
     (time offset, and the readout when there is one, estimated beside the boresight) and print per seed
     the yaw error, its σ and error/σ, and the fraction within 2.5 σ."""
-    from aruco_abs_orient.calibration import CalibrationParams, calibrate
     from aruco_abs_orient.synthetic.feed import marker_observations
     from aruco_abs_orient.synthetic.scenario import Scenario, ScenarioConfig
     from aruco_abs_orient.tum import Trajectory
@@ -149,10 +149,10 @@ def honesty(a) -> int:
         ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(seed), readout=a.readout)
         grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
         odom = Trajectory.from_transforms(grid + off, sc.odom_T_base(grid))
-        cal = calibrate(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise), odom,
+        rec = Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise), odom,
                         sc.prism.stamps + off, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
-                        sc.base_T_prism, estimate_time_offset=True, params=params, obs_rows=ob.rows,
-                        estimate_readout=a.readout > 0)
+                        sc.base_T_prism, ob.rows)
+        cal = calibrate(rec, Unknowns(time_offset=True, readout=a.readout > 0), params)
         truth = np.array(matrix_to_rpy(sc.base_T_camera_true[:3, :3]))
         err, sd = math.degrees(cal.boresight_rpy[2] - truth[2]), math.degrees(cal.boresight_sigma[2])
         ratios.append(err / sd)
@@ -215,7 +215,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     coarse = estimate_bag_offset(bag)["timesync"].offset
     obs = collect_observations(bag, markers, every=a.every)
-    cal = calibrate_bag(bag, markers, coarse, observations=obs, estimate_time_offset=True)
+    cal = calibrate_bag(bag, markers, coarse, observations=obs, unknowns=Unknowns(time_offset=True))
     refined = coarse + cal.time_offset_delta
     t_cal = time.perf_counter() - t0
     true_T = np.array(hidden["base_T_camera_true"])
@@ -250,7 +250,7 @@ def main(argv=None) -> int:
         bd = read_bag_data(os.path.join(d, "scenario.bag"))
         if T is not None:
             bd = dataclasses.replace(bd, base_T_camera=T)
-        process_bag(os.path.join(d, "scenario.bag"), markers, out, time_offset=tau, data=bd, progress=False)
+        process_bag(os.path.join(d, "scenario.bag"), markers, out, RunSetup(tau, progress=False), data=bd)
         runs[name] = evaluate(out, os.path.join(d, "truth.tum"), a.min_count)
 
     print(f"\n  {'run':38s} {'heading RMSE':>13s} {'mean yaw err':>13s} {'frame-pos bias':>15s}  per-marker yaws")

@@ -12,7 +12,7 @@ The speed section (issue 17), on the realistic world with its 30 ms rolling shut
 (the machine is shared: compare the ratios, not the absolute figures of two runs):
   process     `process` as shipped (one OpenBLAS thread: aruco_abs_orient.offline; recovery searches
               backing off) against the same as before issue 17's speed work (OpenBLAS's default threads,
-              one per core; detection.lost_backoff_max_frames 0; only the JPEG decoding in two threads
+              one per core; tracking.lost_backoff_max_frames 0; only the JPEG decoding in two threads
               instead of one stays), and the naive way: every frame decoded whole and searched whole
               (MarkerDetector.detect, no tracking) on --naive-frames frames; frames/s, x real time at
               the bag's frame rate, CPU ms per frame, the heading RMSE of both runs against the
@@ -172,7 +172,7 @@ def speed(a) -> None:
     ours = run(scen, base + "_ours")  # the package's own default (aruco_abs_orient.offline)
     os.makedirs(os.path.dirname(base), exist_ok=True)
     with open(base + "_no_backoff.yaml", "w") as f:
-        f.write("detection:\n  lost_backoff_max_frames: 0\n")
+        f.write("tracking:\n  lost_backoff_max_frames: 0\n")
     before = run(scen, base + "_before", env={"OPENBLAS_NUM_THREADS": cores},
                  extra=("--params", base + "_no_backoff.yaml"))
     nv = naive(scen, a.naive_frames)
