@@ -14,7 +14,12 @@ markers the prediction misses are still found. Ids not in the map are rejected, 
 any observation farther than ``gate_deg`` from its prediction — except in the full-frame
 search after a loss (``lost_after_frames`` frames with predictions and no accepted marker,
 gated ones included): the prediction is then what is suspect (a filter that ran away), so
-every map id is accepted, as without a pose, for the caller's own gates to judge.
+every map id is accepted, as without a pose, for the caller's own gates to judge. A recovery
+search that finds no marker beyond ``gate_deg`` of its prediction (nothing, or only markers
+where they were predicted: the prediction is right, the markers are hidden or too far for the
+views) doubles the misses the next one waits for, up to ``lost_backoff_max_frames``; a tracked
+frame with an accepted marker, or a recovery that finds a marker off its prediction, resets it
+(a whole-frame search costs as much as 40 tracked frames).
 
 Units: metres for positions, radians for angles inside the code (``*_deg`` parameters are
 degrees), milliseconds for the reported times. Python 3.8 compatible; numpy and OpenCV only.
@@ -75,6 +80,9 @@ class TrackingParams(Validated):
       (0 = only at start-up and after a loss).
     - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
       after which tracking falls back to full-frame search.
+    - ``lost_backoff_max_frames``: after a full-frame search that found no marker off its
+      prediction, the next one waits for twice the misses, up to this many frames
+      (``lost_after_frames`` or less: no back-off).
     """
 
     roi_margin: float = 0.5
@@ -89,6 +97,7 @@ class TrackingParams(Validated):
     sweep_max_el_deg: float = 60.0
     max_full_interval: int = 0
     lost_after_frames: int = 3
+    lost_backoff_max_frames: int = 24
 
     def validate(self) -> None:
         """Raise TrackingError naming the first out-of-range field."""
@@ -156,6 +165,7 @@ class MarkerTracker:
         self.frame = 0
         self._since_full: Optional[int] = None
         self._misses = 0
+        self._lost_after = self.params.lost_after_frames  # misses before the next recovery search
         self._views = {}
 
     def _roi(self, equirect: Equirect, m: MarkerPrediction, fov: float, upsample: float):
@@ -212,7 +222,7 @@ class MarkerTracker:
         q = self.params
         preds = self.predict(map_T_camera, eq) if map_T_camera is not None else []
         by_id = {m.id: m for m in preds}
-        recovery = map_T_camera is not None and self._misses >= q.lost_after_frames
+        recovery = map_T_camera is not None and self._misses >= self._lost_after
         full = (map_T_camera is None or self._since_full is None or recovery
                 or (q.max_full_interval > 0 and self._since_full >= q.max_full_interval))
         stats = TrackingStats(mode="full" if full else "tracked", recovery=recovery)
@@ -246,6 +256,7 @@ class MarkerTracker:
                     wanted=Wanted(rescue=False, skip_ids={o.id for o in candidates}))
             self._since_full += 1
         accepted, gated = [], []
+        off_prediction = False  # a recovery's find beyond the gate of its prediction (or unpredicted)
         for o in candidates:
             if o.id not in self.map:
                 stats.rejected_unknown += 1
@@ -256,6 +267,8 @@ class MarkerTracker:
                 gated.append(o)
             else:
                 accepted.append(o)
+                off_prediction |= recovery and (o.id not in by_id or float(
+                    angle_between(o.centre, by_id[o.id].bearing)) > math.radians(q.gate_deg))
         accepted = sorted(dedupe_observations(accepted), key=lambda o: o.id)
         for o in accepted:
             stats.found[o.method] = stats.found.get(o.method, 0) + 1
@@ -263,6 +276,10 @@ class MarkerTracker:
         # frame that neither predicted nor saw anything says nothing about the prediction
         missed = not accepted and (stats.predicted > 0 or stats.rejected_gate > 0)
         self._misses = self._misses + 1 if missed else 0
+        if recovery and not off_prediction:  # the prediction held: the next search waits longer
+            self._lost_after = min(2 * self._lost_after, max(q.lost_backoff_max_frames, q.lost_after_frames))
+        elif off_prediction or (not full and accepted):
+            self._lost_after = q.lost_after_frames
         self.frame += 1
         stats.time_ms = (time.perf_counter() - t0) * 1000.0
         return TrackingResult(accepted, stats, sorted(dedupe_observations(gated), key=lambda o: o.id))

@@ -112,8 +112,31 @@ def test_a_prediction_off_by_2_deg_cannot_lock_the_tracker_out(turn_deg):
     assert sorted(o.id for o in res.observations) == list(range(len(POSITIONS)))
     for o in res.observations:  # the true bearings, not the predicted ones
         assert float(angle_between(o.centre, pc[o.id])) / DEG < 0.06
-    # the next frame is tracked again with the same prediction, and misses again
-    assert tracker.process(img, off).stats.mode == "tracked"
+    # the next frame is tracked again with the same prediction, and misses again; the recovery found the
+    # markers off their prediction: the next one comes as soon, without back-off
+    following = [tracker.process(img, off).stats for _ in range(params.lost_after_frames + 1)]
+    assert [(s.mode, s.recovery) for s in following] == [("tracked", False)] * params.lost_after_frames + [
+        ("full", True)]
+
+
+def test_recovery_searches_back_off_while_the_prediction_holds():
+    # the markers vanish (covered) while the prediction stays right: each recovery search finds nothing off
+    # its prediction, so the next one waits for twice the misses, up to lost_backoff_max_frames; a tracked
+    # frame that finds a marker again resets the wait
+    params = TrackingParams(lost_after_frames=2, lost_backoff_max_frames=8)
+    tracker = MarkerTracker(MAP, params=params)
+    img, _ = frame(0)
+    hidden, _ = frame(0, ids=[])
+    assert tracker.process(img, pose(0)).stats.mode == "full"  # start-up
+    modes = [tracker.process(hidden, pose(0)).stats for _ in range(32)]
+    recoveries = [k for k, s in enumerate(modes) if s.recovery]
+    assert all(s.mode == "tracked" and s.predicted == len(POSITIONS) for k, s in enumerate(modes)
+               if k not in recoveries)
+    # recovery after 2 misses, then 4, 8, 8 (each recovery frame itself counts as no miss)
+    assert recoveries == [2, 7, 16, 25]
+    assert tracker.process(img, pose(0)).stats.found == {"tracked": len(POSITIONS)}
+    again = [tracker.process(hidden, pose(0)).stats.recovery for _ in range(3)]
+    assert again == [False, False, True]
 
 
 def test_sweeping_tile_finds_markers_the_prediction_skips():

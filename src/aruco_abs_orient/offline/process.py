@@ -1,9 +1,9 @@
 """Offline processing of a recorded bag: images → markers → absolute yaw → map→odom → files.
 
 Reads the bag twice with rosbags (no ROS master): a first pass for tf, tf_static and the prism,
-then the images streamed through a bounded queue by a reader thread that also decodes the JPEGs
-(OpenCV/simplejpeg release the GIL, so decoding and detection use both cores), while memory
-stays flat with the length of the recording.
+then the images streamed through a bounded queue by a reader thread whose JPEGs two decoder
+threads decode (OpenCV/simplejpeg release the GIL, so decoding and detection use both cores), while
+memory stays flat with the length of the recording.
 
 Outputs in ``out_dir`` (each written atomically: complete or absent):
 - ``trajectory.tum``: base_link in map, one line per image with a pose, stamps in total-station time,
@@ -25,6 +25,7 @@ import shlex
 import tempfile
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from typing import Dict, List, NamedTuple, Optional
 
@@ -88,26 +89,38 @@ def _observation_rows(res: FrameResult) -> List[list]:
     return rows
 
 
-def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: threading.Event) -> None:
-    """Producer thread: (stamp, grey image or error string) in bag order, then None."""
+def _decoded(payload, reduce: int):
+    """A grey image, or the reason there is none (a string)."""
+    if payload is None:
+        return "undecodable image message"
+    if not isinstance(payload, bytes):
+        return payload
+    try:
+        return decode_jpeg(payload, reduce=reduce)
+    except DetectionError as e:
+        return f"corrupt image: {e}"
+
+
+def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: threading.Event,
+            decoders: ThreadPoolExecutor) -> None:
+    """Producer thread: (stamp, future of a grey image or an error string) in bag order, then None. The JPEGs
+    are decoded by ``decoders`` (libjpeg releases the GIL: on 2 cores the decoding of the next frames fills
+    whatever the pipeline leaves, instead of one thread decoding while the other core waits)."""
     try:
         for stamp, payload in iter_images(path, topics):
             if stop.is_set():
                 return
-            if payload is None:
-                item = (stamp, "undecodable image message")
-            elif isinstance(payload, bytes):
-                try:
-                    item = (stamp, decode_jpeg(payload, reduce=reduce))
-                except DetectionError as e:
-                    item = (stamp, f"corrupt image: {e}")
-            else:
-                item = (stamp, payload)
-            out.put(item)
+            out.put((stamp, decoders.submit(_decoded, payload, reduce)))
     except Exception as e:  # a bag or video broken half-way: keep what was read, say why it stopped
-        out.put((float("nan"), f"reading stopped: {e}"))
+        out.put((float("nan"), _done(f"reading stopped: {e}")))
     finally:
         out.put(None)
+
+
+def _done(value) -> Future:
+    future: Future = Future()
+    future.set_result(value)
+    return future
 
 
 def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag) -> Dict:
@@ -155,7 +168,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[
     topics = setup.topics or BagTopics()
     setup = setup._replace(topics=topics)
     tunables = tunables or parse_params({})
-    t_start = time.perf_counter()
+    t_start = (time.perf_counter(), time.process_time(), time.thread_time())  # wall, CPU, this thread's CPU
     os.makedirs(out_dir, exist_ok=True)
     readable, salvaged, notes = (bag if hasattr(bag, "iter_images") else bag_paths(bag)), [], []
     if data is None:
@@ -192,7 +205,7 @@ def _salvage(paths: List[str], out_dir: str):
 
 
 def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup, tunables: Tunables,
-             t_start: float) -> ProcessResult:
+             t_start: tuple) -> ProcessResult:
     """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
     time_offset, topics, calibration, full_coordinates, progress = setup
     params = tunables.pipeline
@@ -217,11 +230,12 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     checked: List[tuple] = []  # (t, id, az, el, yaw σ, residual, accepted, yaw, odom yaw) of each marker yaw
     modes: Dict[str, int] = {}
     tilt_sources: Dict[str, int] = {}
-    items: queue.Queue = queue.Queue(maxsize=4)
+    items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
     stop = threading.Event()
+    decoders = ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1), thread_name_prefix="jpeg")
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
-    reader = threading.Thread(target=_reader, args=(readable, topics, int(params.jpeg_reduce), items, stop),
-                              daemon=True)
+    reader = threading.Thread(target=_reader, args=(readable, topics, int(params.jpeg_reduce), items, stop,
+                                                    decoders), daemon=True)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -236,7 +250,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                 item = items.get()
                 if item is None:
                     break
-                stamp, image = item
+                stamp, image = item[0], item[1].result()
                 frames += 1
                 if bar is not None:
                     bar.update(1)
@@ -293,9 +307,11 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
             os.unlink(obs_tmp)
         raise
     finally:
+        decoders.shutdown(wait=False)
         if bar is not None:
             bar.close()
-    wall = time.perf_counter() - t_start
+    wall, cpu, pipeline_cpu = (now - then for now, then in zip(
+        (time.perf_counter(), time.process_time(), time.thread_time()), t_start))
     duration = max(data.end - data.start, 0.0)
     reason = pipe.waiting_reason if with_pose == 0 else ""
     if reason:
@@ -327,6 +343,9 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         "bag_duration_s": duration,
         "wall_time_s": wall,
         "real_time_factor": duration / wall if wall > 0 else None,
+        # CPU seconds of all threads, and of the one running the pipeline (the others read and decode): on N
+        # free cores the wall time would be about max(pipeline, all / N)
+        "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
     }
     summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag)

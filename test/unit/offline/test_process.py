@@ -85,6 +85,10 @@ def test_outputs_are_complete_and_described(ci_run):
     assert header[:3] == ["time", "id", "method"]
     out = os.path.dirname(res.trajectory_path)
     assert not [f for f in os.listdir(out) if f.endswith(".tmp")]
+    # the JPEGs are decoded by other threads than the pipeline's, their frames kept in bag order
+    cpu = summary["cpu_time_s"]
+    assert 0.0 < cpu["pipeline_thread"] < cpu["all_threads"]
+    assert np.all(np.diff(read_tum(res.trajectory_path).stamps) > 0)
 
 
 def test_wrong_time_offset_is_worse(ci_run, scenario_factory, tmp_path):
