@@ -186,6 +186,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, top
     if calibration is not None:
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
         pipeline_kwargs.setdefault("readout", float(calibration.get("readout", 0.0)))
+        pipeline_kwargs.setdefault("calibrated", True)
     pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, params, **pipeline_kwargs)
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
     next_imu = 0

@@ -546,7 +546,7 @@ class AbsOrientNode:
             if c.markers_only:
                 kwargs["params"] = replace(kwargs["params"], markers_only=True)
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
-                                              readout=readout, **kwargs)
+                                              readout=readout, calibrated=calibrated is not None, **kwargs)
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
         except PipelineError as e:
