@@ -131,7 +131,8 @@ def _deg(x: float) -> str:
 def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Mapping[int, Sequence[float]],
               pose_t=(), pose_yaw=(), stats: Optional[Mapping[str, int]] = None, frames: int = 0,
               time_offset: float = 0.0, commands: Optional[Mapping[str, str]] = None,
-              params: Optional[SelfCheckParams] = None) -> Dict[str, object]:
+              params: Optional[SelfCheckParams] = None, prism_lever: Optional[Sequence[float]] = None
+              ) -> Dict[str, object]:
     """The self-checks of a run (see the module docstring).
 
     ``obs``: per marker observation with a yaw, arrays ``time`` (s, total-station clock), ``id``,
@@ -140,7 +141,8 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
     base_link and the odometry's at that time; then the time offset and tilt are fitted to their
     difference, the map→odom yaw, independent of what the filter accepted); the prism track; the marker
     map's positions {id: [x, y, z]}; the filtered poses' stamps and yaws (rad); the pipeline's counters
-    and the number of frames;
+    and the number of frames; ``prism_lever``: the prism in base_link (m; None: at its origin), whose swing
+    in turns (yaw rate × lever arm) is taken out of the track's direction of travel;
     ``time_offset`` (s) in use; ``commands``: the command lines that fix things ({"timesync": ...,
     "calibrate": ...}), quoted in the messages. Returns a JSON-able dict with the estimates (degrees,
     seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
@@ -280,6 +282,11 @@ def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Map
         vx = (np.interp(pose_t + h, pt, pp[:, 0]) - np.interp(pose_t - h, pt, pp[:, 0])) / (2 * h)
         vy = (np.interp(pose_t + h, pt, pp[:, 1]) - np.interp(pose_t - h, pt, pp[:, 1])) / (2 * h)
         rate = np.gradient(np.unwrap(pose_yaw), pose_t) if len(pose_t) > 1 else np.zeros(0)
+        if prism_lever is not None:  # base_link origin's velocity: the prism's minus ω ẑ × (Rz(ψ) · lever)
+            lx, ly = float(prism_lever[0]), float(prism_lever[1])
+            c, s = np.cos(pose_yaw), np.sin(pose_yaw)
+            vx = vx + rate * (s * lx + c * ly)
+            vy = vy - rate * (c * lx - s * ly)
         straight = inside & (np.hypot(vx, vy) > p.straight_speed) & (np.abs(rate) < p.straight_turn_rate)
         if straight.sum() >= p.min_samples:
             d = wrap_angle(pose_yaw[straight] - np.arctan2(vy[straight], vx[straight]))
@@ -314,6 +321,7 @@ class RollingSelfCheck:
     time_offset: float = 0.0
     window: float = 120.0
     params: Optional[SelfCheckParams] = None
+    prism_lever: Optional[Sequence[float]] = None    # m, the prism in base_link (check_run's)
     _obs: Deque[tuple] = field(default_factory=collections.deque)
     _prism: Deque[tuple] = field(default_factory=collections.deque)
     _poses: Deque[tuple] = field(default_factory=collections.deque)
@@ -348,7 +356,7 @@ class RollingSelfCheck:
         poses = sorted(self._poses)
         return check_run(obs, [p[0] for p in prism], [p[1] for p in prism], self.marker_xyz,
                          [p[0] for p in poses], [p[1] for p in poses], time_offset=self.time_offset,
-                         params=self.params)
+                         params=self.params, prism_lever=self.prism_lever)
 
     def diagnostics(self) -> Tuple[str, str, Dict[str, object]]:
         r = self.check()

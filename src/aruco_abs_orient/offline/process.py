@@ -121,7 +121,8 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
                              f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     result = check_run(obs, data.prism_stamps, data.prism_positions, {m.id: m.position for m in marker_map}, stamps,
-                       yaws, summary["pipeline_stats"], summary["frames"], summary["time_offset_s"], commands)
+                       yaws, summary["pipeline_stats"], summary["frames"], summary["time_offset_s"], commands,
+                       prism_lever=data.base_T_prism[:3, 3])
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
