@@ -28,9 +28,10 @@ nuisance: the VO drifts, so it is piecewise-linear in time with knots every ``kn
 tied by a weak random-walk prior so that knots without data stay determined. The VO drifts in tilt
 too (its odom frame tilts against gravity, fixed in odom while the platform turns under it): with
 ``vo_tilt`` (default) ``map_R_base = Rz(δ(t)) · exp([θ(t)]×) · odom_R_base(t)``, θ about map's x and y,
-piecewise linear over knots every ``tilt_knot_spacing`` s (x[N_GLOBALS:]), each tied to 0 by
-``tilt_sigma_deg`` and to its neighbour by ``tilt_drift_sigma_deg``. The platform's turning separates θ
-(fixed in map) from the boresight roll and pitch (fixed in base_link). Without θ the realistic demo's
+the drift since the first observation: piecewise linear over knots every ``tilt_knot_spacing`` s
+(x[N_GLOBALS:]), the first 0, the others tied to 0 by ``tilt_sigma_deg`` and to their neighbour by
+``tilt_drift_sigma_deg``. The platform's turning separates θ (fixed in map) from the boresight roll and
+pitch (fixed in base_link). Without θ the realistic demo's
 0.5°/min tilt drift made the boresight roll 0.21° and yaw 0.35° wrong (σ 0.09°) and the time offset
 (σ 8 ms) and readout (σ 156 ms) undetermined; with it 0.002°, 0.020° (σ 0.019°), 0.6 ± 0.2 ms, 33 ± 2 ms.
 
@@ -184,8 +185,10 @@ class Problem:
         return w
 
     def tilt_indices(self) -> Tuple[int, ...]:
-        """Indices in x of the tilt knots' values (() without ``vo_tilt``)."""
-        return tuple(range(N_GLOBALS, self.n_x))
+        """Indices in x of the free tilt knots' values (() without ``vo_tilt``): all but the first, which stays
+        0 (θ is the drift since the recording's first observation; a constant tilt of odom is what the
+        boresight roll and pitch took before, and without turns nothing tells them apart)."""
+        return tuple(range(N_GLOBALS + 2, self.n_x))
 
     def predict(self, x, delta) -> np.ndarray:
         """Predicted unit bearings (N, 3) in the camera frame."""

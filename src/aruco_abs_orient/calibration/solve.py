@@ -129,13 +129,16 @@ def _solve(pb: Problem, sol: _Solution, free: Tuple[int, ...], weights: _Weights
                 col = np.bincount(ia, wh * pb.rate_head * wa, minlength=K)
                 H[jt, n_glob:] += col
                 H[n_glob:, jt] += col
-        # the odometry's tilt knots: each tied to 0, adjacent ones to each other (random walk)
+        # the odometry's tilt knots (the first one is 0: its tilt drift since the recording's start): each tied
+        # to 0, adjacent ones to each other (random walk, the second knot to the first's 0)
         tilt = [free.index(g) for g in pb.tilt_indices() if g in free]
         if tilt:
             tj = np.array(tilt)
             w0, w1 = 1.0 / pb.tilt_sigma ** 2, 1.0 / pb.tilt_drift_sigma ** 2
             H[tj, tj] += w0
             gvec[tj] += w0 * x[list(pb.tilt_indices())]
+            H[tj[:2], tj[:2]] += w1
+            gvec[tj[:2]] += w1 * x[list(pb.tilt_indices()[:2])]
             for a_, b_ in zip(tj[:-2], tj[2:]):   # same axis, next knot
                 diff = x[free[b_]] - x[free[a_]]
                 H[a_, a_] += w1
