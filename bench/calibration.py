@@ -53,11 +53,12 @@ import time
 import numpy as np
 import yaml
 
+from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
 from aruco_abs_orient.evaluation import error_by_frame_position, interp_yaw, yaw_ape
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.offline.bagio import read_bag_data
 from aruco_abs_orient.offline.calibrate import calibrate_bag, collect_observations
-from aruco_abs_orient.offline.process import process_bag
+from aruco_abs_orient.offline.process import RunSetup, process_bag
 from aruco_abs_orient.offline.sync import estimate_bag_offset
 from aruco_abs_orient.synthetic.bag import generate
 from aruco_abs_orient.synthetic.scenario import PRESETS
@@ -125,7 +126,6 @@ def honesty(a) -> int:
     ``--prism-noise`` prism, the VO's drift and random walk and a ``--readout`` rolling shutter: calibrate
     (time offset, and the readout when there is one, estimated beside the boresight) and print per seed
     the yaw error, its σ and error/σ, and the fraction within 2.5 σ."""
-    from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, calibrate
     from aruco_abs_orient.synthetic.feed import marker_observations
     from aruco_abs_orient.synthetic.scenario import Scenario, ScenarioConfig
     from aruco_abs_orient.tum import Trajectory
@@ -153,11 +153,11 @@ def honesty(a) -> int:
         ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(seed), readout=a.readout)
         grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
         odom = Trajectory.from_transforms(grid + off, sc.odom_T_base(grid))
+        rec = Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise), odom,
+                        sc.prism.stamps + off, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
+                        sc.base_T_prism, ob.rows)
         try:
-            cal = calibrate(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise), odom,
-                            sc.prism.stamps + off, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
-                            sc.base_T_prism, estimate_time_offset=True, params=params, obs_rows=ob.rows,
-                            estimate_readout=a.readout > 0)
+            cal = calibrate(rec, Unknowns(time_offset=True, readout=a.readout > 0), params)
         except CalibrationError as e:  # what calibrate would refuse: counted, not judged
             refused.append(seed)
             print(f"  {seed:4d} refused: {e}", flush=True)
@@ -233,7 +233,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     coarse = estimate_bag_offset(bag)["timesync"].offset
     obs = collect_observations(bag, markers, every=a.every)
-    cal = calibrate_bag(bag, markers, coarse, observations=obs, estimate_time_offset=True)
+    cal = calibrate_bag(bag, markers, coarse, observations=obs, unknowns=Unknowns(time_offset=True))
     refined = coarse + cal.time_offset_delta
     t_cal = time.perf_counter() - t0
     true_T = np.array(hidden["base_T_camera_true"])
@@ -268,7 +268,7 @@ def main(argv=None) -> int:
         bd = read_bag_data(os.path.join(d, "scenario.bag"))
         if T is not None:
             bd = dataclasses.replace(bd, base_T_camera=T)
-        process_bag(os.path.join(d, "scenario.bag"), markers, out, time_offset=tau, data=bd, progress=False)
+        process_bag(os.path.join(d, "scenario.bag"), markers, out, RunSetup(tau, progress=False), data=bd)
         runs[name] = evaluate(out, os.path.join(d, "truth.tum"), a.min_count)
 
     print(f"\n  {'run':38s} {'heading RMSE':>13s} {'mean yaw err':>13s} {'frame-pos bias':>15s}  per-marker yaws")

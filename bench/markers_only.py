@@ -123,7 +123,8 @@ def tilt() -> None:
 
 def rendered() -> None:
     from aruco_abs_orient.markers import MarkerMap
-    from aruco_abs_orient.offline.process import process_bag
+    from aruco_abs_orient.offline.process import RunSetup, process_bag
+    from aruco_abs_orient.params import parse_params
     from aruco_abs_orient.synthetic.bag import generate
     from aruco_abs_orient.tum import read_tum
 
@@ -135,8 +136,8 @@ def rendered() -> None:
     sc = Scenario(cfg)
     with tempfile.TemporaryDirectory() as run_dir:
         res = process_bag(os.path.join(out, "scenario.bag"), MarkerMap.load(os.path.join(out, "markers.yaml")),
-                          run_dir, time_offset=cfg.camera_time_offset, progress=False,
-                          params=PipelineParams(markers_only=True))
+                          run_dir, RunSetup(cfg.camera_time_offset, progress=False),
+                          parse_params({"pipeline": {"markers_only": True}}))
         traj = read_tum(res.trajectory_path)
     T = sc.map_T_base(traj.stamps)
     est = traj.transforms

@@ -5,7 +5,7 @@ Part 1, the generator's worlds (issue 8's figure): the 60 s demo preset (a 9 × 
 0.8 m/s, VO yaw drifting 4°/min plus a 0.03°/√s random walk, prism jitter, dropouts and gaps) for
 offsets across −1 … +1 s, each a different seed. Three estimates per world: the VO-heading phase
 coherence (``timesync.estimate_offset``), that refined with the marker bearings of every 3rd frame
-(``calibration.calibrate(estimate_time_offset=True)``, boresight estimated beside it), and the paper's
+(``calibration.calibrate`` with ``Unknowns(time_offset=True)``, boresight estimated beside it), and the paper's
 cross-correlation. The bearings are the scenario's exact geometry (``Scenario.marker_bearings``) with
 ``--bearing-noise-deg`` per axis (0.04°: the residual RMS of the rendered demo bag's calibration); the
 rendered demo itself (``make demo``) gives the same refinement on detected markers.
@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from aruco_abs_orient.calibration import CalibrationError, calibrate
+from aruco_abs_orient.calibration import CalibrationError, Recording, Unknowns, calibrate
 from aruco_abs_orient.timesync import TimeSyncError, cross_correlation_offset, estimate_offset
 
 LAP = 12.0  # m
@@ -112,9 +112,9 @@ def generator_sweep(offsets: int, noise_deg: float, duration: float) -> None:
             continue
         k, ids, b = sc.marker_bearings(sc.frame_times[::3], noise=noise, rng=np.random.default_rng(i))
         try:
-            cal = calibrate(stamps[::3][k], ids, b, np.full(len(k), noise), Trajectory.from_transforms(stamps, odom_T),
-                            tp + coarse, pp, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism,
-                            estimate_time_offset=True)
+            rec = Recording(stamps[::3][k], ids, b, np.full(len(k), noise), Trajectory.from_transforms(stamps, odom_T),
+                            tp + coarse, pp, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism)
+            cal = calibrate(rec, Unknowns(time_offset=True))
         except CalibrationError as e:
             print(f"{1e3 * tau:9.1f} | bearings failed: {e}")
             continue

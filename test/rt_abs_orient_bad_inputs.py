@@ -113,14 +113,14 @@ class BadInputs(LiveFeedCase):
         s = self.bad_phase(3.0, "no prism for", prism=False)
         self.assertGreater(float(self.values(s)["prism age [s]"]), 1.0)
 
-        # dynamic_reconfigure: a node parameter and a pipeline parameter, applied while running
+        # dynamic_reconfigure: a node parameter, a pipeline and a tracking parameter, applied while running
         from dynamic_reconfigure.client import Client
 
         client = Client("abs_orient", timeout=10)
-        applied = client.update_configuration({"time_offset": 0.05, "fusion_gate": 6.0})
-        self.assertEqual((applied["time_offset"], applied["fusion_gate"]), (0.05, 6.0))
+        applied = client.update_configuration({"time_offset": 0.05, "fusion_gate": 6.0, "gate_deg": 2.0})
+        self.assertEqual((applied["time_offset"], applied["fusion_gate"], applied["gate_deg"]), (0.05, 6.0, 2.0))
         s = self.wait_status(lambda s: self.values(s)["time offset [s]"] == "0.05", 5, "time offset from reconfigure")
-        self.assertEqual(self.values(s)["parameters refused"], "0", "fusion_gate refused by the pipeline")
+        self.assertEqual(self.values(s)["parameters refused"], "0", "fusion_gate or gate_deg refused by the pipeline")
 
         # still alive and reporting
         n = self.status_count

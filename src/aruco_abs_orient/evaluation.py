@@ -26,10 +26,12 @@ from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from .errors import InputFileError
+from .paramcheck import Validated, check_non_negative
 from .transforms import wrap_angle
 from .tum import atomic_write_bytes, atomic_write_text, sorted_series
 
 __all__ = [
+    "EvaluationParams",
     "EvaluationError",
     "save_figure",
     "ErrorStats",
@@ -61,6 +63,26 @@ _EXACT = 1e-6  # s: stamps this close are the same instant (the same image)
 
 class EvaluationError(InputFileError, ValueError):
     """Inputs that cannot be evaluated (empty, mismatched lengths, no common times); says why."""
+
+
+@dataclass
+class EvaluationParams(Validated):
+    """What ``aruco-abs-orient evaluate`` computes (cfg/params.yaml's ``evaluation`` section).
+
+    - ``max_gap``: a pose (or a marker yaw) is compared with the reference only where the reference has
+      samples at most this far apart (s) around it: no error is interpolated across a gap.
+    - ``min_gap``: coverage lists the gaps between poses longer than this (s).
+    - ``settle``: the fused output (``--fused``) is judged from this long (s) after its first absolute yaw
+      (the EKF converges), unless ``--after`` says when.
+    """
+
+    max_gap: float = 0.2
+    min_gap: float = 0.5
+    settle: float = 1.0
+
+    def validate(self) -> None:
+        """Raise EvaluationError naming the first out-of-range field."""
+        check_non_negative(self, EvaluationError)
 
 
 def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:

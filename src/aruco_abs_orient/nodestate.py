@@ -27,13 +27,14 @@ from __future__ import annotations
 
 import collections
 import math
-from typing import Deque, Dict, Iterable, List, Optional, Tuple
+from typing import Deque, Dict, Iterable, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
 from .transforms import make_T, rot_z, wrap_angle, yaw_of
 
-__all__ = ["MapOdomStamps", "MapOdomPrediction", "NodeHealth", "IMAGE_OK", "IMAGE_JUMPED_BACK", "IMAGE_NOT_AFTER"]
+__all__ = ["MapOdomStamps", "MapOdomPrediction", "NodeHealth", "NodeSnapshot", "IMAGE_OK", "IMAGE_JUMPED_BACK",
+           "IMAGE_NOT_AFTER"]
 
 IMAGE_OK = "ok"
 IMAGE_JUMPED_BACK = "jumped back"
@@ -144,6 +145,26 @@ _PROBLEM_TEXTS = (("bad_images", "corrupt images"), ("tf_failures", "tf lookups 
 """Counters that make the node's status WARN when they grew since the last report, with their text."""
 
 
+class NodeSnapshot(NamedTuple):
+    """What the node hands :meth:`NodeHealth.report`: ``initialised`` (the filter); ``image_age_wall`` s (wall)
+    since the last image; ``last_prism_stamp`` s (ROS time, None: none yet); ``prisms_waiting``: prisms arrived
+    but wait for the pipeline; ``images_received``, ``images_dropped`` (counts); ``time_offset`` s and
+    ``time_offset_source``; ``pipeline`` an ``AbsOrientPipeline`` (None before the static tfs);
+    ``offset_estimator`` an ``OnlineOffsetEstimator`` or None; ``map_odom_yaw`` rad (None: no filter yet)."""
+
+    initialised: bool
+    image_age_wall: float
+    last_prism_stamp: Optional[float]
+    prisms_waiting: bool
+    images_received: int
+    images_dropped: int
+    time_offset: float
+    time_offset_source: str
+    pipeline: object = None
+    offset_estimator: object = None
+    map_odom_yaw: Optional[float] = None
+
+
 class NodeHealth:
     """The node's counters and what they mean: the ``pipeline`` status of /diagnostics.
 
@@ -188,17 +209,13 @@ class NodeHealth:
         self.seen_ids = seen
         return changed
 
-    def report(self, now_wall: float, now_ros: float, *, initialised: bool, image_age_wall: float,
-               last_prism_stamp: Optional[float], prisms_waiting: bool, images_received: int,
-               images_dropped: int, time_offset: float, time_offset_source: str, pipeline=None,
-               offset_estimator=None, map_odom_yaw: Optional[float] = None) -> Tuple[str, str, Dict[str, object]]:
+    def report(self, now_wall: float, now_ros: float, node: NodeSnapshot) -> Tuple[str, str, Dict[str, object]]:
         """(level 'ok'|'warn'|'error', message, values) since the previous report, which this one ends.
 
-        ``now_wall`` s monotonic, ``now_ros`` s ROS time; ``image_age_wall`` s (wall) since the last image;
-        ``last_prism_stamp`` s (ROS time, None: none yet); ``prisms_waiting``: prisms arrived but wait for
-        the pipeline; ``pipeline`` an ``AbsOrientPipeline`` (None before the static tfs);
-        ``offset_estimator`` an ``OnlineOffsetEstimator`` or None; ``map_odom_yaw`` rad.
+        ``now_wall`` s monotonic, ``now_ros`` s ROS time; ``node`` the node's state (:class:`NodeSnapshot`).
         """
+        (initialised, image_age_wall, last_prism_stamp, prisms_waiting, images_received, images_dropped,
+         time_offset, time_offset_source, pipeline, offset_estimator, map_odom_yaw) = node
         base, camera, prism = self.frames
         delta = {k: v - self._prev.get(k, 0) for k, v in self.counts.items()}
         dt = max(now_wall - self._prev_wall, 1e-6)

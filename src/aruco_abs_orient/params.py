@@ -1,11 +1,13 @@
 """cfg/params.yaml: every pipeline tunable in one file, generated from the params dataclasses and read back.
 
-In: the params dataclasses of the modules they configure (:data:`aruco_abs_orient.pipeline.PARAM_GROUPS`:
-``PipelineParams`` in pipeline.py, ``DetectorParams`` in detection/params.py, ``FilterParams`` in
-correction.py; their defaults are written there, once) and, to read, a YAML file with any subset of
+In: the params dataclasses of the modules they configure (:data:`SECTIONS`: the pipeline's
+:data:`aruco_abs_orient.pipeline.PARAM_GROUPS`, ``PipelineParams`` in pipeline.py, ``DetectorParams`` in
+detection/params.py, ``TrackingParams`` in tracking.py, ``FilterParams`` in correction.py, and the time-offset
+estimate's ``TimeSyncParams`` in timesync/coherence.py and the report's ``EvaluationParams`` in evaluation.py;
+their defaults are written there, once) and, to read, a YAML file with any subset of
 them under the group's section::
 
-    detection:
+    tracking:
       gate_deg: 1.5
     filter:
       gate_chi2_yaw: 12.0
@@ -31,9 +33,18 @@ import yaml
 from .correction import FilterParams
 from .detection import DetectorParams
 from .errors import AbsOrientError, ConfigurationError
+from .evaluation import EvaluationParams
 from .pipeline import PARAM_GROUPS, PipelineParams
+from .timesync import TimeSyncParams
+from .tracking import TrackingParams
 
-__all__ = ["ParamsError", "Tunables", "load_params", "parse_params", "defaults_yaml", "describe"]
+__all__ = ["SECTIONS", "ParamsError", "Tunables", "load_params", "parse_params", "defaults_yaml", "describe"]
+
+
+#: (section, params class) of every section of cfg/params.yaml, in its order: the pipeline's groups (what
+#: ``AbsOrientPipeline`` and dynamic_reconfigure take), then the time-offset estimate's (``timesync``, the
+#: node's ``~estimate_time_offset``) and the report's (``evaluation``)
+SECTIONS = PARAM_GROUPS + (("timesync", TimeSyncParams), ("evaluation", EvaluationParams))
 
 
 class ParamsError(ConfigurationError, ValueError):
@@ -45,14 +56,18 @@ class Tunables(NamedTuple):
 
     pipeline: PipelineParams
     detection: DetectorParams
+    tracking: TrackingParams
     filter: FilterParams
+    timesync: TimeSyncParams
+    evaluation: EvaluationParams
 
     def pipeline_kwargs(self) -> dict:
         """Keyword arguments of :class:`~aruco_abs_orient.pipeline.AbsOrientPipeline`."""
-        return {"params": self.pipeline, "detector_params": self.detection, "filter_params": self.filter}
+        return {"params": self.pipeline, "detector_params": self.detection, "tracking_params": self.tracking,
+                "filter_params": self.filter}
 
     def flat(self) -> Dict[str, object]:
-        """name → value of every tunable (names are unique across groups: dynamic_reconfigure's view)."""
+        """name → value of every tunable (names are unique across sections: dynamic_reconfigure's view)."""
         return {f.name: getattr(obj, f.name) for obj in self for f in fields(obj)}
 
 
@@ -90,14 +105,14 @@ def _coerce(value, default, where: str):
 
 def parse_params(data, source: str = "<params>") -> Tunables:
     """:class:`Tunables` from a parsed YAML mapping ``{section: {name: value}}`` (``source`` names it in errors)."""
-    groups = dict(PARAM_GROUPS)
+    groups = dict(SECTIONS)
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise ParamsError(f"{source}: expected a mapping of sections ({', '.join(groups)}), "
                           f"got {type(data).__name__}")
     out = {}
-    for section, cls in PARAM_GROUPS:
+    for section, cls in SECTIONS:
         given = data.get(section) or {}
         if not isinstance(given, dict):
             raise ParamsError(f"{source}: {section}: expected a mapping of parameter names to values, "
@@ -108,7 +123,7 @@ def parse_params(data, source: str = "<params>") -> Tunables:
         for name, value in given.items():
             where = f"{source}: {section}.{name}"
             if name not in known:
-                elsewhere = [s for s, c in PARAM_GROUPS if name in {f.name for f in fields(c)}]
+                elsewhere = [s for s, c in SECTIONS if name in {f.name for f in fields(c)}]
                 hint = (f"it belongs in section {elsewhere[0]!r}" if elsewhere else
                         "did you mean " + " or ".join(repr(m) for m in difflib.get_close_matches(str(name), known, 2))
                         if difflib.get_close_matches(str(name), known, 2) else
@@ -197,12 +212,14 @@ def _yaml_value(v) -> str:
 
 def defaults_yaml() -> str:
     """The text of cfg/params.yaml: every tunable with its default and description, by section."""
-    lines = ["# Every tunable of the pipeline with its default (generated from the params dataclasses by",
+    lines = ["# Every tunable with its default (generated from the params dataclasses by",
              "# `aruco-abs-orient params --out cfg/params.yaml`; test/unit/test_params.py checks it is current).",
-             "# Give a copy with your changes (any subset) to `aruco-abs-orient process|calibrate --params FILE`",
-             "# or to the node as ~params. Units are in the names (*_deg, *_px) or the descriptions;",
-             "# angles without _deg are radians, times seconds, lengths metres."]
-    for section, cls in PARAM_GROUPS:
+             "# Give a copy with your changes (any subset) to `aruco-abs-orient process|calibrate|timesync|evaluate",
+             "# --params FILE` or to the node as ~params. Who reads what: pipeline, detection, tracking and filter:",
+             "# process and the node (calibrate and timesync --markers: detection); timesync: timesync and the",
+             "# node's ~estimate_time_offset; evaluation: evaluate. Units are in the names (*_deg, *_px) or the",
+             "# descriptions; angles without _deg are radians, times seconds, lengths metres."]
+    for section, cls in SECTIONS:
         module = "src/" + cls.__module__.replace(".", "/") + ".py"
         lines += ["", f"{section}:  # {cls.__name__}, {module}"]
         desc = describe(cls)

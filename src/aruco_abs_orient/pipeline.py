@@ -30,9 +30,18 @@ from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
-from .solver import SolverError, attitude_from_markers, fuse_yaws, resection, yaw_from_marker
+from .solver import (
+    FitSettings,
+    Mounting,
+    NoiseModel,
+    SolverError,
+    attitude_from_markers,
+    fuse_yaws,
+    resection,
+    yaw_from_marker,
+)
 from .tilt import Tilt, TiltEstimator, TiltParams
-from .tracking import MarkerTracker, TrackingStats
+from .tracking import MarkerTracker, TrackingParams, TrackingStats
 from .transforms import matrix_to_rpy, wrap_angle, yaw_of
 
 __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationResult", "PipelineError",
@@ -63,7 +72,7 @@ class PipelineError(ConfigurationError, ValueError):
 
 @dataclass
 class PipelineParams:
-    """Knobs of the pipeline itself (detection and filter knobs live in their own objects).
+    """Knobs of the pipeline itself (detection, tracking and filter knobs live in their own objects).
 
     - ``prism_sigma``: 1-σ per axis of a total-station prism position (m).
     - ``prism_max_gap``: largest gap between the two prism samples around an image for
@@ -124,11 +133,12 @@ class PipelineParams:
 
 
 #: (group, params class) of every tunable the pipeline takes: cfg/params.yaml's sections, in its order
-PARAM_GROUPS = (("pipeline", PipelineParams), ("detection", DetectorParams), ("filter", FilterParams))
+PARAM_GROUPS = (("pipeline", PipelineParams), ("detection", DetectorParams), ("tracking", TrackingParams),
+                ("filter", FilterParams))
 
 
 def all_param_fields() -> List[Tuple[str, str, object]]:
-    """(group, name, default) of every tunable: pipeline, detection, filter (flat, unique names)."""
+    """(group, name, default) of every tunable: pipeline, detection, tracking, filter (flat, unique names)."""
     return [(group, f.name, f.default) for group, cls in PARAM_GROUPS for f in fields(cls)]
 
 
@@ -233,7 +243,8 @@ class AbsOrientPipeline:
 
     def __init__(self, marker_map: MarkerMap, base_T_camera, base_T_prism,
                  params: Optional[PipelineParams] = None, detector_params: Optional[DetectorParams] = None,
-                 filter_params: Optional[FilterParams] = None, readout: float = 0.0, calibrated: bool = False):
+                 filter_params: Optional[FilterParams] = None, readout: float = 0.0,
+                 tracking_params: Optional[TrackingParams] = None, calibrated: bool = False):
         for name, T in (("base_T_camera", base_T_camera), ("base_T_prism", base_T_prism)):
             T = np.asarray(T, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -248,13 +259,14 @@ class AbsOrientPipeline:
         self.params = params or PipelineParams()
         self.params.validate()
         self.detector_params = detector_params or DetectorParams()
+        self.tracking_params = tracking_params or TrackingParams()
         self.filter_params = filter_params or FilterParams()
         self.prism = PrismBuffer()
         self.stats: Dict[str, int] = {}
         self._build()
 
     def _build(self) -> None:
-        self.tracker = MarkerTracker(self.marker_map, self.detector_params)
+        self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
         self.tilt = TiltEstimator(TiltParams(odometry_sigma=math.radians(self.params.tilt_sigma_deg)))
         self.last_stamp: Optional[float] = None
@@ -270,14 +282,17 @@ class AbsOrientPipeline:
         0.32° camera tilt)."""
         return self.params.tilt_from_markers or self.calibrated
 
+    def _mounting(self) -> Mounting:
+        """The camera's and the prism's place on base_link, as the solvers take it."""
+        return Mounting(self.base_T_camera, self.base_T_prism[:3, 3])
+
     def _count(self, key: str, n: int = 1) -> None:
         self.stats[key] = self.stats.get(key, 0) + n
 
     # ------------------------------------------------------------------ configuration
     def update_params(self, **changes) -> None:
         """Change tunables by name (any of :func:`all_param_fields`), e.g. from dynamic_reconfigure."""
-        groups = {"pipeline": self.params, "detection": self.detector_params, "filter": self.filter_params}
-        per_group: Dict[str, dict] = {g: {} for g in groups}
+        per_group: Dict[str, dict] = {group: {} for group, _ in PARAM_GROUPS}
         names = {name: group for group, name, _ in all_param_fields()}
         for k, v in changes.items():
             if k not in names:
@@ -288,9 +303,11 @@ class AbsOrientPipeline:
             p.validate()
             self.params = p
             self.tilt.params.odometry_sigma = math.radians(p.tilt_sigma_deg)
-        if per_group["detection"]:
-            self.detector_params = replace(self.detector_params, **per_group["detection"])
-            self.tracker = MarkerTracker(self.marker_map, self.detector_params)
+        if per_group["detection"] or per_group["tracking"]:
+            detector = replace(self.detector_params, **per_group["detection"])  # both validated before either
+            tracking = replace(self.tracking_params, **per_group["tracking"])   # is taken
+            self.detector_params, self.tracking_params = detector, tracking
+            self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params)
         if per_group["filter"]:
             self.filter_params = replace(self.filter_params, **per_group["filter"])
             self.filter.update_params(self.filter_params)
@@ -430,7 +447,7 @@ class AbsOrientPipeline:
                     and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll, odom_pitch, odom_yaw)):
                 tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             rows = self._row_times(t, list(observations) + list(gated), image_height, odom_rpy)
-            self._solve_frame(t, res, observations, p, prism_cov, tilt, odom_T_base, gated, rows)
+            self._solve_frame(t, res, observations, (p, prism_cov), tilt, odom_T_base, gated, rows)
         res.tilt_source = tilt.source
         self._last_odom = (float(t), odom_rpy)
         res.timings["solve"] = 1e3 * (time.perf_counter() - clock)
@@ -484,11 +501,12 @@ class AbsOrientPipeline:
             return False
         M = np.array([self.marker_map[o.id].position for o in observations])
         try:
+            noise = NoiseModel(bearing=np.array([o.sigma for o in observations]), prism_cov=prism_cov,
+                               marker=np.array([self.marker_map[o.id].sigma for o in observations]))
             est = attitude_from_markers(
-                np.array([o.centre for o in observations]), M, prism_p, self.base_T_camera, self.base_T_prism[:3, 3],
-                sigma_bearing=np.array([o.sigma for o in observations]), prism_cov=prism_cov,
-                marker_sigma=np.array([self.marker_map[o.id].sigma for o in observations]),
-                tilt=(tilt.roll, tilt.pitch), min_spread=math.radians(self.params.attitude_min_spread_deg))
+                np.array([o.centre for o in observations]), M, prism_p, self._mounting(), noise=noise,
+                tilt=(tilt.roll, tilt.pitch),
+                settings=FitSettings(min_spread=math.radians(self.params.attitude_min_spread_deg)))
         except SolverError:
             self._count("tilt_from_markers_refused")
             return False
@@ -514,12 +532,12 @@ class AbsOrientPipeline:
         if len(obs) == 2 and self.filter.initialised:      # two solutions possible: the one near the prediction
             start = self.filter.map_T_odom(t)[0] @ odom_T_base
         try:
+            noise = NoiseModel(bearing=np.array([o.sigma for o in obs]),
+                               marker=np.array([self.marker_map[o.id].sigma for o in obs]))
             est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
-                            self.base_T_camera, sigma_bearing=np.array([o.sigma for o in obs]),
-                            marker_sigma=np.array([self.marker_map[o.id].sigma for o in obs]),
-                            tilt=(tilt.roll, tilt.pitch), tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA),
-                            initial_pose=start,
-                            min_cone=math.radians(self.params.resection_min_cone_deg))
+                            self.base_T_camera, noise=noise, tilt=(tilt.roll, tilt.pitch),
+                            tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA), initial_pose=start,
+                            settings=FitSettings(min_cone=math.radians(self.params.resection_min_cone_deg)))
         except SolverError as e:
             self._count("resection_degenerate")
             for r in rows:
@@ -557,11 +575,13 @@ class AbsOrientPipeline:
                                  odom_yaw=float(odom_yaw))
         self._count("tilt_from_markers" if taken else "tilt_from_markers_gated")
 
-    def _solve_frame(self, t, res: FrameResult, observations, prism_p, prism_cov, tilt: Tilt,
-                     odom_T_base, gated=(), rows=None) -> None:
+    def _solve_frame(self, t, res: FrameResult, observations, prism, tilt: Tilt, odom_T_base, gated=(),
+                     rows=None) -> None:
         """Yaw from each marker (closed form), their fusion (shared prism/tilt errors, false ids
-        dropped), and one filter update with the fused yaw. ``rows``: :meth:`_row_times` per observation
-        (observations, then gated): each marker's yaw at its row time, referred back to ``t``."""
+        dropped), and one filter update with the fused yaw. ``prism``: (position (3,) m, its 3×3 covariance
+        m²) at ``t``. ``rows``: :meth:`_row_times` per observation (observations, then gated): each marker's
+        yaw at its row time, referred back to ``t``."""
+        prism_p, prism_cov = prism
         q = self.params
         estimates = []
         tracker_gated = {id(o) for o in gated}
@@ -583,9 +603,9 @@ class AbsOrientPipeline:
                 continue
             try:
                 est = yaw_from_marker(
-                    o.centre, m.position, p_o, roll_o, pitch_o, self.base_T_camera,
-                    self.base_T_prism[:3, 3], sigma_bearing=o.sigma, prism_cov=prism_cov, marker_sigma=m.sigma,
-                    tilt_sigma=tilt.sigma, lever_sigma=q.lever_sigma, min_range=q.min_range)
+                    o.centre, m.position, p_o, (roll_o, pitch_o), self._mounting(),
+                    NoiseModel(bearing=o.sigma, prism_cov=prism_cov, marker=m.sigma, tilt=tilt.sigma,
+                               lever=q.lever_sigma), min_range=q.min_range)
             except SolverError as e:
                 self._count("degenerate")
                 res.observations.append(ObservationResult(o, reason=f"geometry: {e}"))

@@ -33,13 +33,14 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass, field
-from typing import Deque, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import Deque, Dict, List, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
 from .transforms import wrap_angle
 
-__all__ = ["SelfCheckParams", "Finding", "bearing_rate", "check_run", "RollingSelfCheck"]
+__all__ = ["SelfCheckParams", "Finding", "YawObservation", "RunContext", "bearing_rate", "observation_columns",
+           "check_run", "RollingSelfCheck"]
 
 
 @dataclass(frozen=True)
@@ -128,25 +129,58 @@ def _deg(x: float) -> str:
     return f"{math.degrees(x):+.2f}°"
 
 
-def check_run(obs: Mapping[str, np.ndarray], prism_t, prism_xyz, marker_xyz: Mapping[int, Sequence[float]],
-              pose_t=(), pose_yaw=(), stats: Optional[Mapping[str, int]] = None, frames: int = 0,
-              time_offset: float = 0.0, commands: Optional[Mapping[str, str]] = None,
-              params: Optional[SelfCheckParams] = None, prism_lever: Optional[Sequence[float]] = None
-              ) -> Dict[str, object]:
+class YawObservation(NamedTuple):
+    """One marker yaw for the self-checks: ``time`` (s, total-station clock), ``id``, ``azimuth``, ``elevation``
+    (rad, camera frame), ``yaw_sigma``, ``residual`` (rad; NaN before the filter started), ``accepted`` (the
+    filter took it), and when known ``yaw`` and ``odom_yaw`` (rad: the marker's yaw of base_link and the
+    odometry's at that time)."""
+
+    time: float
+    id: int
+    azimuth: float
+    elevation: float
+    yaw_sigma: float
+    residual: float
+    accepted: bool
+    yaw: float = math.nan
+    odom_yaw: float = math.nan
+
+
+def observation_columns(rows: Sequence[Sequence]) -> Dict[str, np.ndarray]:
+    """:func:`check_run`'s ``obs`` from rows in :class:`YawObservation`'s order."""
+    cols = list(zip(*rows)) if rows else [()] * len(YawObservation._fields)
+    return {k: np.asarray(v) for k, v in zip(YawObservation._fields, cols)}
+
+
+class RunContext(NamedTuple):
+    """What :func:`check_run` says about the run besides its data: the pipeline's counters ``stats`` and the
+    number of ``frames``; the ``time_offset`` (s) in use; ``commands``: the command lines that fix things
+    ({"timesync": ..., "calibrate": ...}), quoted in the messages; ``prism_lever``: the prism in base_link (m;
+    None: at its origin), whose swing in turns (yaw rate × lever arm) is taken out of the track's direction
+    of travel."""
+
+    stats: Optional[Mapping[str, int]] = None
+    frames: int = 0
+    time_offset: float = 0.0
+    commands: Optional[Mapping[str, str]] = None
+    prism_lever: Optional[Sequence[float]] = None
+
+
+def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Sequence[float]], poses=((), ()),
+              run: Optional[RunContext] = None, params: Optional[SelfCheckParams] = None) -> Dict[str, object]:
     """The self-checks of a run (see the module docstring).
 
-    ``obs``: per marker observation with a yaw, arrays ``time`` (s, total-station clock), ``id``,
-    ``azimuth``, ``elevation`` (rad, camera frame), ``yaw_sigma``, ``residual`` (rad; NaN before the
-    filter started), ``accepted`` (bool), and optionally ``yaw`` and ``odom_yaw`` (rad: the marker's yaw of
-    base_link and the odometry's at that time; then the time offset and tilt are fitted to their
-    difference, the map→odom yaw, independent of what the filter accepted); the prism track; the marker
-    map's positions {id: [x, y, z]}; the filtered poses' stamps and yaws (rad); the pipeline's counters
-    and the number of frames; ``prism_lever``: the prism in base_link (m; None: at its origin), whose swing
-    in turns (yaw rate × lever arm) is taken out of the track's direction of travel;
-    ``time_offset`` (s) in use; ``commands``: the command lines that fix things ({"timesync": ...,
-    "calibrate": ...}), quoted in the messages. Returns a JSON-able dict with the estimates (degrees,
-    seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
+    ``obs``: per marker observation with a yaw, the arrays of :class:`YawObservation`'s fields
+    (:func:`observation_columns`; ``yaw`` and ``odom_yaw`` optional: with them the time offset and tilt are
+    fitted to their difference, the map→odom yaw, independent of what the filter accepted); ``prism``: the
+    prism track (stamps (M,) s, positions (M, 3) m); the marker map's positions {id: [x, y, z]}; ``poses``:
+    the filtered poses' (stamps, yaws (rad)); ``run``: :class:`RunContext`. Returns a JSON-able dict with the
+    estimates (degrees, seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run
+    agrees with itself).
     """
+    prism_t, prism_xyz = prism
+    pose_t, pose_yaw = poses
+    stats, frames, time_offset, commands, prism_lever = run or RunContext()
     commands = dict(commands or {})
     p = params or SelfCheckParams()
     out: Dict[str, object] = {}
@@ -330,13 +364,11 @@ class RollingSelfCheck:
         while q and q[0][0] < now - self.window:
             q.popleft()
 
-    def add_observation(self, t: float, marker_id: int, azimuth: float, elevation: float, yaw_sigma: float,
-                        residual: float, accepted: bool, yaw: float = math.nan, odom_yaw: float = math.nan) -> None:
-        """One marker yaw (rad) at ``t`` (s): its bearing in the camera, σ, residual, whether the filter took
-        it, and, when known, the yaw itself and the odometry's yaw at ``t`` (then the fit does not depend on
-        what the filter accepted)."""
-        self._obs.append((t, marker_id, azimuth, elevation, yaw_sigma, residual, accepted, yaw, odom_yaw))
-        self._trim(self._obs, t)
+    def add_observation(self, o: YawObservation) -> None:
+        """One marker yaw: its bearing in the camera, σ, residual, whether the filter took it, and, when known,
+        the yaw itself and the odometry's yaw (then the fit does not depend on what the filter accepted)."""
+        self._obs.append(tuple(o))
+        self._trim(self._obs, o.time)
 
     def add_prism(self, t: float, xyz: Sequence[float]) -> None:
         self._prism.append((t, tuple(float(v) for v in xyz)))
@@ -347,16 +379,14 @@ class RollingSelfCheck:
         self._trim(self._poses, t)
 
     def check(self) -> Dict[str, object]:
-        o = list(zip(*self._obs)) if self._obs else [()] * 9
-        obs = {k: np.asarray(v) for k, v in zip(("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
-                                                 "accepted", "yaw", "odom_yaw"), o)}
+        obs = observation_columns(self._obs)
         if not np.any(np.isfinite(obs["odom_yaw"].astype(float))):
             del obs["yaw"], obs["odom_yaw"]
         prism = sorted(self._prism)
         poses = sorted(self._poses)
-        return check_run(obs, [p[0] for p in prism], [p[1] for p in prism], self.marker_xyz,
-                         [p[0] for p in poses], [p[1] for p in poses], time_offset=self.time_offset,
-                         params=self.params, prism_lever=self.prism_lever)
+        return check_run(obs, ([p[0] for p in prism], [p[1] for p in prism]), self.marker_xyz,
+                         ([p[0] for p in poses], [p[1] for p in poses]),
+                         RunContext(time_offset=self.time_offset, prism_lever=self.prism_lever), self.params)
 
     def diagnostics(self) -> Tuple[str, str, Dict[str, object]]:
         r = self.check()

@@ -30,6 +30,7 @@ Python 3.8 compatible.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
@@ -39,6 +40,9 @@ from .errors import GeometryError
 from .transforms import make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
 
 __all__ = [
+    "Mounting",
+    "NoiseModel",
+    "FitSettings",
     "SolverError",
     "DegenerateGeometryError",
     "YawEstimate",
@@ -63,6 +67,63 @@ class DegenerateGeometryError(SolverError):
     def __init__(self, reason: str):
         super().__init__(reason)
         self.reason = reason
+
+
+class Mounting(NamedTuple):
+    """Where the camera and the prism sit on base_link: ``base_T_camera`` the static transform base_link ←
+    camera (4×4), ``prism_in_base`` the prism position in base_link (3,), metres."""
+
+    base_T_camera: np.ndarray
+    prism_in_base: np.ndarray
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """1-σ noise of a solver's inputs (zero: exact). A solver reads the fields its model has.
+
+    - ``bearing``: bearing noise (rad) per axis perpendicular to the bearing; a scalar, or one per marker
+      (N,) in :func:`attitude_from_markers` and :func:`resection`.
+    - ``prism_cov``: prism position noise: None (exact), a σ (m) or a 3×3 covariance (m²).
+    - ``marker``: marker survey σ per axis (m) (``markers.Marker.sigma``); scalar or (N,) like ``bearing``.
+    - ``tilt``: σ of roll and of pitch (rad) in :func:`yaw_from_marker` (:func:`resection` takes its own
+      ``tilt_sigma``: there it decides whether the tilt is measured at all).
+    - ``lever``: σ per axis of the lever arm camera − prism (m), in :func:`yaw_from_marker`.
+    """
+
+    bearing: object = 0.0
+    prism_cov: object = None
+    marker: object = 0.0
+    tilt: float = 0.0
+    lever: float = 0.0
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """How :func:`attitude_from_markers` and :func:`resection` fit several markers.
+
+    - ``loss``: robust loss of the first stage, 'cauchy', 'huber' or 'none'; ``loss_scale`` in σ.
+    - ``outlier_gate``: markers whose normalised residual (|r|/σ, 2-D) exceeds it after the robust stage are
+      dropped (weight 0) and the rest re-solved by plain least squares (if enough remain); None keeps the
+      robust solution.
+    - ``min_spread``: smallest angle (rad) between marker directions seen from the camera (a resection also
+      refuses markers closer than this to one line).
+    - ``min_cone``: a resection whose markers, seen from the camera, all lie within this angle (rad) of each
+      other (one small cone: range and position poorly determined) is refused.
+    - ``max_iterations``: Gauss-Newton iterations per stage.
+    """
+
+    loss: str = "cauchy"
+    loss_scale: float = 2.0
+    outlier_gate: Optional[float] = 4.0
+    min_spread: float = math.radians(3.0)
+    min_cone: float = math.radians(10.0)
+    max_iterations: int = 50
+
+
+_EXACT = NoiseModel()
+#: the bearing noise assumed by the multi-marker solvers when the caller gives none (rad)
+_MULTI_NOISE = NoiseModel(bearing=1e-3)
+_FIT = FitSettings()
 
 
 class YawEstimate(NamedTuple):
@@ -193,6 +254,16 @@ def _cov3(cov, name: str) -> np.ndarray:
     return c
 
 
+def _tilt(tilt) -> Tuple[float, float]:
+    try:
+        roll, pitch = (float(x) for x in tilt)
+    except (TypeError, ValueError):
+        raise SolverError(f"tilt: expected (roll, pitch) in radians, got {tilt!r}") from None
+    if not (math.isfinite(roll) and math.isfinite(pitch)):
+        raise SolverError(f"tilt: expected finite radians (roll, pitch), got {roll!r}, {pitch!r}")
+    return roll, pitch
+
+
 def _per_marker(x, n: int, name: str) -> np.ndarray:
     a = np.broadcast_to(np.asarray(x, dtype=float), (n,)).copy() if np.ndim(x) == 0 else np.asarray(x, float)
     if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0):
@@ -261,9 +332,8 @@ def _rpy_jacobian(R: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- one marker
 
 
-def yaw_from_marker(bearing, marker, prism, roll: float, pitch: float, base_T_camera, prism_in_base, *,
-                    sigma_bearing: float = 0.0, prism_cov=None, marker_sigma: float = 0.0,
-                    tilt_sigma: float = 0.0, lever_sigma: float = 0.0, min_range: float = 0.1,
+def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting: Mounting,
+                    noise: NoiseModel = _EXACT, *, min_range: float = 0.1,
                     min_horizontal: float = 0.02) -> YawEstimate:
     """Yaw of base_link (rad) from one marker bearing, in closed form.
 
@@ -271,14 +341,10 @@ def yaw_from_marker(bearing, marker, prism, roll: float, pitch: float, base_T_ca
         bearing: bearing of the marker centre in the camera frame (3,), any length (normalised here).
         marker: surveyed marker centre M in map (3,), metres.
         prism: prism position P in map (3,), metres.
-        roll, pitch: tilt of base_link (rad), e.g. from VO (map→odom is yaw only).
-        base_T_camera: static transform base_link ← camera (4×4).
-        prism_in_base: prism position in base_link (3,), metres.
-        sigma_bearing: 1-σ bearing noise (rad) per axis perpendicular to the bearing.
-        prism_cov: prism position noise: None, a σ (m) or a 3×3 covariance (m²).
-        marker_sigma: marker survey 1-σ per axis (m) (``markers.Marker.sigma``).
-        tilt_sigma: 1-σ of roll and of pitch (rad).
-        lever_sigma: 1-σ per axis of the lever arm camera − prism (m).
+        tilt: (roll, pitch) of base_link (rad), e.g. from VO (map→odom is yaw only).
+        mounting: the camera's and the prism's place on base_link (:class:`Mounting`).
+        noise: σ of the bearing, prism, marker survey, tilt and lever arm (:class:`NoiseModel`; a scalar
+            bearing and marker σ here), propagated to the yaw's σ.
         min_range: smallest accepted camera→marker range (m).
         min_horizontal: smallest accepted ratio horizontal/total length of ``M − P`` and of the
             predicted vector (below it the azimuth is ill-defined: marker straight above/below).
@@ -291,11 +357,10 @@ def yaw_from_marker(bearing, marker, prism, roll: float, pitch: float, base_T_ca
     u = _unit(_vec3(bearing, "bearing"))
     M = _vec3(marker, "marker")
     P = _vec3(prism, "prism")
-    R_bc, t_cam = _transform(base_T_camera, "base_T_camera")
-    t_prism = _vec3(prism_in_base, "prism_in_base")
-    Cp = _cov3(prism_cov, "prism_cov")
-    if not (math.isfinite(roll) and math.isfinite(pitch)):
-        raise SolverError(f"roll/pitch: expected finite radians, got {roll!r}, {pitch!r}")
+    R_bc, t_cam = _transform(mounting.base_T_camera, "base_T_camera")
+    t_prism = _vec3(mounting.prism_in_base, "prism_in_base")
+    Cp = _cov3(noise.prism_cov, "prism_cov")
+    roll, pitch = _tilt(tilt)
 
     l = t_cam - t_prism  # noqa: E741  (the lever arm, as in DESIGN §4.4)
     b = R_bc @ u
@@ -343,11 +408,11 @@ def yaw_from_marker(bearing, marker, prism, roll: float, pitch: float, base_T_ca
         J[row, 9] = -gw @ dw_dpitch
         J[row, 10:13] = -gw @ dw_dl
     Sigma = np.zeros((13, 13))
-    Sigma[0:2, 0:2] = sigma_bearing ** 2 * np.eye(2)
+    Sigma[0:2, 0:2] = noise.bearing ** 2 * np.eye(2)
     Sigma[2:5, 2:5] = Cp
-    Sigma[5:8, 5:8] = marker_sigma ** 2 * np.eye(3)
-    Sigma[8:10, 8:10] = tilt_sigma ** 2 * np.eye(2)
-    Sigma[10:13, 10:13] = lever_sigma ** 2 * np.eye(3)
+    Sigma[5:8, 5:8] = noise.marker ** 2 * np.eye(3)
+    Sigma[8:10, 8:10] = noise.tilt ** 2 * np.eye(2)
+    Sigma[10:13, 10:13] = noise.lever ** 2 * np.eye(3)
     cov = J @ Sigma @ J.T
     camera = P + rot_z(yaw) @ Rt @ l
     return YawEstimate(yaw, math.sqrt(max(cov[0, 0], 0.0)), s, float(elev_res),
@@ -416,20 +481,40 @@ class _Fit(NamedTuple):
     iterations: int
 
 
-def _gauss_newton(u_obs, M, R_bc, a, R0, p0, sigma_b, sigma_m, prior, estimate_p: bool, loss: str,
-                  loss_scale: float, outlier_gate: Optional[float], min_inliers: int,
-                  max_iterations: int, tilt_prior=None) -> _Fit:
-    """Robust GN over R (right perturbation R·Exp(δ)) and, if ``estimate_p``, the reference point p.
+class _Problem(NamedTuple):
+    """What :func:`_gauss_newton` fits: observed unit bearings ``u_obs`` (N, 3) of the markers ``M`` (N, 3, m)
+    with their σ ``sigma_b`` (N,, rad) and ``sigma_m`` (N,, m); the camera's rotation ``R_bc`` and offset ``a``
+    (3,, m) from the reference point p in base_link; ``prior`` None or (p_measured, L⁻¹) with L Lᵀ its
+    covariance (m²); ``estimate_p`` whether p is a parameter; ``tilt_prior`` None or (roll, pitch, σ) in rad
+    (a measured tilt: IMU, odometry); ``min_inliers`` the fewest markers for the least-squares stage."""
+
+    u_obs: np.ndarray
+    M: np.ndarray
+    sigma_b: np.ndarray
+    sigma_m: np.ndarray
+    R_bc: np.ndarray
+    a: np.ndarray
+    prior: Optional[Tuple[np.ndarray, np.ndarray]]
+    estimate_p: bool
+    tilt_prior: Optional[Tuple[float, float, float]]
+    min_inliers: int
+
+
+def _gauss_newton(pb: _Problem, R0: np.ndarray, p0: np.ndarray, settings: FitSettings) -> _Fit:
+    """Robust GN over R (right perturbation R·Exp(δ)) and, if ``pb.estimate_p``, the reference point p,
+    from the start (R0, p0).
 
     Model: camera C = p + R a; predicted camera bearing ``R_bcᵀ Rᵀ (M − C) / |·|``; residual its
-    difference from the observed bearing in the observed bearing's tangent plane (≈ rad).
-    ``prior`` is None or (p_measured, L⁻¹) with L Lᵀ its covariance (m²). ``tilt_prior`` is None or
-    (roll, pitch, σ) in rad: a measured tilt (IMU, odometry) as two more observations.
+    difference from the observed bearing in the observed bearing's tangent plane (≈ rad); a prism
+    ``prior`` and a ``tilt_prior`` (:class:`_Problem`) add observations.
 
-    Two stages: IRLS with the robust ``loss`` finds the outliers; then, if at least ``min_inliers``
-    markers have normalised residuals ≤ ``outlier_gate``, plain least squares on those (weights 1/0)
-    gives the estimate and an honest covariance. Otherwise the robust solution is kept.
+    Two stages: IRLS with the robust ``settings.loss`` finds the outliers; then, if at least
+    ``min_inliers`` markers have normalised residuals ≤ ``settings.outlier_gate``, plain least squares on
+    those (weights 1/0) gives the estimate and an honest covariance. Otherwise the robust solution is kept.
     """
+    u_obs, M, sigma_b, sigma_m, R_bc, a, prior, estimate_p, tilt_prior, min_inliers = pb
+    loss, loss_scale, outlier_gate = settings.loss, settings.loss_scale, settings.outlier_gate
+    max_iterations = settings.max_iterations
     if loss not in ("huber", "cauchy", "none"):
         raise SolverError(f"loss: expected 'huber', 'cauchy' or 'none', got {loss!r}")
     n = len(M)
@@ -545,30 +630,24 @@ def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float
     return float(wrap_angle(yaws[best] + np.sum(wts * offs) / np.sum(wts))), members
 
 
-def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base, *,
-                          sigma_bearing=1e-3, prism_cov=None, marker_sigma=0.0,
+def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise: NoiseModel = _MULTI_NOISE,
                           tilt: Tuple[float, float] = (0.0, 0.0), initial_yaw: Optional[float] = None,
-                          loss: str = "cauchy", loss_scale: float = 2.0, outlier_gate: Optional[float] = 4.0,
-                          min_spread: float = math.radians(3.0), max_iterations: int = 50) -> AttitudeEstimate:
+                          settings: FitSettings = _FIT) -> AttitudeEstimate:
     """Full attitude of base_link from ≥ 2 marker bearings and the prism position.
 
     Args:
         bearings: (N, 3) marker-centre bearings in the camera frame (normalised here).
         markers: (N, 3) surveyed marker centres in map (m), same order.
         prism: prism position in map (3,), m.
-        base_T_camera: static transform base_link ← camera (4×4).
-        prism_in_base: prism position in base_link (3,), m.
-        sigma_bearing: bearing 1-σ (rad) per perpendicular axis, scalar or (N,).
-        prism_cov: None (prism exact), a σ (m) or a 3×3 covariance (m²); when given, the prism
-            position is adjusted under this prior and its noise enters the covariance.
-        marker_sigma: survey 1-σ (m), scalar or (N,), added as σ_M/range to the bearing σ.
+        mounting: the camera's and the prism's place on base_link (:class:`Mounting`).
+        noise: ``bearing`` σ (rad, scalar or (N,)); ``prism_cov`` None (prism exact), a σ (m) or a 3×3
+            covariance (m²): when given, the prism position is adjusted under this prior and its noise
+            enters the covariance; ``marker`` survey σ (m, scalar or (N,)), added as σ_M/range to the
+            bearing σ. Default: 1 mrad bearings, the rest exact.
         tilt: (roll, pitch) in rad to start from (VO tilt); yaw starts from the consensus of the
             per-marker closed-form yaws (:func:`yaw_from_marker`), else ``initial_yaw``.
-        loss: robust loss of the first stage, 'cauchy' (default), 'huber' or 'none'; ``loss_scale`` in σ.
-        outlier_gate: markers whose normalised residual (|r|/σ, 2-D) exceeds it after the robust stage
-            are dropped (weight 0) and the rest re-solved by plain least squares (if ≥ 2 remain);
-            None keeps the robust solution.
-        min_spread: smallest angle (rad) between marker directions seen from the camera.
+        settings: the robust loss, the outlier gate (the least-squares stage needs ≥ 2 markers left),
+            ``min_spread`` and the iterations (:class:`FitSettings`; ``min_cone`` is the resection's).
 
     Raises:
         DegenerateGeometryError: all markers in one direction (or opposite) from the camera,
@@ -581,18 +660,18 @@ def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base
     if n < 2 or len(M) != n:
         raise SolverError(f"attitude_from_markers: need ≥ 2 bearings with as many markers, got {n} and {len(M)}")
     P = _vec3(prism, "prism")
-    R_bc, t_cam = _transform(base_T_camera, "base_T_camera")
-    t_prism = _vec3(prism_in_base, "prism_in_base")
-    Cp = _cov3(prism_cov, "prism_cov")
-    sb = _per_marker(sigma_bearing, n, "sigma_bearing")
-    sm = _per_marker(marker_sigma, n, "marker_sigma")
-    roll0, pitch0 = float(tilt[0]), float(tilt[1])
+    R_bc, t_cam = _transform(mounting.base_T_camera, "base_T_camera")
+    t_prism = _vec3(mounting.prism_in_base, "prism_in_base")
+    Cp = _cov3(noise.prism_cov, "prism_cov")
+    sb = _per_marker(noise.bearing, n, "sigma_bearing")
+    sm = _per_marker(noise.marker, n, "marker_sigma")
+    roll0, pitch0 = _tilt(tilt)
 
     yaws, sigs = [], []
     for i in range(n):
         try:
-            est = yaw_from_marker(u[i], M[i], P, roll0, pitch0, base_T_camera, t_prism,
-                                  sigma_bearing=float(sb[i]), prism_cov=Cp, marker_sigma=float(sm[i]))
+            est = yaw_from_marker(u[i], M[i], P, (roll0, pitch0), Mounting(mounting.base_T_camera, t_prism),
+                                  NoiseModel(bearing=float(sb[i]), prism_cov=Cp, marker=float(sm[i])))
         except DegenerateGeometryError:
             continue
         yaws.append(est.yaw)
@@ -605,7 +684,7 @@ def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base
         raise DegenerateGeometryError("no marker gives a closed-form yaw to start from and no initial_yaw")
     R0 = rpy_to_matrix(roll0, pitch0, yaw0)
     C0 = P + R0 @ (t_cam - t_prism)
-    _check_spread(M - C0, min_spread, "the markers seen from the camera")
+    _check_spread(M - C0, settings.min_spread, "the markers seen from the camera")
 
     estimate_p = bool(np.any(Cp != 0))
     prior = None
@@ -615,8 +694,8 @@ def attitude_from_markers(bearings, markers, prism, base_T_camera, prism_in_base
         except np.linalg.LinAlgError:
             raise SolverError("prism_cov: must be positive definite (or None for an exact prism)") from None
         prior = (P, Linv)
-    fit = _gauss_newton(u, M, R_bc, t_cam - t_prism, R0, P.copy(), sb, sm, prior, estimate_p, loss,
-                        loss_scale, outlier_gate, 2, max_iterations)
+    fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, t_cam - t_prism, prior, estimate_p, None, 2), R0, P.copy(),
+                        settings)
     K = _rpy_jacobian(fit.R)
     cov = K @ fit.cov[:3, :3] @ K.T
     r, pch, y = (float(x) for x in matrix_to_rpy(fit.R))
@@ -638,28 +717,25 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
     return float(psi[g]), C[g]
 
 
-def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_sigma=0.0,
+def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NOISE,
               tilt: Tuple[float, float] = (0.0, 0.0), tilt_sigma: Optional[float] = None, initial_pose=None,
-              loss: str = "cauchy", loss_scale: float = 2.0, outlier_gate: Optional[float] = 4.0,
-              min_spread: float = math.radians(3.0), min_cone: float = math.radians(10.0),
-              max_iterations: int = 50) -> ResectionEstimate:
+              settings: FitSettings = _FIT) -> ResectionEstimate:
     """Position and attitude of base_link from ≥ 3 marker bearings (no prism), or from ≥ 2 when the
     tilt is known (``tilt_sigma`` given).
 
     Args:
         bearings: (N, 3) bearings in the camera frame; markers: (N, 3) centres in map (m).
         base_T_camera: static transform base_link ← camera (4×4).
-        sigma_bearing, marker_sigma, loss, loss_scale, outlier_gate: as in :func:`attitude_from_markers`
-            (at least 3 inliers, 2 with a known tilt, are needed for the least-squares stage).
+        noise: the ``bearing`` and ``marker`` σ, as in :func:`attitude_from_markers` (no prism here).
         tilt: (roll, pitch) (rad) assumed for the start (small-tilt platforms: the default 0, 0).
         tilt_sigma: None (tilt free, ≥ 3 markers) or the 1-σ (rad) of ``tilt`` as a measurement (an IMU's or
             the odometry's roll and pitch): it enters the adjustment and ≥ 2 markers suffice.
         initial_pose: optional map_T_base (4×4) start instead of the yaw scan. Two markers with a known tilt
             can have two solutions: give the predicted pose to get the one near it.
-        min_spread: markers closer than this (rad) to one line (collinear), or seen from the camera along
-            one line through it, are degenerate.
-        min_cone: markers whose directions from the camera all lie within this angle (rad) of each other
-            (one small cone: range and position poorly determined) are degenerate.
+        settings: :class:`FitSettings`: the loss and outlier gate (at least 3 inliers, 2 with a known tilt,
+            are needed for the least-squares stage); markers closer than ``min_spread`` (rad) to one line
+            (collinear), or seen from the camera along one line through it, and markers whose directions
+            from the camera all lie within ``min_cone`` (rad) of each other are degenerate.
 
     Raises:
         DegenerateGeometryError: collinear markers, markers collinear with the camera or in one small
@@ -676,25 +752,25 @@ def resection(bearings, markers, base_T_camera, *, sigma_bearing=1e-3, marker_si
     if tilt_sigma is not None and not (math.isfinite(tilt_sigma) and tilt_sigma > 0):
         raise SolverError(f"tilt_sigma: expected a positive σ in radians, got {tilt_sigma!r}")
     R_bc, t_cam = _transform(base_T_camera, "base_T_camera")
-    sb = _per_marker(sigma_bearing, n, "sigma_bearing")
-    sm = _per_marker(marker_sigma, n, "marker_sigma")
+    sb = _per_marker(noise.bearing, n, "sigma_bearing")
+    sm = _per_marker(noise.marker, n, "marker_sigma")
+    roll0, pitch0 = _tilt(tilt)
     centred = M - M.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[0] == 0 or (tilt_sigma is None and sv[1] < math.tan(min_spread) * sv[0]):
+    if sv[0] == 0 or (tilt_sigma is None and sv[1] < math.tan(settings.min_spread) * sv[0]):
         raise DegenerateGeometryError("the markers are (nearly) collinear: the rotation about their line "
                                       "and the position around it are not determined")
     if initial_pose is not None:
         R0, p0 = _transform(initial_pose, "initial_pose")
     else:
-        Rt = rot_y(float(tilt[1])) @ rot_x(float(tilt[0]))
+        Rt = rot_y(pitch0) @ rot_x(roll0)
         yaw0, C0 = _scan_yaw(u @ (Rt @ R_bc).T, M)
-        R0 = rpy_to_matrix(float(tilt[0]), float(tilt[1]), yaw0)
+        R0 = rpy_to_matrix(roll0, pitch0, yaw0)
         p0 = C0 - R0 @ t_cam
-    tilt_prior = None if tilt_sigma is None else (float(tilt[0]), float(tilt[1]), float(tilt_sigma))
-    fit = _gauss_newton(u, M, R_bc, t_cam, R0, p0, sb, sm, None, True, loss, loss_scale, outlier_gate, need,
-                        max_iterations, tilt_prior)
+    tilt_prior = None if tilt_sigma is None else (roll0, pitch0, float(tilt_sigma))
+    fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, t_cam, None, True, tilt_prior, need), R0, p0, settings)
     used = fit.weights > 0.5 if np.count_nonzero(fit.weights > 0.5) >= need else np.ones(n, bool)
-    _check_cone(M[used] - (fit.p + fit.R @ t_cam), min_spread, min_cone)
+    _check_cone(M[used] - (fit.p + fit.R @ t_cam), settings.min_spread, settings.min_cone)
     K = _rpy_jacobian(fit.R)
     T = np.zeros((6, 6))
     T[:3, 3:] = np.eye(3)          # position block: p (map, additive)

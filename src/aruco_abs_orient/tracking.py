@@ -30,15 +30,71 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
-from .detection import DetectionError, DetectorParams, MarkerDetector, MarkerObservation, dedupe_observations, to_grey
+from .detection import (
+    DetectionError,
+    DetectorParams,
+    MarkerDetector,
+    MarkerObservation,
+    Wanted,
+    dedupe_observations,
+    to_grey,
+)
 from .markers import MarkerMap
+from .paramcheck import Validated, check_non_negative
 from .transforms import invert_T, rot_z, transform_points, wrap_angle
 
-__all__ = ["TrackingError", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
+__all__ = ["TrackingError", "TrackingParams", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
 
 
 class TrackingError(DetectionError):
     """A pose or map the tracker cannot use."""
+
+
+@dataclass
+class TrackingParams(Validated):
+    """The knobs of map-guided tracking (cfg/params.yaml's ``tracking`` section; those worth changing live are
+    also in cfg/AbsOrient.cfg, for dynamic_reconfigure). How each ROI view and the sweep are searched is
+    :class:`~aruco_abs_orient.detection.DetectorParams`' (``view_*``).
+
+    - ``roi_margin``: ROI view field of view = angular size × (1 + 2·margin) + 2·gate.
+    - ``roi_min_px``: smallest ROI view side (pixels).
+    - ``roi_target_side_px``: ROI views of small markers are upsampled until the marker's
+      side spans this many pixels (pixels) ...
+    - ``roi_max_upsample``: ... by at most this factor.
+    - ``gate_deg``: largest angle (degrees) between an observed and a predicted centre (a rejected quad in
+      an ROI view is read only within it of the view's centre).
+    - ``min_predicted_side_px``: markers predicted smaller than this (pixels of the
+      equirect) are not tracked.
+    - ``sweep_tile_deg``: width (degrees of azimuth) of the vertical strip searched each
+      frame while tracking, so markers the prediction misses are found.
+    - ``sweep_period_frames``: frames for the sweeping tile to go once around 360°.
+    - ``sweep_every_frames``: the tile is searched on every n-th frame only (and moves by
+      n steps then).
+    - ``sweep_max_el_deg``: the tile spans elevations within this (degrees) of the horizon.
+    - ``max_full_interval``: frames between forced full-frame searches while tracking
+      (0 = only at start-up and after a loss).
+    - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
+      after which tracking falls back to full-frame search.
+    """
+
+    roi_margin: float = 0.5
+    roi_min_px: int = 32
+    roi_target_side_px: float = 16.0
+    roi_max_upsample: float = 3.0
+    gate_deg: float = 1.0
+    min_predicted_side_px: float = 6.0
+    sweep_tile_deg: float = 8.0
+    sweep_period_frames: int = 72
+    sweep_every_frames: int = 2
+    sweep_max_el_deg: float = 60.0
+    max_full_interval: int = 0
+    lost_after_frames: int = 3
+
+    def validate(self) -> None:
+        """Raise TrackingError naming the first out-of-range field."""
+        check_non_negative(self, TrackingError)
+        if self.sweep_period_frames < 1:
+            raise TrackingError(f"TrackingParams.sweep_period_frames: expected ≥ 1, got {self.sweep_period_frames!r}")
 
 
 @dataclass
@@ -88,11 +144,11 @@ class MarkerTracker:
     >>> result = tracker.process(grey, map_T_camera)              # doctest: +SKIP
     """
 
-    def __init__(self, marker_map: MarkerMap, params: Optional[DetectorParams] = None,
-                 api: Optional[str] = None):
+    def __init__(self, marker_map: MarkerMap, detector_params: Optional[DetectorParams] = None,
+                 api: Optional[str] = None, params: Optional[TrackingParams] = None):
         self.map = marker_map
-        self.detector = MarkerDetector(marker_map.dictionary, params, api)
-        self.params = self.detector.params
+        self.detector = MarkerDetector(marker_map.dictionary, detector_params, api)
+        self.params = params if params is not None else TrackingParams()
         self.reset()
 
     def reset(self) -> None:
@@ -116,7 +172,7 @@ class MarkerTracker:
                 turn = float(wrap_angle(az - caz))
                 turned = GnomonicView(rot_z(turn) @ view.center_bearing, (view.width, view.height), view.focal)
                 return turned, (maps[0] - np.float32(turn / equirect.rad_per_px), maps[1])
-        view = self.detector.view_around(equirect, m.bearing, fov, upsample)
+        view = self.detector.view_around(equirect, m.bearing, fov, upsample, min_px=self.params.roi_min_px)
         maps = self.detector.view_maps(view, equirect, step=4)
         self._views[key] = (view, maps, fov, az, el)
         return view, maps
@@ -178,16 +234,16 @@ class MarkerTracker:
                 expect.append(m.id)
                 sizes.append(m.angular_size)
             stats.predicted = len(views)
-            candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked", sizes)
+            candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked", sizes, gate=gate)
             every = max(1, int(q.sweep_every_frames))
             if self.frame % every == 0:
                 step = eq.width / q.sweep_period_frames * every
                 width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))
                 stats.sweep_u0 = int(self.frame // every * step) % eq.width
                 # the sweep looks for what the prediction misses: OpenCV's own finds suffice
-                candidates += self.detector.detect_columns(grey, eq, stats.sweep_u0, width, "full", rescue=False,
-                                                           max_el=math.radians(q.sweep_max_el_deg),
-                                                           skip_ids={o.id for o in candidates})
+                candidates += self.detector.detect_columns(
+                    grey, eq, stats.sweep_u0, width, "full", max_el=math.radians(q.sweep_max_el_deg),
+                    wanted=Wanted(rescue=False, skip_ids={o.id for o in candidates}))
             self._since_full += 1
         accepted, gated = [], []
         for o in candidates:

@@ -283,6 +283,9 @@ def test_the_pipeline_tunables_without_a_cfg_entry_are_listed(api, generated_cfg
     fixed = {name: default for _, name, default in all_param_fields() if name not in generated_cfg.defaults}
     body = section(section(api, 2, "`abs_orient`"), 3, "Fixed tunables")
     problems = check_rows(body, fixed, "fixed tunables")
+    rows = table_rows(body)
+    problems += [f"fixed tunables: `{name}` is in cfg/params.yaml's section {group}, the document says {rows[name][2]}"
+                 for group, name, _ in all_param_fields() if name in rows and rows[name][2] != group]
     assert not problems, "doc/ros_api.md is out of date:\n" + "\n".join(problems)
 
 

@@ -15,6 +15,7 @@ from aruco_abs_orient.nodestate import (
     MapOdomPrediction,
     MapOdomStamps,
     NodeHealth,
+    NodeSnapshot,
 )
 from aruco_abs_orient.transforms import make_T, rot_z, yaw_of
 
@@ -113,7 +114,7 @@ def _report(h, now_wall, **kw):
     args = {"initialised": True, "image_age_wall": 0.1, "last_prism_stamp": 99.8, "prisms_waiting": False,
             "images_received": 0, "images_dropped": 0, "time_offset": 0.0, "time_offset_source": "parameter"}
     args.update(kw)
-    return h.report(now_wall, 100.0, **args)
+    return h.report(now_wall, 100.0, NodeSnapshot(**args))
 
 
 def test_health_rates_and_levels_since_the_previous_report():

@@ -11,9 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from aruco_abs_orient.detection import DetectorParams, MarkerObservation
+from aruco_abs_orient.detection import DetectionError, MarkerObservation
 from aruco_abs_orient.markers import Marker, MarkerMap
 from aruco_abs_orient.pipeline import AbsOrientPipeline, PipelineError, PipelineParams, PrismBuffer
+from aruco_abs_orient.tracking import TrackingParams
 from aruco_abs_orient.transforms import make_T, rpy_to_matrix
 
 YAW = 0.3
@@ -186,15 +187,20 @@ def test_update_params_routes_each_name_to_its_group_and_validates():
     tracker = pipe.tracker
     pipe.update_params(prism_sigma=0.01, gate_deg=2.5, gate_chi2_yaw=20.0)
     assert pipe.params.prism_sigma == 0.01
-    assert pipe.detector_params.gate_deg == 2.5 and pipe.tracker is not tracker  # a tracker with the new params
+    assert pipe.tracking_params.gate_deg == 2.5 and pipe.tracker is not tracker  # a tracker with the new params
     assert pipe.tracker.params.gate_deg == 2.5
+    pipe.update_params(pole_band_deg=60.0)  # a detection knob: the tracker's detector gets it, tracking kept
+    assert pipe.tracker.detector.params.pole_band_deg == 60.0 and pipe.tracker.params.gate_deg == 2.5
+    with pytest.raises(DetectionError, match="pole_band_deg"):
+        pipe.update_params(pole_band_deg=95.0, gate_deg=3.0)
+    assert pipe.tracking_params.gate_deg == 2.5  # a refused detection change leaves tracking alone too
     assert pipe.filter_params.gate_chi2_yaw == 20.0 and pipe.filter.params.gate_chi2_yaw == 20.0
     with pytest.raises(PipelineError, match="'no_such_knob'"):
         pipe.update_params(no_such_knob=1.0)
     with pytest.raises(PipelineError, match="prism_max_gap"):
         pipe.update_params(prism_max_gap=-1.0)
     assert pipe.params.prism_max_gap == PipelineParams().prism_max_gap  # a refused change changes nothing
-    assert DetectorParams().gate_deg != 2.5  # the defaults are untouched
+    assert TrackingParams().gate_deg != 2.5  # the defaults are untouched
 
 
 def test_reset_forgets_the_filter_the_tracker_and_the_prism():

@@ -20,8 +20,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.markers import MarkerMap
-from aruco_abs_orient.offline.process import process_bag
-from aruco_abs_orient.selfcheck import RollingSelfCheck, bearing_rate, check_run
+from aruco_abs_orient.offline.process import RunSetup, process_bag
+from aruco_abs_orient.selfcheck import RollingSelfCheck, RunContext, YawObservation, bearing_rate, check_run
 
 DEG = math.pi / 180
 
@@ -73,7 +73,7 @@ def test_time_offset_and_tilt_come_back(eps, roll, pitch, seed):
     rng = np.random.default_rng(seed)
     pt, prism, heading, markers = _world(rng)
     obs = _observations(rng, pt, prism, heading, markers, eps, (roll * DEG, pitch * DEG))
-    r = check_run(obs, pt, prism, markers, time_offset=0.1)
+    r = check_run(obs, (pt, prism), markers, run=RunContext(time_offset=0.1))
     assert r["time_offset"]["suggested_s"] == pytest.approx(0.1 + eps, abs=0.01)
     assert r["camera_tilt_deg"]["roll"] == pytest.approx(roll, abs=0.05)
     assert r["camera_tilt_deg"]["pitch"] == pytest.approx(pitch, abs=0.05)
@@ -87,9 +87,9 @@ def test_a_consistent_run_has_no_finding_and_a_moved_marker_is_named():
     rng = np.random.default_rng(3)
     pt, prism, heading, markers = _world(rng)
     clean = _observations(rng, pt, prism, heading, markers, 0.0, (0.0, 0.0))
-    assert check_run(clean, pt, prism, markers)["findings"] == []
+    assert check_run(clean, (pt, prism), markers)["findings"] == []
     moved = _observations(rng, pt, prism, heading, markers, 0.0, (0.0, 0.0), moved=(2, 1.5 * DEG))
-    findings = check_run(moved, pt, prism, markers)["findings"]
+    findings = check_run(moved, (pt, prism), markers)["findings"]
     assert findings[0]["kind"] == "marker" and findings[0]["message"].startswith("marker 2: ")
     assert findings[0]["value"] == pytest.approx(1.5, abs=0.1)
     # its yaws also make the residuals inconsistent with their σ: the likely cause is named
@@ -104,8 +104,7 @@ def test_rolling_window_for_the_node():
     for t, p in zip(pt, prism):
         live.add_prism(float(t), p)
     for i in range(len(obs["time"])):
-        live.add_observation(*(obs[k][i] for k in ("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
-                                                   "accepted", "yaw", "odom_yaw")))
+        live.add_observation(YawObservation(*(obs[k][i] for k in YawObservation._fields)))
     level, message, values = live.diagnostics()
     assert len(live._obs) < len(obs["time"])  # bounded: the last 30 s only
     assert level == "warn" and "observations disagree with a time offset" in message
@@ -124,7 +123,7 @@ def ci(scenario_factory):
 
 
 def _run(scen, out, offset, markers=None):
-    res = process_bag(scen.bag, MarkerMap.load(markers or scen.markers), str(out), time_offset=offset, progress=False)
+    res = process_bag(scen.bag, MarkerMap.load(markers or scen.markers), str(out), RunSetup(offset, progress=False))
     summary = json.loads(Path(res.summary_path).read_text())
     return summary["selfcheck"], summary
 
@@ -178,7 +177,7 @@ def test_heading_against_the_direction_of_travel_on_straights(boresight_yaw_deg)
     prism = np.column_stack([xy + rng.normal(0, 0.003, xy.shape), np.ones(len(t))])
     pose_t = t[::2]
     pose_yaw = np.interp(pose_t, t, heading) + math.radians(boresight_yaw_deg) + rng.normal(0, 0.0005, len(pose_t))
-    r = check_run({}, t, prism, {}, pose_t, pose_yaw)
+    r = check_run({}, (t, prism), {}, (pose_t, pose_yaw))
     assert r["heading_minus_travel_deg"]["median"] == pytest.approx(boresight_yaw_deg, abs=0.05)
     found = [f for f in r["findings"] if f["kind"] == "boresight_yaw"]
     assert bool(found) == (boresight_yaw_deg != 0.0), r["findings"]
@@ -199,11 +198,11 @@ def test_no_heading_finding_on_the_realistic_worlds_loop_with_the_prism_lever_ar
     pose_t = np.arange(sc.prism.stamps[0] + 0.3, sc.prism.stamps[-1] - 0.3, 1 / 30)
     pose_yaw = yaw_of(sc.map_T_base(pose_t)[:, :3, :3])
     lever = sc.base_T_prism[:3, 3]
-    swung = check_run({}, sc.prism.stamps, sc.prism.positions, {}, pose_t, pose_yaw)
+    prism = (sc.prism.stamps, sc.prism.positions)
+    swung = check_run({}, prism, {}, (pose_t, pose_yaw))
     assert abs(swung["heading_minus_travel_deg"]["median"]) > 0.3   # the bias the lever arm makes
-    r = check_run({}, sc.prism.stamps, sc.prism.positions, {}, pose_t, pose_yaw, prism_lever=lever)
+    r = check_run({}, prism, {}, (pose_t, pose_yaw), RunContext(prism_lever=lever))
     assert abs(r["heading_minus_travel_deg"]["median"]) < 0.12, r["heading_minus_travel_deg"]
     assert not [f for f in r["findings"] if f["kind"] == "boresight_yaw"], r["findings"]
-    r = check_run({}, sc.prism.stamps, sc.prism.positions, {}, pose_t, pose_yaw + math.radians(0.3),
-                  prism_lever=lever)
+    r = check_run({}, prism, {}, (pose_t, pose_yaw + math.radians(0.3)), RunContext(prism_lever=lever))
     assert [f for f in r["findings"] if f["kind"] == "boresight_yaw"], r

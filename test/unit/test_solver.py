@@ -14,6 +14,9 @@ from hypothesis import strategies as st
 
 from aruco_abs_orient.solver import (
     DegenerateGeometryError,
+    FitSettings,
+    Mounting,
+    NoiseModel,
     SolverError,
     attitude_from_markers,
     fuse_yaws,
@@ -51,6 +54,10 @@ class Scene:
         near = max(1.0, 2.0 * float(np.linalg.norm(self.t_cam - self.t_prism)) + 0.1)
         self.M = self.C + d * rng.uniform(near, 20.0, (n_markers, 1))
 
+    @property
+    def mounting(self):
+        return Mounting(self.base_T_camera, self.t_prism)
+
     def bearings(self, M=None, sigma=0.0):
         """Camera-frame unit bearings of markers M (default: the scene's), with isotropic noise σ (rad)."""
         M = self.M if M is None else M
@@ -77,7 +84,7 @@ def perturb(u, sigma, rng):
 @given(seeds, tilts, tilts, yaws)
 def test_yaw_exact_any_quadrant(seed, roll, pitch, yaw):
     s = Scene(seed, roll, pitch, yaw, 1)
-    est = yaw_from_marker(s.bearings()[0], s.M[0], s.P, roll, pitch, s.base_T_camera, s.t_prism)
+    est = yaw_from_marker(s.bearings()[0], s.M[0], s.P, (roll, pitch), s.mounting)
     assert abs(wrap_angle(est.yaw - yaw)) < 1e-9
     assert est.range == pytest.approx(np.linalg.norm(s.M[0] - s.C), abs=1e-9)
     np.testing.assert_allclose(est.camera_position, s.C, atol=1e-9)
@@ -92,7 +99,7 @@ def test_yaw_unique_in_every_quadrant_with_a_long_lever_arm(yaw_deg):
     s.base_T_camera = make_T(s.R_bc, s.t_cam)
     s.C = s.p + s.R @ s.t_cam
     s.M = s.C + np.array([[1.2, 0.9, 0.1]])
-    est = yaw_from_marker(s.bearings()[0], s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism)
+    est = yaw_from_marker(s.bearings()[0], s.M[0], s.P, (s.roll, s.pitch), s.mounting)
     assert abs(wrap_angle(est.yaw - s.yaw)) < 1e-9
 
 
@@ -109,8 +116,8 @@ def test_yaw_sigma_matches_monte_carlo():
         M = s.M[0] + sm * rng.normal(size=3)
         r, p = s.roll + st_ * rng.normal(), s.pitch + st_ * rng.normal()
         t_cam = s.t_cam + sl * rng.normal(size=3)
-        est = yaw_from_marker(u, M, P, r, p, make_T(s.R_bc, t_cam), s.t_prism, sigma_bearing=sb,
-                              prism_cov=sp * sp * np.eye(3), marker_sigma=sm, tilt_sigma=st_, lever_sigma=sl)
+        est = yaw_from_marker(u, M, P, (r, p), Mounting(make_T(s.R_bc, t_cam), s.t_prism),
+                              NoiseModel(bearing=sb, prism_cov=sp * sp * np.eye(3), marker=sm, tilt=st_, lever=sl))
         errs.append(wrap_angle(est.yaw - s.yaw))
         sig.append(est.sigma)
     z = np.array(errs) / np.array(sig)
@@ -124,22 +131,22 @@ def test_yaw_jacobian_matches_finite_differences():
     """σ² for each noise source alone equals the squared finite-difference sensitivity."""
     s = Scene(5, 0.1, 0.05, -1.0, 1)
     u = s.bearings()[0]
-    base = yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism).yaw
+    base = yaw_from_marker(u, s.M[0], s.P, (s.roll, s.pitch), s.mounting).yaw
     h = 1e-6
     for axis in range(3):
         dP = np.zeros(3)
         dP[axis] = h
-        fd = (yaw_from_marker(u, s.M[0], s.P + dP, s.roll, s.pitch, s.base_T_camera, s.t_prism).yaw
-              - yaw_from_marker(u, s.M[0], s.P - dP, s.roll, s.pitch, s.base_T_camera, s.t_prism).yaw) / (2 * h)
+        fd = (yaw_from_marker(u, s.M[0], s.P + dP, (s.roll, s.pitch), s.mounting).yaw
+              - yaw_from_marker(u, s.M[0], s.P - dP, (s.roll, s.pitch), s.mounting).yaw) / (2 * h)
         cov = np.zeros((3, 3))
         cov[axis, axis] = 1.0
-        sig = yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism, prism_cov=cov).sigma
+        sig = yaw_from_marker(u, s.M[0], s.P, (s.roll, s.pitch), s.mounting, NoiseModel(prism_cov=cov)).sigma
         assert sig == pytest.approx(abs(fd), rel=1e-5, abs=1e-9)
-    fd_roll = (yaw_from_marker(u, s.M[0], s.P, s.roll + h, s.pitch, s.base_T_camera, s.t_prism).yaw
-               - yaw_from_marker(u, s.M[0], s.P, s.roll - h, s.pitch, s.base_T_camera, s.t_prism).yaw) / (2 * h)
-    fd_pitch = (yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch + h, s.base_T_camera, s.t_prism).yaw
-                - yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch - h, s.base_T_camera, s.t_prism).yaw) / (2 * h)
-    sig = yaw_from_marker(u, s.M[0], s.P, s.roll, s.pitch, s.base_T_camera, s.t_prism, tilt_sigma=1.0).sigma
+    fd_roll = (yaw_from_marker(u, s.M[0], s.P, (s.roll + h, s.pitch), s.mounting).yaw
+               - yaw_from_marker(u, s.M[0], s.P, (s.roll - h, s.pitch), s.mounting).yaw) / (2 * h)
+    fd_pitch = (yaw_from_marker(u, s.M[0], s.P, (s.roll, s.pitch + h), s.mounting).yaw
+                - yaw_from_marker(u, s.M[0], s.P, (s.roll, s.pitch - h), s.mounting).yaw) / (2 * h)
+    sig = yaw_from_marker(u, s.M[0], s.P, (s.roll, s.pitch), s.mounting, NoiseModel(tilt=1.0)).sigma
     assert sig == pytest.approx(math.hypot(fd_roll, fd_pitch), rel=1e-5)
     assert abs(base - s.yaw) < 1e-9
 
@@ -149,8 +156,8 @@ def test_false_id_shows_in_the_elevation_residual():
     s = Scene(9, 0.0, 0.0, 0.4, 1)
     u = s.bearings()[0]
     wrong = s.M[0] + [0.0, 0.0, 1.5]
-    est = yaw_from_marker(u, wrong, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism, sigma_bearing=1e-3,
-                          prism_cov=0.005, marker_sigma=0.002)
+    est = yaw_from_marker(u, wrong, s.P, (0.0, 0.0), s.mounting,
+                          NoiseModel(bearing=1e-3, prism_cov=0.005, marker=0.002))
     assert abs(est.elevation_residual) > 10 * est.elevation_sigma
 
 
@@ -160,12 +167,17 @@ def test_yaw_degenerate_geometry_is_reported():
     lever = np.linalg.norm(s.t_cam - s.t_prism)
     near = s.P + np.array([0.5 * lever, 0.0, 0.0])          # marker inside the lever-arm sphere
     with pytest.raises(DegenerateGeometryError, match="lever arm"):
-        yaw_from_marker(u, near, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism)
+        yaw_from_marker(u, near, s.P, (0.0, 0.0), s.mounting)
     above = s.P + np.array([0.0, 0.0, 5.0])                 # straight above the prism
     with pytest.raises(DegenerateGeometryError, match="vertical"):
-        yaw_from_marker(u, above, s.P, 0.0, 0.0, s.base_T_camera, s.t_prism)
+        yaw_from_marker(u, above, s.P, (0.0, 0.0), s.mounting)
     with pytest.raises(SolverError, match="prism"):
-        yaw_from_marker(u, s.M[0], [np.nan, 0, 0], 0.0, 0.0, s.base_T_camera, s.t_prism)
+        yaw_from_marker(u, s.M[0], [np.nan, 0, 0], (0.0, 0.0), s.mounting)
+    with pytest.raises(SolverError, match="tilt"):
+        yaw_from_marker(u, s.M[0], s.P, (np.nan, 0.0), s.mounting)
+    with pytest.raises(SolverError, match="tilt"):
+        three = Scene(2, 0.0, 0.0, 0.0, 3)
+        attitude_from_markers(three.bearings(), three.M, three.P, three.mounting, tilt=(0.0,))
 
 
 def test_fused_frame_yaw_is_honest_where_independent_fusion_is_not():
@@ -180,8 +192,8 @@ def test_fused_frame_yaw_is_honest_where_independent_fusion_is_not():
         P = s.P + sp * s.rng.normal(size=3)
         r, p = s.roll + st_ * s.rng.normal(), s.pitch + st_ * s.rng.normal()
         u = s.bearings(sigma=sb)
-        est = [yaw_from_marker(u[i], s.M[i], P, r, p, s.base_T_camera, s.t_prism, sigma_bearing=sb,
-                               prism_cov=sp, tilt_sigma=st_) for i in range(4)]
+        est = [yaw_from_marker(u[i], s.M[i], P, (r, p), s.mounting,
+                               NoiseModel(bearing=sb, prism_cov=sp, tilt=st_)) for i in range(4)]
         fused = fuse_yaws(est)
         z_gls.append(wrap_angle(fused.yaw - s.yaw) / fused.sigma)
         w = np.array([1 / e.sigma ** 2 for e in est])
@@ -196,8 +208,8 @@ def test_fuse_yaws_drops_a_false_id():
     u = s.bearings(sigma=5e-4)
     M = s.M.copy()
     M[1] = s.M[1] + [2.0, 1.0, 0.0]
-    est = [yaw_from_marker(u[i], M[i], s.P, 0.0, 0.0, s.base_T_camera, s.t_prism, sigma_bearing=5e-4,
-                           prism_cov=0.005) for i in range(5)]
+    est = [yaw_from_marker(u[i], M[i], s.P, (0.0, 0.0), s.mounting,
+                           NoiseModel(bearing=5e-4, prism_cov=0.005)) for i in range(5)]
     fused = fuse_yaws(est)
     np.testing.assert_array_equal(fused.used, [True, False, True, True, True])
     assert abs(wrap_angle(fused.yaw - s.yaw)) < 4 * fused.sigma
@@ -213,7 +225,7 @@ def test_attitude_exact(seed, roll, pitch, yaw, n):
     s = Scene(seed, roll, pitch, yaw, n)
     d = (s.M - s.C) / np.linalg.norm(s.M - s.C, axis=1)[:, None]
     assume(np.linalg.norm(np.cross(d[:, None], d[None]), axis=-1).max() > math.sin(math.radians(6)))
-    est = attitude_from_markers(s.bearings(), s.M, s.P, s.base_T_camera, s.t_prism, prism_cov=0.005,
+    est = attitude_from_markers(s.bearings(), s.M, s.P, s.mounting, noise=NoiseModel(bearing=1e-3, prism_cov=0.005),
                                 tilt=(0.0, 0.0))
     np.testing.assert_allclose(est.R, s.R, atol=1e-9)
     assert abs(wrap_angle(est.yaw - yaw)) < 1e-9
@@ -227,8 +239,8 @@ def test_attitude_covariance_is_honest():
     z = []
     for _ in range(200):
         P = s.P + sp * s.rng.normal(size=3)
-        est = attitude_from_markers(s.bearings(sigma=sb), s.M, P, s.base_T_camera, s.t_prism,
-                                    sigma_bearing=sb, prism_cov=sp)   # default: robust, then gated LS
+        est = attitude_from_markers(s.bearings(sigma=sb), s.M, P, s.mounting,
+                                    noise=NoiseModel(bearing=sb, prism_cov=sp))   # default: robust, then gated LS
         err = wrap_angle(np.array([est.roll - s.roll, est.pitch - s.pitch, est.yaw - s.yaw]))
         z.append(err / np.sqrt(np.diag(est.cov)))
     sd = np.std(np.array(z), axis=0)
@@ -240,19 +252,18 @@ def test_attitude_rejects_a_false_marker_id():
     u = s.bearings(sigma=1e-3)
     M = s.M.copy()
     M[2] = s.M[2] + [3.0, -2.0, 0.5]           # the map position of another id
-    clean = attitude_from_markers(u[[0, 1, 3, 4]], s.M[[0, 1, 3, 4]], s.P, s.base_T_camera, s.t_prism,
-                                  sigma_bearing=1e-3)
-    plain = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3, loss="none")
+    clean = attitude_from_markers(u[[0, 1, 3, 4]], s.M[[0, 1, 3, 4]], s.P, s.mounting)
+    plain = attitude_from_markers(u, M, s.P, s.mounting, settings=FitSettings(loss="none"))
     for loss in ("cauchy", "huber"):
-        robust = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3, loss=loss)
+        robust = attitude_from_markers(u, M, s.P, s.mounting, settings=FitSettings(loss=loss))
         np.testing.assert_array_equal(robust.weights, [1, 1, 0, 1, 1])
         assert robust.normalized[2] > 20
         # The gated least-squares stage is the clean solution on the four true markers.
         np.testing.assert_allclose(robust.R, clean.R, atol=1e-12)
         np.testing.assert_allclose(robust.cov, clean.cov, rtol=1e-6)
         assert abs(wrap_angle(plain.yaw - s.yaw)) > 5 * abs(wrap_angle(robust.yaw - s.yaw))
-    robust_only = attitude_from_markers(u, M, s.P, s.base_T_camera, s.t_prism, sigma_bearing=1e-3,
-                                        outlier_gate=None)
+    robust_only = attitude_from_markers(u, M, s.P, s.mounting,
+                                        settings=FitSettings(outlier_gate=None))
     assert 0 < robust_only.weights[2] < 0.01
 
 
@@ -261,9 +272,9 @@ def test_attitude_degenerate_when_markers_in_one_direction():
     d = (s.M[0] - s.C) / np.linalg.norm(s.M[0] - s.C)
     M = np.array([s.C + 3.0 * d, s.C + 9.0 * d, s.C - 4.0 * d])   # behind and in front, one line
     with pytest.raises(DegenerateGeometryError, match="one line"):
-        attitude_from_markers(s.bearings(M), M, s.P, s.base_T_camera, s.t_prism)
+        attitude_from_markers(s.bearings(M), M, s.P, s.mounting)
     with pytest.raises(SolverError, match="≥ 2"):
-        attitude_from_markers(s.bearings()[:1], s.M[:1], s.P, s.base_T_camera, s.t_prism)
+        attitude_from_markers(s.bearings()[:1], s.M[:1], s.P, s.mounting)
 
 
 # ----------------------------------------------------------------------------- resection
@@ -292,8 +303,8 @@ def test_resection_covariance_is_honest():
     sb = 1e-3
     z = []
     for _ in range(250):
-        est = resection(s.bearings(sigma=sb), s.M, s.base_T_camera, sigma_bearing=sb, loss="none",
-                        tilt=(s.roll, s.pitch))
+        est = resection(s.bearings(sigma=sb), s.M, s.base_T_camera, noise=NoiseModel(bearing=sb),
+                        tilt=(s.roll, s.pitch), settings=FitSettings(loss="none"))
         err = np.concatenate([est.position - s.p,
                               wrap_angle(np.array(matrix_to_rpy(est.R)) - [s.roll, s.pitch, s.yaw])])
         z.append(err / np.sqrt(np.diag(est.cov)))
@@ -335,7 +346,7 @@ def test_resection_with_a_wrong_tilt_measurement_and_three_markers_follows_the_m
     """A tilt measured 2° off with σ 2°: ≥ 3 well-spread markers outweigh it."""
     s = Scene(5, 0.05, -0.03, 1.0, 6)
     est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(0.05 + math.radians(2), -0.03),
-                    tilt_sigma=math.radians(2.0), sigma_bearing=1e-4)
+                    tilt_sigma=math.radians(2.0), noise=NoiseModel(bearing=1e-4))
     assert abs(est.roll - 0.05) < math.radians(0.05)
     assert abs(wrap_angle(est.yaw - 1.0)) < math.radians(0.05)
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from aruco_abs_orient.camera import Equirect, angle_between
-from aruco_abs_orient.detection import DetectionError, DetectorParams
+from aruco_abs_orient.detection import DetectionError
 from aruco_abs_orient.markers import Marker, MarkerMap
 from aruco_abs_orient.synthetic.render import facing_marker, render_equirect
-from aruco_abs_orient.tracking import MarkerTracker, TrackingError
+from aruco_abs_orient.tracking import MarkerTracker, TrackingError, TrackingParams
 from aruco_abs_orient.transforms import invert_T, make_T, rot_z, transform_points
 
 DEG = math.pi / 180.0
@@ -68,8 +68,8 @@ def test_unknown_pose_searches_the_whole_frame_and_accepts_only_map_ids():
 
 
 def test_wrong_pose_is_gated_and_a_loss_triggers_an_ungated_full_search():
-    params = DetectorParams(gate_deg=1.0, lost_after_frames=2)
-    tracker = MarkerTracker(MAP, params)
+    params = TrackingParams(gate_deg=1.0, lost_after_frames=2)
+    tracker = MarkerTracker(MAP, params=params)
     modes = []
     for k in range(5):
         img, pc = frame(k)
@@ -93,8 +93,8 @@ def test_wrong_pose_is_gated_and_a_loss_triggers_an_ungated_full_search():
 def test_a_prediction_off_by_2_deg_cannot_lock_the_tracker_out(turn_deg):
     # issue 21: a filter that ran away 1–2.5° in yaw; the ROIs and the gate miss the markers,
     # the tracker must fall back to a search that lets them through again
-    params = DetectorParams()
-    tracker = MarkerTracker(MAP, params)
+    params = TrackingParams()
+    tracker = MarkerTracker(MAP, params=params)
     img, pc = frame(0)
     assert sorted(o.id for o in tracker.process(img, pose(0)).observations) == list(range(len(POSITIONS)))
     off = pose(0) @ make_T(rot_z(turn_deg * DEG), np.zeros(3))
@@ -119,9 +119,9 @@ def test_a_prediction_off_by_2_deg_cannot_lock_the_tracker_out(turn_deg):
 def test_sweeping_tile_finds_markers_the_prediction_skips():
     # predictions too small to track: only the sweeping tile (a vertical strip moving by
     # W / period each frame) can find the markers while tracking
-    params = DetectorParams(min_predicted_side_px=1e6, sweep_period_frames=8, sweep_tile_deg=50.0,
+    params = TrackingParams(min_predicted_side_px=1e6, sweep_period_frames=8, sweep_tile_deg=50.0,
                             sweep_every_frames=1)
-    tracker = MarkerTracker(MAP, params)
+    tracker = MarkerTracker(MAP, params=params)
     eq = Equirect(W, W // 2)
     seen = set()
     img, pc = frame(0)
@@ -156,3 +156,11 @@ def test_bad_pose_or_image_leaves_the_state_alone():
         tracker.process(np.zeros((100, 100), np.uint8), pose(0))
     assert tracker.frame == 0
     assert tracker.process(img, pose(0)).stats.mode == "full"
+
+
+@pytest.mark.parametrize("field, value, expected", [("gate_deg", -1.0, "non-negative"),
+                                                    ("roi_margin", float("nan"), "finite"),
+                                                    ("sweep_period_frames", 0, "≥ 1")])
+def test_tracking_params_name_the_field_out_of_range(field, value, expected):
+    with pytest.raises(TrackingError, match=f"TrackingParams.{field}: expected .*{expected}"):
+        TrackingParams(**{field: value})

@@ -9,7 +9,7 @@ YAML the launch files read. The observation model and its observability are desc
 
 from .io import CALIBRATION_KEYS, launch_snippet, load_calibration, static_tf_yaml, write_static_tf_yaml
 from .model import Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
-from .solve import calibrate, calibrate_recording
+from .solve import calibrate
 
 __all__ = [
     "CalibrationError",
@@ -18,7 +18,6 @@ __all__ = [
     "Recording",
     "Unknowns",
     "calibrate",
-    "calibrate_recording",
     "static_tf_yaml",
     "write_static_tf_yaml",
     "launch_snippet",

@@ -1,6 +1,6 @@
 """Solving the calibration problem: robust weighted least squares, σ, and the entry point.
 
-In: the observations of a recording (:func:`calibrate`'s arrays, or a :class:`~.model.Recording`),
+In: the observations of a recording (a :class:`~.model.Recording`),
 which unknowns to free (:class:`~.model.Unknowns`) and :class:`~.model.CalibrationParams`. Out: a
 :class:`~.model.Calibration` (boresight, lever arm, time offset with their covariance, residuals,
 counts), or :class:`~.model.CalibrationError` saying why the recording cannot determine it.
@@ -20,13 +20,11 @@ from typing import Dict, NamedTuple, Optional, Tuple
 
 import numpy as np
 
-from ..markers import MarkerMap
 from ..solver import yaw_consensus
-from ..tum import Trajectory
 from .model import N_GLOBALS, Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
 from .problem import Problem, setup_problem
 
-__all__ = ["calibrate", "calibrate_recording"]
+__all__ = ["calibrate"]
 
 
 def _cauchy(e: np.ndarray, k: float) -> np.ndarray:
@@ -247,50 +245,29 @@ def correlation_factor(series: np.ndarray, max_lag: int = 200) -> float:
     return 1.0 + 2.0 * total
 
 
-def calibrate(obs_times, obs_ids, bearings, sigmas, odom: Trajectory, prism_times, prism_positions,
-              marker_map: MarkerMap, base_T_camera, base_T_prism, *, estimate_lever_arm: bool = False,
-              estimate_time_offset: bool = False, params: Optional[CalibrationParams] = None,
-              obs_rows=None, readout: float = 0.0, estimate_readout: bool = False) -> Calibration:
-    """Boresight (and optionally lever arm) of the camera from all marker observations of a recording.
+def calibrate(rec: Recording, unknowns: Optional[Unknowns] = None, params: Optional[CalibrationParams] = None,
+              readout: float = 0.0) -> Calibration:
+    """Boresight (and optionally lever arm, time offset, readout) of the camera from all marker observations
+    of a recording.
 
     Args:
-        obs_times: (N,) s, time of each observation (one clock for everything: the camera/VO clock).
-        obs_ids: (N,) marker ids; ids not in ``marker_map`` are skipped (counted).
-        bearings: (N, 3) marker-centre bearings in the camera frame (normalised here).
-        sigmas: (N,) 1-σ bearing noise (rad) per perpendicular axis.
-        odom: odom_T_base_link over time (``tum.Trajectory``, same clock): tilt and relative yaw.
-        prism_times: (K,) s, prism fixes on the same clock (total-station stamps + the time offset).
-        prism_positions: (K, 3) m, prism positions in map.
-        marker_map: the surveyed markers (positions m, survey σ m).
-        base_T_camera: nominal static transform base_link ← camera (4×4).
-        base_T_prism: static transform base_link ← prism (4×4; its translation is used).
-        estimate_lever_arm: also estimate the camera origin in base_link (3 more unknowns).
-        estimate_time_offset: also estimate the residual time offset Δτ (s) of the prism stamps given
-            (one more unknown; linearised, so the offset given should be within ~0.1 s, as
-            ``timesync.estimate_offset`` gives it).
+        rec: the observations, odometry, prism track, marker map and nominal lever arms, on one clock
+            (:class:`~.model.Recording`; ids not in the map and observations without a prism position are
+            skipped and counted).
+        unknowns: which parameters beside the boresight are freed (:class:`~.model.Unknowns`, default none):
+            ``lever_arm`` the camera origin in base_link (3 more unknowns); ``time_offset`` the residual time
+            offset Δτ (s) of the prism stamps given (one more unknown; linearised, so the offset given should
+            be within ~0.1 s, as ``timesync.estimate_offset`` gives it); ``readout`` the rolling-shutter
+            readout time, starting from ``readout`` (needs turns with markers above and below the horizon).
         params: :class:`CalibrationParams`.
-        obs_rows: (N,) each observation's image row as v/H − ½ (``pipeline.row_fraction``; None: 0).
-        readout: the camera's rolling-shutter readout time (s; 0 = global shutter): an observation is
-            captured at obs_times + obs_rows · readout.
-        estimate_readout: also estimate the readout (one more unknown, starting from ``readout``):
-            needs turns with markers above and below the horizon.
+        readout: the camera's rolling-shutter readout time (s; 0 = global shutter), fixed or the start of its
+            estimate: an observation is captured at ``obs_times + obs_rows · readout``.
 
     Raises:
         CalibrationError: malformed inputs, or a recording that cannot determine the calibration (no
             markers, too few observations, no driving for the boresight yaw, parameters whose σ exceed
             the limits) — the message says which and why.
     """
-    rec = Recording(obs_times, obs_ids, bearings, sigmas, odom, prism_times, prism_positions, marker_map,
-                    base_T_camera, base_T_prism, obs_rows)
-    unknowns = Unknowns(bool(estimate_lever_arm), bool(estimate_time_offset), bool(estimate_readout))
-    return calibrate_recording(rec, unknowns, params, readout)
-
-
-def calibrate_recording(rec: Recording, unknowns: Optional[Unknowns] = None,
-                        params: Optional[CalibrationParams] = None, readout: float = 0.0) -> Calibration:
-    """:func:`calibrate` of a :class:`~.model.Recording` with the ``unknowns`` freed (default: the
-    boresight only); ``readout`` (s): the rolling-shutter readout time, fixed, or the start of its
-    estimate."""
     if not (math.isfinite(readout) and 0.0 <= readout < 1.0):
         raise CalibrationError(f"readout: expected seconds in [0, 1), got {readout!r}")
     unknowns = unknowns or Unknowns()

@@ -40,7 +40,7 @@ The package, one module per stage (each says what goes in and what comes out):
 """
 
 from .backend import ArucoBackend
-from .detector import MarkerDetector
+from .detector import MarkerDetector, Wanted
 from .images import decode_jpeg, to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectionError, DetectorParams
@@ -61,6 +61,7 @@ __all__ = [
     "MarkerObservation",
     "ArucoBackend",
     "MarkerDetector",
+    "Wanted",
     "decode_jpeg",
     "to_grey",
     "sphere_centre_bearing",

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Collection, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -27,7 +27,32 @@ from .params import DetectorParams
 from .quads import decode_quad, decode_quads, image_sampler, refine_quads
 from .sphere import decode_markers, marker_angular_size, refine_corners_many, sphere_centre_bearing
 
-__all__ = ["MarkerDetector"]
+__all__ = ["MarkerDetector", "Wanted"]
+
+
+class Wanted(NamedTuple):
+    """Which markers a search keeps: ``expect_id`` only this id (tracking: OpenCV's reading of the predicted
+    id at the predicted place is not re-verified; None: any id); ``rescue``: also decode the quads OpenCV
+    rejected (small, close markers); ``skip_ids``: ids OpenCV read that are not wanted (already observed)."""
+
+    expect_id: Optional[int] = None
+    rescue: bool = True
+    skip_ids: Collection[int] = ()
+
+
+_ANY = Wanted()
+
+
+class _Searched(NamedTuple):
+    """An image OpenCV searched: ``image`` its pixels; ``to_bearing(x, y)`` its pixels to bearings; ``scale``
+    its pixels per equirect pixel; ``perspective``: it is a gnomonic view with exact enough maps (corners
+    are refined and read in it directly), else an equirect strip (refined on the sphere,
+    :func:`refine_corners`)."""
+
+    image: np.ndarray
+    to_bearing: Callable
+    scale: float
+    perspective: bool
 
 
 class MarkerDetector:
@@ -71,21 +96,13 @@ class MarkerDetector:
         return out
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
-                List[np.ndarray]], to_bearing, scale: float, method: str, image: np.ndarray,
-                perspective: bool, expect_id: Optional[int] = None, rescue: bool = True,
-                skip_ids: Sequence[int] = ()) -> List[MarkerObservation]:
-        """Observations from a backend result in ``image``: edge-refined corners of the
-        decoded markers, plus rejected quads decoded here (small ones up to
-        ``rescue_max_side_px``, large ones from ``close_range_size_deg``).
-
-        ``to_bearing(x, y)``: the image's pixels to bearings; ``scale``: its pixels per
-        equirect pixel; ``perspective``: the image is a gnomonic view with exact enough maps
-        (corners are refined and read in it directly), else an equirect strip (refined on
-        the sphere, :func:`refine_corners`); ``expect_id``: keep only this id (tracking:
-        OpenCV's reading of the predicted id at the predicted place is not re-verified);
-        ``rescue``: decode the quads OpenCV rejected; ``skip_ids``: ids OpenCV read that are
-        not wanted (already observed).
+                List[np.ndarray]], searched: _Searched, method: str, wanted: Wanted = _ANY) -> List[MarkerObservation]:
+        """Observations from a backend result ``found`` in the ``searched`` image: edge-refined corners of the
+        decoded markers, plus rejected quads decoded here (small ones up to ``rescue_max_side_px``, large
+        ones from ``close_range_size_deg``), as many as are ``wanted``.
         """
+        image, to_bearing, scale, perspective = searched
+        expect_id, rescue, skip_ids = wanted
         q = self.params
         bits = self.backend.bits
         codes = self.backend.codes
@@ -184,27 +201,27 @@ class MarkerDetector:
         ``maps``: precomputed :meth:`view_maps`, for reused views; else computed exactly
         (``map_step`` 1) or interpolated between every ``map_step`` view pixels (≤ 4: exact
         enough to refine corners in the view image itself).
-        ``expect_id``: only this id is wanted (see :meth:`_finish`).
+        ``expect_id``: only this id is wanted (see :class:`Wanted`).
         """
         if maps is None:
             maps = view.remap_maps(equirect, map_step)
         img = cv2.remap(grey, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         scale = view.focal * equirect.rad_per_px  # view pixels per equirect pixel at its centre
         found = self.backend.detect(img, self.params.min_marker_perimeter_px * scale)
-        return self._finish(grey, equirect, found, view.pixel_to_bearing, scale, method, img, map_step <= 4,
-                            expect_id)
+        return self._finish(grey, equirect, found, _Searched(img, view.pixel_to_bearing, scale, map_step <= 4),
+                            method, Wanted(expect_id))
 
     def detect_in_views(self, grey: np.ndarray, equirect: Equirect, views: Sequence[GnomonicView],
                         maps: Sequence[Tuple[np.ndarray, np.ndarray]], expect_ids: Sequence[int],
-                        method: str = "tracked", expect_sizes: Optional[Sequence[float]] = None
-                        ) -> List[MarkerObservation]:
+                        method: str = "tracked", expect_sizes: Optional[Sequence[float]] = None, *,
+                        gate: float) -> List[MarkerObservation]:
         """The expected marker in each of several small gnomonic views, in one OpenCV call.
 
         The views (with their :meth:`view_maps`, step ≤ 4) are rendered into one mosaic
         (stacked, separated by flat grey rows), OpenCV searches it once, every find is
         assigned to its view and kept only if it is that view's ``expect_ids`` entry; its
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
-        get their rejected quads within ``gate_deg`` of the view centre decoded
+        get their rejected quads within ``gate`` (radians: the tracking gate) of the view centre decoded
         (:func:`decode_quad`), as in :meth:`detect`; with ``expect_sizes`` (predicted
         angular sizes, radians) only quads within ``view_size_tolerance`` (35 %) of that size are tried.
         """
@@ -243,7 +260,7 @@ class MarkerDetector:
 
         def near_centre(c, k):  # the expected marker's centre is within the gate of the view's
             dx = c.mean(axis=0) - (views[k].cx, views[k].cy + tops[k])
-            return float(np.hypot(*dx)) <= math.tan(math.radians(q.gate_deg)) * views[k].focal + 2.0
+            return float(np.hypot(*dx)) <= math.tan(gate) * views[k].focal + 2.0
 
         def plausible(quad, k):
             if expect_sizes is None:
@@ -273,13 +290,12 @@ class MarkerDetector:
         return self.observations(equirect, marker_ids, np.array(bearings), method) if bearings else []
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
-                       method: str = "full", rescue: bool = True, max_el: float = math.pi / 2,
-                       skip_ids: Sequence[int] = (), across: Optional[float] = None) -> List[MarkerObservation]:
+                       method: str = "full", max_el: float = math.pi / 2, across: Optional[float] = None,
+                       wanted: Wanted = _ANY) -> List[MarkerObservation]:
         """Markers in the vertical strip of columns [u0, u0 + width) (wrapping around the seam),
-        rows within ``max_el`` (radians) of the horizon; ``rescue``: also decode the quads
-        OpenCV rejected (small, close markers); ``skip_ids``: ids not wanted; ``across``: only
-        OpenCV's finds and rejected quads that reach across this column of the strip (with
-        half their width to spare, for the refinement) are refined and read."""
+        rows within ``max_el`` (radians) of the horizon; ``across``: only OpenCV's finds and rejected
+        quads that reach across this column of the strip (with half their width to spare, for the
+        refinement) are refined and read; ``wanted``: :class:`Wanted` (``rescue``, ``skip_ids``)."""
         w = equirect.width
         u0 = int(u0) % w
         width = int(min(width, w))
@@ -295,20 +311,21 @@ class MarkerDetector:
             near = [_reaches(c, across) for c in corners]
             found = ([i for i, ok in zip(ids, near) if ok], [c for c, ok in zip(corners, near) if ok],
                      [c for c in rejected if _reaches(c, across)])
-        return self._finish(grey, equirect, found, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0,
-                            method, strip, False, rescue=rescue, skip_ids=skip_ids)
+        searched = _Searched(strip, lambda x, y: equirect.pixel_to_bearing(x + u0, y + v0), 1.0, False)
+        return self._finish(grey, equirect, found, searched, method, wanted)
 
     @staticmethod
     def view_maps(view: GnomonicView, equirect: Equirect, step: int = 1) -> Tuple[np.ndarray, np.ndarray]:
         """Remap maps equirect → ``view`` for :meth:`detect_in_view` (``GnomonicView.remap_maps``)."""
         return view.remap_maps(equirect, step)
 
-    def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0) -> GnomonicView:
+    def view_around(self, equirect: Equirect, centre, fov: float, upsample: float = 1.0,
+                    min_px: int = 1) -> GnomonicView:
         """A square gnomonic view of full field of view ``fov`` (radians) around a bearing, at
-        ``upsample`` × the equirect resolution, capped at ``max_view_px`` pixels."""
+        ``upsample`` × the equirect resolution, at least ``min_px`` and at most ``max_view_px`` pixels."""
         fov = min(max(fov, 1e-3), math.radians(150.0))
         native = 2.0 * math.tan(fov / 2.0) / equirect.rad_per_px
-        size = int(min(max(math.ceil(native * upsample), self.params.roi_min_px), self.params.max_view_px))
+        size = int(min(max(math.ceil(native * upsample), min_px), self.params.max_view_px))
         return GnomonicView.around(equirect, centre, fov, size=size)
 
     def _pool(self) -> Optional[ThreadPoolExecutor]:

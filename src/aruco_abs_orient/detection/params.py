@@ -1,9 +1,9 @@
 """Detection tunables and the detection error.
 
 In: nothing (the values come from the caller, cfg/params.yaml or dynamic_reconfigure).
-Out: :class:`DetectorParams` (validated on construction), read by every detection stage and by
-:mod:`aruco_abs_orient.tracking`; :class:`DetectionError` for an image, JPEG, dictionary or
-parameter the detector cannot use.
+Out: :class:`DetectorParams` (validated on construction), read by every detection stage (the
+tracker's own knobs are :class:`aruco_abs_orient.tracking.TrackingParams`); :class:`DetectionError` for
+an image, JPEG, dictionary or parameter the detector cannot use.
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ class DetectionError(InputFileError, ValueError):
 
 @dataclass
 class DetectorParams:
-    """Every knob of detection and tracking, flat (cfg/params.yaml's ``detection`` section; those
-    worth changing live are also in cfg/AbsOrient.cfg, for dynamic_reconfigure).
+    """Every knob of detection, flat (cfg/params.yaml's ``detection`` section; those worth changing live
+    are also in cfg/AbsOrient.cfg, for dynamic_reconfigure). Tracking's own knobs are
+    :class:`aruco_abs_orient.tracking.TrackingParams` (the ``tracking`` section).
 
     cv2.aruco (see ``cv2.aruco.DetectorParameters``):
 
@@ -99,27 +100,6 @@ class DetectorParams:
     - ``corner_sigma_px``: corner noise of a well-resolved marker (pixels).
     - ``small_marker_side_px``: side (pixels) below which corner noise grows ∝ 1/side².
     - ``tracked_sigma_scale``: factor for markers refined in tracking ROI views.
-
-    Map-guided tracking (:class:`aruco_abs_orient.tracking.MarkerTracker`):
-
-    - ``roi_margin``: ROI view field of view = angular size × (1 + 2·margin) + 2·gate.
-    - ``roi_min_px``: smallest ROI view side (pixels).
-    - ``roi_target_side_px``: ROI views of small markers are upsampled until the marker's
-      side spans this many pixels (pixels) ...
-    - ``roi_max_upsample``: ... by at most this factor.
-    - ``gate_deg``: largest angle (degrees) between an observed and a predicted centre.
-    - ``min_predicted_side_px``: markers predicted smaller than this (pixels of the
-      equirect) are not tracked.
-    - ``sweep_tile_deg``: width (degrees of azimuth) of the vertical strip searched each
-      frame while tracking, so markers the prediction misses are found.
-    - ``sweep_period_frames``: frames for the sweeping tile to go once around 360°.
-    - ``sweep_every_frames``: the tile is searched on every n-th frame only (and moves by
-      n steps then).
-    - ``sweep_max_el_deg``: the tile spans elevations within this (degrees) of the horizon.
-    - ``max_full_interval``: frames between forced full-frame searches while tracking
-      (0 = only at start-up and after a loss).
-    - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
-      after which tracking falls back to full-frame search.
     """
 
     min_marker_perimeter_px: float = 28.0
@@ -174,19 +154,6 @@ class DetectorParams:
     small_marker_side_px: float = 30.0
     tracked_sigma_scale: float = 2.0
 
-    roi_margin: float = 0.5
-    roi_min_px: int = 32
-    roi_target_side_px: float = 16.0
-    roi_max_upsample: float = 3.0
-    gate_deg: float = 1.0
-    min_predicted_side_px: float = 6.0
-    sweep_tile_deg: float = 8.0
-    sweep_period_frames: int = 72
-    sweep_every_frames: int = 2
-    sweep_max_el_deg: float = 60.0
-    max_full_interval: int = 0
-    lost_after_frames: int = 3
-
     def __post_init__(self):
         self.validate()
 
@@ -210,8 +177,6 @@ class DetectorParams:
                                  f"{self.adaptive_thresh_win_min}, {self.adaptive_thresh_win_max}")
         if not 0.0 < self.pole_band_deg < 90.0:
             raise DetectionError(f"DetectorParams.pole_band_deg: expected (0, 90) degrees, got {self.pole_band_deg}")
-        if self.sweep_period_frames < 1:
-            raise DetectionError("DetectorParams.sweep_period_frames: expected ≥ 1")
         for name in ("edge_samples", "edge_profiles", "view_edge_samples", "view_edge_profiles"):
             if getattr(self, name) < 2:
                 raise DetectionError(f"DetectorParams.{name}: expected ≥ 2, got {getattr(self, name)!r}")

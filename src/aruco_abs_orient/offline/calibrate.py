@@ -27,6 +27,8 @@ from ..calibration import (
     Calibration,
     CalibrationError,
     CalibrationParams,
+    Recording,
+    Unknowns,
     calibrate,
     launch_snippet,
     static_tf_yaml,
@@ -143,16 +145,17 @@ def _until_broken(images, skipped: dict):
 
 
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
-                  progress: bool = True, estimate_lever_arm: bool = False,
-                  params: Optional[CalibrationParams] = None, observations: Optional[CalibrateResult] = None,
-                  estimate_time_offset: bool = False, estimate_readout: bool = False) -> Calibration:
+                  progress: bool = True, unknowns: Optional[Unknowns] = None,
+                  params: Optional[CalibrationParams] = None,
+                  observations: Optional[CalibrateResult] = None) -> Calibration:
     """Calibrate the camera of ``bag`` against ``marker_map``.
 
     ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign);
-    with ``estimate_time_offset`` it is refined (the result's ``time_offset_delta`` is added to it).
+    ``unknowns`` (:class:`~aruco_abs_orient.calibration.Unknowns`, default the boresight only): with
+    ``time_offset`` it is refined (the result's ``time_offset_delta`` is added to it); ``lever_arm`` the
+    camera's origin; ``readout`` the camera's rolling-shutter readout time (the images' stamps are their
+    middle rows' capture times; row v of H is captured at stamp + (v/H − ½)·readout).
     ``observations``: a :func:`collect_observations` result to reuse (detection is the slow part).
-    ``estimate_readout``: also estimate the camera's rolling-shutter readout time (the images' stamps are
-    their middle rows' capture times; row v of H is captured at stamp + (v/H − ½)·readout).
     Raises BagError (unusable bag) or CalibrationError (the recording cannot determine it: why).
     """
     obs = observations or collect_observations(bag, marker_map, topics, progress)
@@ -160,10 +163,9 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
     if len(d.prism_stamps) < 2:
         raise CalibrationError(f"{bag_name(bag)}: no prism track: the calibration needs the total station's "
                                "prism positions")
-    cal = calibrate(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
-                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism,
-                    estimate_lever_arm=estimate_lever_arm, estimate_time_offset=estimate_time_offset, params=params,
-                    obs_rows=obs.rows, estimate_readout=estimate_readout)
+    rec = Recording(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
+                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism, obs.rows)
+    cal = calibrate(rec, unknowns, params)
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
     return cal
@@ -211,7 +213,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help=f"(default {getattr(d, name)})")
     for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
-    add_params_option(p)
+    add_params_option(p, "detection section (the marker search)")
     add_video_inputs(p)
     p.set_defaults(func=run)
     return p
@@ -250,10 +252,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(e))
     try:
         params = CalibrationParams(vo_track_heading=True) if args.vo_track_heading else None
-        cal = calibrate_bag(recording, marker_map, args.time_offset, topics, estimate_lever_arm=args.lever_arm,
-                            params=params,
-                            observations=obs, estimate_time_offset=args.refine_time_offset,
-                            estimate_readout=args.readout)
+        cal = calibrate_bag(recording, marker_map, args.time_offset, topics, observations=obs, params=params,
+                            unknowns=Unknowns(args.lever_arm, args.refine_time_offset, args.readout))
     except CalibrationError as e:
         return _fail(f"{bag_name(recording)}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)

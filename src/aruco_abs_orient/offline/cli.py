@@ -150,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--full-coordinates", action="store_true",
                    help="also write trajectory.csv: t, E, N, H (the map origin added back) and roll, pitch, heading "
                         "in degrees, for a surveyor")
-    add_params_option(p)
+    add_params_option(p, "pipeline, detection, tracking and filter sections")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
     add_video_inputs(p)
@@ -161,7 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "it); with --markers refined with the marker bearings (sub-millisecond where the VO "
                        "drifts; detects the markers in every N-th image, the slow part).",
                        epilog="examples:\n  aruco-abs-orient timesync run.bag --plot results/\n"
-                       "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3",
+                       "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3\n"
+                       "  aruco-abs-orient timesync run.bag --params my_params.yaml",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bag", nargs="*", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
                    "with --markers)" + BAGS_HELP)
@@ -175,6 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
     p.add_argument("--min-confidence", type=float, default=0.3, metavar="C",
                    help="refuse an estimate whose confidence (0-1) is below C (default 0.3)")
+    add_params_option(p, "timesync section (the estimate's smoothing, windows and limits) and, with --markers, "
+                         "its detection section")
     _add_topics(p)
     add_video_inputs(p)
 
@@ -188,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "trajectory of base_link in map) it adds the heading and position errors (and fig. 13).",
         epilog="examples:\n  aruco-abs-orient evaluate results/run1\n"
                "  aruco-abs-orient evaluate results/run1 --reference truth.tum --overview run1.bag markers.yaml\n"
-               "  aruco-abs-orient evaluate results/run1 --reference truth.tum --fused results/run1_out.bag --after 5",
+               "  aruco-abs-orient evaluate results/run1 --reference truth.tum --fused results/run1_out.bag --after 5\n"
+               "  aruco-abs-orient evaluate results/run1 --reference truth.tum --params my_params.yaml",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", help="output directory of `process` (summary.json, trajectory.tum, observations.csv)")
     p.add_argument("--reference", metavar="TUM", help="TUM file of base_link in map (e.g. a simulation's truth): "
@@ -206,15 +210,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overview", nargs=2, metavar=("BAG_OR_VIDEO", "MARKERS"),
                    help="also draw overview.png (first in the report): a frame of the bag or video (.mp4, .mov, "
                         ".mkv) with its markers above the trajectory")
+    add_params_option(p, "evaluation section (the gaps no error is interpolated across, the coverage gaps "
+                         "listed, the fused output's settling time)")
 
     from .calibrate import add_parser as add_calibrate
 
     add_calibrate(sub)
 
     p = sub.add_parser("params", help="write the documented defaults of every tunable (cfg/params.yaml)",
-                       description="Every tunable of the pipeline (pipeline, detection, filter) with its default and "
-                       "its description, as the YAML file --params and the node's ~params read. Copy it, keep "
-                       "the lines you change.",
+                       description="Every tunable (pipeline, detection, tracking, filter, timesync, evaluation) "
+                       "with its default and its description, as the YAML file --params and the node's ~params "
+                       "read. Copy it, keep the lines you change.",
                        epilog="examples:\n  aruco-abs-orient params --out my_params.yaml\n"
                               "  aruco-abs-orient process run.bag --markers markers.yaml --out results/ "
                               "--params my_params.yaml",
@@ -265,10 +271,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def add_params_option(p: argparse.ArgumentParser) -> None:
-    """``--params YAML`` on a sub-command that runs the pipeline or the detector (process, calibrate)."""
-    p.add_argument("--params", metavar="YAML", help="tunables to change from their defaults (any subset of "
-                   "cfg/params.yaml, written by `aruco-abs-orient params`)")
+def add_params_option(p: argparse.ArgumentParser, sections: str) -> None:
+    """``--params YAML`` on a sub-command with tunables; ``sections``: the ones of cfg/params.yaml it reads."""
+    p.add_argument("--params", metavar="YAML", help="a params file: the tunables to change from their defaults, "
+                   "any subset of cfg/params.yaml (`aruco-abs-orient params` writes it with every default and its "
+                   f"meaning); this command reads its {sections}")
 
 
 
@@ -288,7 +295,7 @@ def _fail(msg: str, code: int = 2) -> int:
 
 def cmd_process(a: argparse.Namespace) -> int:
     from ..calibration import load_calibration
-    from .process import process_bag
+    from .process import RunSetup, process_bag
 
     marker_map = MarkerMap.load(a.markers)
     if a.no_prism and len(marker_map) < 3:
@@ -304,10 +311,9 @@ def cmd_process(a: argparse.Namespace) -> int:
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
     params = tunables.pipeline if a.jpeg_reduce is None else replace(tunables.pipeline, jpeg_reduce=a.jpeg_reduce)
-    params = replace(params, markers_only=a.no_prism)
-    result = process_bag(recording, marker_map, a.out, time_offset=a.time_offset, topics=_topics(a), params=params,
-                         progress=not a.quiet, calibration=calibration, detector_params=tunables.detection,
-                         filter_params=tunables.filter, full_coordinates=a.full_coordinates)
+    setup = RunSetup(a.time_offset, _topics(a), calibration, a.full_coordinates, progress=not a.quiet)
+    result = process_bag(recording, marker_map, a.out, setup,
+                         tunables._replace(pipeline=replace(params, markers_only=a.no_prism)))
     s = result.summary
     print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
     for w in s["warnings"]:
@@ -323,11 +329,12 @@ def cmd_timesync(a: argparse.Namespace) -> int:
 
     if a.every < 1:
         return _fail(f"--every: expected an integer ≥ 1, got {a.every}")
+    tunables = load_params(a.params)
     marker_map = MarkerMap.load(a.markers) if a.markers else None
     recording = video_recording(a, marker_map) or a.bag
     try:
         out = estimate_bag_offset(recording, _topics(a), tuple(a.search) if a.search else None, plot_dir=a.plot,
-                                  marker_map=marker_map, every=a.every, progress=not a.quiet)
+                                  marker_map=marker_map, every=a.every, progress=not a.quiet, params=tunables)
     except TimeSyncError as e:
         return _fail(f"no time offset: {e}", 1)
     est, base = out["timesync"], out["timesync_baseline"]
@@ -363,6 +370,7 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
 
     if a.fused and not a.reference:
         return _fail("--fused needs --reference: the EKF's output is judged against a reference trajectory")
+    params = load_params(a.params).evaluation
     overview = None
     if a.overview:
         from .evaluate import overview_figure
@@ -370,7 +378,7 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
         os.makedirs(a.out or a.run, exist_ok=True)
         overview = overview_figure(os.path.join(a.out or a.run, "overview.png"), a.overview[0], a.run, a.reference,
                                    MarkerMap.load(a.overview[1]))
-    res = evaluate_run(a.run, a.reference, a.out, fused=a.fused, fused_clock_offset=a.fused_clock_offset,
+    res = evaluate_run(a.run, a.reference, a.out, params, fused=a.fused, fused_clock_offset=a.fused_clock_offset,
                        after=a.after, overview=overview)
     for quantity, value, paper, _ in res["headline"]:
         print(f"{quantity}: {value}" + (f" (paper: {paper})" if paper != "–" else ""))

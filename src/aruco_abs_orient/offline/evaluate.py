@@ -38,7 +38,6 @@ PAPER = {  # Hasler & Nebiker's figures (real data), beside ours in the report
     "time_offset": "11 frames (367 ms), one-frame resolution",
 }
 DOC_DIR = os.path.join(os.path.dirname(os.path.realpath(__file__)), "..", "..", "..", "doc")  # in a checkout
-SETTLE_S = 1.0  # s after the fused output's first absolute yaw before it is judged (the EKF converges)
 
 
 def _doc(anchor: str, text: str, out_dir: str) -> str:
@@ -162,9 +161,10 @@ def fused_errors(trajectory, reference: str, after: float = 0.0, max_gap: float 
             "after_s": float(after)}
 
 
-def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optional[str] = None, max_gap: float = 0.2,
-                 fused: Optional[str] = None, fused_clock_offset: Optional[float] = None,
-                 after: Optional[Tuple[str, float]] = None, overview: Optional[str] = None) -> Dict[str, object]:
+def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optional[str] = None,
+                 params: Optional[ev.EvaluationParams] = None, fused: Optional[str] = None,
+                 fused_clock_offset: Optional[float] = None, after: Optional[Tuple[str, float]] = None,
+                 overview: Optional[str] = None) -> Dict[str, object]:
     """Evaluate ``run_dir`` (outputs of ``process``), against the TUM file ``reference`` when given.
 
     Without a reference: what a user can check on the run alone (the paper's own evaluation): the
@@ -172,11 +172,14 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     coverage and gaps, the run's self-checks. With it: the heading/position errors too. ``fused``: a bag
     of ``postprocess.launch record:=`` whose ``/odometry/filtered`` is judged against the reference, its
     stamps minus ``fused_clock_offset`` (default: the run's time offset, from summary.json), from
-    ``after`` (("since_start", s) or ("absolute", s); default 1 s after its first absolute yaw) on.
+    ``after`` (("since_start", s) or ("absolute", s); default ``params.settle`` s after its first absolute yaw)
+    on. ``params``: :class:`~aruco_abs_orient.evaluation.EvaluationParams` (the gaps, the settling time).
     ``overview``: path of an overview PNG to show first. Writes ``report.md``, ``report.json`` and
     PNG plots into ``out_dir`` (default ``run_dir``); returns the results.
     """
     out_dir = out_dir or run_dir
+    params = params or ev.EvaluationParams()
+    max_gap = params.max_gap
     os.makedirs(out_dir, exist_ok=True)
     summary = read_summary(run_dir)
     try:
@@ -209,7 +212,7 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
         reason = "; ".join(summary.get("warnings") or []) or "its summary.json says what it counted"
         raise EvaluateError(f"{run_dir}/trajectory.tum: no poses (the run never initialised: {reason})")
     end = t0 + duration if duration else None
-    holes = ev.gaps(est.stamps, 0.5, end=end)
+    holes = ev.gaps(est.stamps, params.min_gap, end=end)
     results["coverage"] = {"frames": frames, "frames_with_pose": with_pose,
                            "share": with_pose / frames if frames else None,
                            "first_pose_s": float(est.stamps[0] - t0),
@@ -217,7 +220,7 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     longest = holes[0] if holes else None
     cover = (f"{100 * with_pose / max(frames, 1):.1f} % of the images have a pose (from {est.stamps[0] - t0:.1f} s); "
              + (f"longest gap {longest[1] - longest[0]:.1f} s at {longest[0] - t0:.1f} s" if longest else
-                "no gap over 0.5 s"))
+                f"no gap over {params.min_gap:g} s"))
     rep.headline.append(("coverage", cover, "–", _doc("no-markers-found", "no markers found", out_dir)))
 
     obs_path = os.path.join(run_dir, "observations.csv")
@@ -302,8 +305,8 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                                         _doc("a-replay-that-ends-or-fails", "replay", out_dir)))
             else:
                 if after is None:
-                    start = first + SETTLE_S
-                    how = f"from {start - t0:.1f} s: {SETTLE_S:g} s after its first absolute yaw"
+                    start = first + params.settle
+                    how = f"from {start - t0:.1f} s: {params.settle:g} s after its first absolute yaw"
                 else:
                     start = after[1] + (t0 if after[0] == "since_start" else 0.0)
                     how = f"from {start - t0:.1f} s (--after)"

@@ -26,14 +26,15 @@ import tempfile
 import threading
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Dict, List, Optional
+from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 
 from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
-from ..pipeline import AbsOrientPipeline, FrameResult, PipelineParams
-from ..selfcheck import check_run
+from ..params import Tunables, parse_params
+from ..pipeline import AbsOrientPipeline, FrameResult
+from ..selfcheck import RunContext, check_run, observation_columns
 from ..transforms import yaw_of
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
 from .bagio import (
@@ -49,7 +50,7 @@ from .bagio import (
     salvage_bag,
 )
 
-__all__ = ["ProcessResult", "process_bag", "OBSERVATION_COLUMNS"]
+__all__ = ["ProcessResult", "RunSetup", "process_bag", "OBSERVATION_COLUMNS"]
 
 PRISM_LOOKAHEAD = 2.0  # s of prism samples ahead of the image handed to the pipeline (interpolation)
 
@@ -112,37 +113,48 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
 def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag) -> Dict:
     """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`) with the commands that fix
     what they find; each finding is also a warning of the summary."""
-    cols = list(zip(*checked)) if checked else [()] * 9
-    obs = {k: np.asarray(v) for k, v in zip(("time", "id", "azimuth", "elevation", "yaw_sigma", "residual",
-                                             "accepted", "yaw", "odom_yaw"), cols)}
+    obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
                 "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
                              f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
-    result = check_run(obs, data.prism_stamps, data.prism_positions, {m.id: m.position for m in marker_map}, stamps,
-                       yaws, summary["pipeline_stats"], summary["frames"], summary["time_offset_s"], commands,
-                       prism_lever=data.base_T_prism[:3, 3])
+    result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
+                       (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"],
+                                                  summary["time_offset_s"], commands, data.base_T_prism[:3, 3]))
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
 
-def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: float = 0.0,
-                topics: Optional[BagTopics] = None, params: Optional[PipelineParams] = None,
-                progress: bool = True, data: Optional[BagData] = None, calibration: Optional[Dict] = None,
-                full_coordinates: bool = False, **pipeline_kwargs) -> ProcessResult:
-    """Process ``bag`` (one bag, or the files of one split recording, read as one in time order) into
-    ``out_dir`` (created if needed).
+class RunSetup(NamedTuple):
+    """How :func:`process_bag` runs, beside the tunables.
 
-    ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the
-    timesync tool estimates). ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}``
-    (``calibration.load_calibration``) used instead of the bag's /tf_static lever arms, with its
-    rolling-shutter ``"readout"`` (s) when it has one. ``bag`` may also be a
-    :class:`.video.VideoRecording` (a video, its VO trajectory and prism log). Raises
-    BagError when the bag cannot be used at all. ``full_coordinates``: also write ``trajectory.csv``.
+    ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the timesync tool
+    estimates). ``topics``: the bag's topics and frames (None: :class:`.bagio.BagTopics`' defaults).
+    ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}`` (``calibration.load_calibration``)
+    used instead of the bag's /tf_static lever arms, with its rolling-shutter ``"readout"`` (s) when it has
+    one. ``full_coordinates``: also write ``trajectory.csv``. ``progress``: show a progress bar.
     """
-    topics = topics or BagTopics()
-    params = params or PipelineParams()
+
+    time_offset: float = 0.0
+    topics: Optional[BagTopics] = None
+    calibration: Optional[Dict] = None
+    full_coordinates: bool = False
+    progress: bool = True
+
+
+def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[RunSetup] = None,
+                tunables: Optional[Tunables] = None, data: Optional[BagData] = None) -> ProcessResult:
+    """Process ``bag`` (one bag, or the files of one split recording, read as one in time order) into
+    ``out_dir`` (created if needed), as :class:`RunSetup` says (None: its defaults), with ``tunables``
+    (``params.load_params``; None: every default). ``bag`` may also be a :class:`.video.VideoRecording` (a
+    video, its VO trajectory and prism log); ``data``: its :func:`.bagio.read_bag_data`, when already read.
+    Raises BagError when the bag cannot be used at all.
+    """
+    setup = setup or RunSetup()
+    topics = setup.topics or BagTopics()
+    setup = setup._replace(topics=topics)
+    tunables = tunables or parse_params({})
     t_start = time.perf_counter()
     os.makedirs(out_dir, exist_ok=True)
     readable, salvaged, notes = (bag if hasattr(bag, "iter_images") else bag_paths(bag)), [], []
@@ -154,8 +166,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, time_offset: flo
             data = read_bag_data(readable, topics)
             data.warnings.extend(notes)
     try:
-        return _process(bag, readable, data, marker_map, out_dir, time_offset, topics, params, progress,
-                        calibration, t_start, full_coordinates, pipeline_kwargs)
+        return _process(bag, readable, data, marker_map, out_dir, setup, tunables, t_start)
     finally:
         for path in salvaged:
             if os.path.exists(path):
@@ -180,15 +191,18 @@ def _salvage(paths: List[str], out_dir: str):
     return readable, salvaged, notes
 
 
-def _process(bag, readable, data: BagData, marker_map, out_dir, time_offset, topics, params, progress, calibration,
-             t_start, full_coordinates, pipeline_kwargs) -> ProcessResult:
+def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup, tunables: Tunables,
+             t_start: float) -> ProcessResult:
     """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
+    time_offset, topics, calibration, full_coordinates, progress = setup
+    params = tunables.pipeline
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
+    readout = 0.0
     if calibration is not None:
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
-        pipeline_kwargs.setdefault("readout", float(calibration.get("readout", 0.0)))
-        pipeline_kwargs.setdefault("calibrated", True)
-    pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, params, **pipeline_kwargs)
+        readout = float(calibration.get("readout", 0.0))
+    pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout,
+                             calibrated=calibration is not None, **tunables.pipeline_kwargs())
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
     next_imu = 0
 

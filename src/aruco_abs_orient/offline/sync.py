@@ -20,8 +20,9 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from .. import timesync
-from ..calibration import Calibration, CalibrationError, CalibrationParams
+from ..calibration import Calibration, CalibrationError, CalibrationParams, Unknowns
 from ..markers import MarkerMap
+from ..params import Tunables, parse_params
 from ..transforms import yaw_of
 from .bagio import BagData, BagTopics, bag_name, read_bag_data
 
@@ -59,25 +60,27 @@ def default_search(data: BagData, min_overlap: float = 10.0) -> Tuple[float, flo
 
 
 def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Optional[Tuple[float, float]] = None,
-                        data: Optional[BagData] = None, plot_dir: Optional[str] = None,
-                        marker_map: Optional[MarkerMap] = None, every: int = 3,
-                        progress: bool = False) -> Dict[str, object]:
+                        plot_dir: Optional[str] = None, marker_map: Optional[MarkerMap] = None, every: int = 3,
+                        progress: bool = False, params: Optional[Tunables] = None) -> Dict[str, object]:
     """``{"timesync": OffsetEstimate, "timesync_baseline": OffsetEstimate or reason}`` of a bag, and
     with ``marker_map`` ``"timesync_markers"``: the estimate refined with the marker bearings of every
     ``every``-th image (an OffsetEstimate, or the reason it is not possible). ``search``: the offsets
-    searched (default :func:`default_search`).
+    searched (default :func:`default_search`). ``params``: the tunables (``load_params``): the estimate's
+    ``timesync`` knobs, and the ``detection`` knobs of the marker search (default: every default).
 
     Offsets in seconds, camera stamps = total-station time + offset. Raises
     ``timesync.TimeSyncError`` when the recording cannot determine it (no motion, too short).
     """
-    data = data or read_bag_data(bag, topics)
+    params = params or parse_params({})
+    data = read_bag_data(bag, topics)
     if len(data.prism_stamps) < 2:
         raise timesync.TimeSyncError(f"{bag_name(bag)}: no prism track: the time offset needs the total "
                                      "station's positions")
     search = search or default_search(data)
     t_vo, yaw_vo = data.odom.stamps, yaw_of(data.odom.rotations)
     t_tr, xy = data.prism_stamps, data.prism_positions[:, :2]
-    est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, prism_in_base=data.base_T_prism[:3, 3])
+    est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, params=params.timesync,
+                                   prism_in_base=data.base_T_prism[:3, 3])
     out: Dict[str, object] = {"timesync": est}
     try:
         out["timesync_baseline"] = timesync.cross_correlation_offset(t_vo, yaw_vo, t_tr, xy, search=search,
@@ -94,9 +97,11 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
     if marker_map is not None:
         from .calibrate import calibrate_bag, collect_observations
 
-        obs = collect_observations(bag, marker_map, topics, progress, data=data, every=every, label="timesync: detect")
+        obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data, every=every,
+                                   label="timesync: detect")
         try:
-            cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs, estimate_time_offset=True,
+            cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs,
+                                unknowns=Unknowns(time_offset=True),
                                 params=CalibrationParams(max_boresight_sigma_deg=1.0))
             out["timesync_markers"] = marker_offset_estimate(est.offset, cal)
         except CalibrationError as e:

@@ -68,10 +68,10 @@ from ..debugview import debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, decode_jpeg
 from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
-from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth
+from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth, NodeSnapshot
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
-from ..selfcheck import RollingSelfCheck
+from ..selfcheck import RollingSelfCheck, YawObservation
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
 from ..tum import atomic_write_text
@@ -425,7 +425,7 @@ class AbsOrientNode:
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
 
     def _on_reconfigure(self, config, level):
-        # the server hands over every parameter each time: pass on only what changed (a detection
+        # the server hands over every parameter each time: pass on only what changed (a detection or tracking
         # parameter rebuilds the tracker, which then searches the full frame once)
         with self._param_lock:
             for k in reconfigurable_names():
@@ -493,8 +493,8 @@ class AbsOrientNode:
             for r in result.observations:
                 if math.isfinite(r.yaw):
                     o = r.observation
-                    self.selfcheck.add_observation(result.stamp, o.id, o.azimuth, o.elevation, r.yaw_sigma,
-                                                   r.residual, r.accepted, r.yaw, odom_yaw)
+                    self.selfcheck.add_observation(YawObservation(result.stamp, o.id, o.azimuth, o.elevation,
+                                                                  r.yaw_sigma, r.residual, r.accepted, r.yaw, odom_yaw))
             if result.map_T_base is not None:
                 self.selfcheck.add_pose(result.stamp, float(yaw_of(result.map_T_base[:3, :3])))
 
@@ -551,7 +551,8 @@ class AbsOrientNode:
                                               readout=readout, calibrated=calibrated is not None, **kwargs)
             self.selfcheck.prism_lever = arms[c.prism_frame][:3, 3]
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
-                self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3])
+                self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3],
+                                                              params=c.tunables().timesync)
         except PipelineError as e:
             self._error("no_static_tf", f"unusable lever arms from {source}: {e}")
             return False
@@ -815,14 +816,12 @@ class AbsOrientNode:
     def _pipeline_task(self, stat):
         """diagnostic_updater task ``pipeline``: :meth:`NodeHealth.report` since the previous update."""
         r = self.last_result
-        level, message, values = self.health.report(
-            time.monotonic(), self.rospy.get_time(), initialised=self.initialised,
-            image_age_wall=time.monotonic() - self.last_image_wall, last_prism_stamp=self.last_prism_stamp,
-            prisms_waiting=bool(self.prisms), images_received=self.images.received,
-            images_dropped=self.images.dropped, time_offset=self.time_offset,
-            time_offset_source=self.time_offset_source, pipeline=self.pipeline,
-            offset_estimator=self.offset_estimator,
-            map_odom_yaw=float(yaw_of(r.map_T_odom[:3, :3])) if r is not None and r.map_T_odom is not None else None)
+        level, message, values = self.health.report(time.monotonic(), self.rospy.get_time(), NodeSnapshot(
+            initialised=self.initialised, image_age_wall=time.monotonic() - self.last_image_wall,
+            last_prism_stamp=self.last_prism_stamp, prisms_waiting=bool(self.prisms),
+            images_received=self.images.received, images_dropped=self.images.dropped, time_offset=self.time_offset,
+            time_offset_source=self.time_offset_source, pipeline=self.pipeline, offset_estimator=self.offset_estimator,
+            map_odom_yaw=float(yaw_of(r.map_T_odom[:3, :3])) if r is not None and r.map_T_odom is not None else None))
         return self.cv.fill_diagnostic(stat, level, message, values)
 
     def _selfcheck_task(self, stat):

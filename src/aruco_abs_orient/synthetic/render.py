@@ -356,7 +356,7 @@ _ADAPTIVE_MIN_BIT_PX = 3.0
 
 def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray,
                   n_bits_black: int, supersample: int, depth: Optional[np.ndarray] = None,
-                  gain: float = 1.0, offset: float = 0.0) -> None:
+                  light: Tuple[float, float] = (1.0, 0.0)) -> None:
     """Average the marker (with its quiet zone) into ``canvas`` (H, W) float32 in place.
 
     Pixels are shaded by S×S sub-samples (S = ``supersample``). When a bit spans at least
@@ -365,10 +365,11 @@ def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, 
     supersampled (the same result, several times faster for close markers).
 
     ``marker`` may be placed per image row (a rolling shutter, see :class:`_MarkerShader`).
-    The texture's grey g is painted as ``offset + gain · g`` (illumination). ``depth`` (H, W),
-    optional: a depth buffer (m along the ray); pixels at least half covered get the face's
+    The texture's grey g is painted as ``offset + gain · g`` (illumination: ``light`` = (gain, offset)).
+    ``depth`` (H, W), optional: a depth buffer (m along the ray); pixels at least half covered get the face's
     distance where it is nearer, and the face is not painted where the buffer is nearer.
     """
+    gain, offset = light
     shader = _MarkerShader(equirect, marker, bits, n_bits_black)
     if shader.edge_on:
         return

@@ -397,7 +397,7 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
             # sheared; they are distractors, the markers get every row's pose)
             face = _placed_per_row(camera_T_rows[_centre_row(eq, camera_T_rows, centre):][:1], centre, R, k, side,
                                    False)
-            render._splat_marker(canvas, eq, face, tex, tex.shape[0], 2, depth=depth, gain=g)
+            render._splat_marker(canvas, eq, face, tex, tex.shape[0], 2, depth=depth, light=(g, 0.0))
     n_black = render._marker_bit_count(c.dictionary)
     for m in scenario.markers:
         face = _placed_per_row(camera_T_rows, np.asarray(m.position, dtype=float), scenario.map_R_marker(m.id),
@@ -408,7 +408,7 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
             light = hall.marker_light[int(m.id)](tr)
             gain, offset = light * (_PAPER - _INK) / 255.0, light * _INK
         render._splat_marker(canvas, eq, face, render._marker_bits(c.dictionary, m.id), n_black, p.supersample,
-                             depth=depth, gain=gain, offset=offset)
+                             depth=depth, light=(gain, offset))
     impostor = scenario.impostor(t)
     if impostor is not None:
         render._splat_marker(canvas, eq, impostor, render._marker_bits(c.dictionary, impostor.id), n_black,

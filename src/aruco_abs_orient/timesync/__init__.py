@@ -20,19 +20,21 @@ The package, one module per stage (each says what goes in and what comes out):
 - :mod:`.estimate`: :class:`OffsetEstimate` (what every estimator returns) and :class:`TimeSyncError`;
 - :mod:`.heading`: the prism track's direction of travel (:func:`heading_from_track`);
 - :mod:`.coherence`: the phase-coherence estimate (:func:`estimate_offset`,
-  :func:`estimate_offset_from_marker_yaws`);
+  :func:`estimate_offset_from_marker_yaws`) and its knobs :class:`TimeSyncParams`;
 - :mod:`.baseline`: the paper's cross-correlation (:func:`cross_correlation_offset`);
 - :mod:`.online`: the live node's incremental estimator (:class:`OnlineOffsetEstimator`).
 """
 
 from .baseline import cross_correlation_offset
-from .coherence import estimate_offset, estimate_offset_from_marker_yaws
+from .coherence import TimeSyncParams, YawSeries, estimate_offset, estimate_offset_from_marker_yaws
 from .estimate import OffsetEstimate, TimeSyncError
 from .heading import TrackHeading, heading_from_track
 from .online import OnlineOffsetEstimator
 
 __all__ = [
     "TimeSyncError",
+    "TimeSyncParams",
+    "YawSeries",
     "TrackHeading",
     "OffsetEstimate",
     "heading_from_track",

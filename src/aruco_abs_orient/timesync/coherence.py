@@ -2,7 +2,8 @@
 
 In: VO yaws (camera clock) and/or absolute marker yaws, and prism fixes (total-station clock).
 Out: an :class:`~.estimate.OffsetEstimate` (:func:`estimate_offset`,
-:func:`estimate_offset_from_marker_yaws`) or :class:`~.estimate.TimeSyncError` saying why not.
+:func:`estimate_offset_from_marker_yaws`) or :class:`~.estimate.TimeSyncError` saying why not. The knobs
+are :class:`TimeSyncParams` (cfg/params.yaml's ``timesync`` section).
 
 Method: the prism track gives the direction of travel (the heading of the velocity vector, from a
 zero-lag local quadratic fit of the prism positions), the VO gives a yaw with an unknown constant
@@ -12,9 +13,9 @@ phase coherence
 
     C(τ) = Σ_windows |Σ_k w_k exp(i(ψ_vo(t_k) − ψ_track(t_k − τ) − d_j (t_k − t̄_j)))| / Σ_k w_k
 
-where each window j (default: 60 s) gets its own constant phase (the unknown yaw offset, taken
+where each window j (``window``, default 60 s) gets its own constant phase (the unknown yaw offset, taken
 care of by the modulus) and its own linear drift ``d_j`` (rad/s, fitted, bounded by
-``max_drift``). The weights are the VO weights times the squared platform speed (zero below
+``max_drift_deg_per_min``). The weights are the VO weights times the squared platform speed (zero below
 ``min_speed``), so standstill and crawling, where the track heading is noise, do not count. A
 coarse grid over the search interval finds the peak, a golden-section search refines it to well
 under a frame; the track heading is interpolated continuously on the unit circle (through the
@@ -32,13 +33,61 @@ from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from ..paramcheck import Validated, check_non_negative
 from ..tum import sorted_series
 from .estimate import OffsetEstimate, TimeSyncError, _check_search
 from .heading import _HeadingGrid
 
-__all__ = ["estimate_offset", "estimate_offset_from_marker_yaws"]
+__all__ = ["TimeSyncParams", "YawSeries", "estimate_offset", "estimate_offset_from_marker_yaws"]
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+@dataclass
+class TimeSyncParams(Validated):
+    """The knobs of the phase-coherence time-offset estimate (``aruco-abs-orient timesync``, the node's
+    ``~estimate_time_offset``); cfg/params.yaml's ``timesync`` section.
+
+    - ``smooth``: σ (s) of the local-quadratic fit that gives the prism track's direction of travel.
+    - ``min_speed``: below this platform speed (m/s) the track heading is not used.
+    - ``window``: each window (s) of the camera's yaws gets its own yaw offset and VO drift (0: one window).
+    - ``max_drift_deg_per_min``: largest VO yaw drift fitted in a window (degrees per minute).
+    - ``step``: grid of candidate offsets (s), refined by golden section around the best.
+    - ``min_duration``: moving overlap (s) needed at the best offset, else no estimate.
+    - ``min_turn_rate_deg``: RMS variation of the turn rate (degrees/s) needed, else no estimate (driving
+      straight or turning at a constant rate makes a time offset look like a yaw offset).
+    - ``sigma_ref``: σ (s) at which the confidence's sharpness factor 1/(1 + (σ/sigma_ref)²) is ½.
+    """
+
+    smooth: float = 0.5
+    min_speed: float = 0.05
+    window: float = 60.0
+    max_drift_deg_per_min: float = 20.0
+    step: float = 0.02
+    min_duration: float = 10.0
+    min_turn_rate_deg: float = 2.0
+    sigma_ref: float = 0.01
+
+    def validate(self) -> None:
+        """Raise TimeSyncError naming the first out-of-range field."""
+        check_non_negative(self, TimeSyncError)
+        for name in ("smooth", "step", "sigma_ref"):
+            if getattr(self, name) <= 0:
+                raise TimeSyncError(f"TimeSyncParams.{name}: expected a positive number, got {getattr(self, name)!r}")
+
+    @property
+    def max_drift(self) -> float:
+        """``max_drift_deg_per_min`` in rad/s."""
+        return math.radians(self.max_drift_deg_per_min) / 60.0
+
+
+class YawSeries(NamedTuple):
+    """Yaws ``yaw`` (rad) of base_link stamped ``t`` (s, camera clock); ``ids`` (optional) the marker that gave
+    each (marker yaws: one constant phase per marker, which absorbs a per-marker bias)."""
+
+    t: np.ndarray
+    yaw: np.ndarray
+    ids: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -218,8 +267,9 @@ def _peak_stats(channels: List[_Channel], grid: _HeadingGrid, tau: float, max_dr
     return _PeakStats(used_time, n_used, rms_rate, sigma, yaw_offset, drift)
 
 
-def _estimate(channels: List[_Channel], grid: _HeadingGrid, search, step: float, max_drift: float,
-              min_duration: float, min_turn_rate: float, sigma_ref: float, corr_time: float) -> OffsetEstimate:
+def _estimate(channels: List[_Channel], grid: _HeadingGrid, search, params: TimeSyncParams) -> OffsetEstimate:
+    step, max_drift, min_duration = params.step, params.max_drift, params.min_duration
+    min_turn_rate, sigma_ref, corr_time = math.radians(params.min_turn_rate_deg), params.sigma_ref, 4.0 * params.smooth
     lo, hi = _check_search(search)
     if grid.max_speed < grid.min_speed:
         raise TimeSyncError(
@@ -266,21 +316,18 @@ def _estimate(channels: List[_Channel], grid: _HeadingGrid, search, step: float,
 
 
 def estimate_offset(t_vo, yaw_vo, t_track, xy_track, weights=None, search=(-1.0, 1.0), *,
-                    smooth: float = 0.5, min_speed: float = 0.05, window: Optional[float] = 60.0,
-                    max_drift: float = math.radians(20.0) / 60.0, step: float = 0.02,
-                    min_duration: float = 10.0, min_turn_rate: float = math.radians(2.0),
-                    sigma_ref: float = 0.01, prism_in_base=None) -> OffsetEstimate:
+                    params: Optional[TimeSyncParams] = None, prism_in_base=None) -> OffsetEstimate:
     """Time offset τ (s) with camera/VO stamp = total-station time + τ, by phase coherence.
 
     ``t_vo`` (N,) s and ``yaw_vo`` (N,) rad: VO yaw of base_link on the camera clock (any constant
     offset, slow drift allowed); ``t_track`` (M,) s and ``xy_track`` (M, 2|3) m: prism fixes on the
     total-station clock; ``weights`` (N,) optional VO sample weights (≥ 0). ``search`` (s): the
-    interval of τ searched on a grid of ``step`` s then refined by golden section. ``smooth`` (s):
-    σ of the track's local-quadratic fit; ``min_speed`` (m/s): below it the track heading is not
-    used; ``window`` (s): each window has its own yaw offset and drift (≤ ``max_drift`` rad/s;
-    None: one window). Raises TimeSyncError when the offset is not observable: fewer than
-    ``min_duration`` s of moving overlap, a platform that never moves, a heading whose turn rate
-    varies by less than ``min_turn_rate`` rad/s RMS, or a peak at the search edge.
+    interval of τ searched on a grid of ``params.step`` s then refined by golden section. ``params``
+    (:class:`TimeSyncParams`, default its defaults): the track's smoothing and speed threshold, the
+    windows with their own yaw offset and drift, and the limits below. Raises TimeSyncError when the
+    offset is not observable: fewer than ``min_duration`` s of moving overlap, a platform that never
+    moves, a heading whose turn rate varies by less than ``min_turn_rate_deg`` RMS, or a peak at the
+    search edge.
 
     ``prism_in_base`` (x, y[, z]) m: the prism's lever arm in base_link; the track heading is turned
     from the prism's direction of travel to base_link's (a platform driving along its x axis).
@@ -288,44 +335,43 @@ def estimate_offset(t_vo, yaw_vo, t_track, xy_track, weights=None, search=(-1.0,
     ``confidence`` = peak coherence × uniqueness (1 when every rival peak is ≥ 10 % lower)
     × 1/(1 + (σ/``sigma_ref``)²).
     """
-    grid = _HeadingGrid(t_track, xy_track, smooth, min_speed, prism_in_base=prism_in_base)
-    ch = _make_channel(t_vo, yaw_vo, weights, "VO yaw", window, drift=True)
+    params = params or TimeSyncParams()
+    grid = _HeadingGrid(t_track, xy_track, params.smooth, params.min_speed, prism_in_base=prism_in_base)
+    ch = _make_channel(t_vo, yaw_vo, weights, "VO yaw", params.window, drift=True)
     if len(ch.t) < 3:
         raise TimeSyncError(f"too short: only {len(ch.t)} VO samples")
-    return _estimate([ch], grid, search, step, max_drift, min_duration, min_turn_rate, sigma_ref, 4.0 * smooth)
+    return _estimate([ch], grid, search, params)
 
 
-def estimate_offset_from_marker_yaws(t_marker, yaw_marker, t_track, xy_track, marker_ids=None,
-                                     t_vo=None, yaw_vo=None, search=(-1.0, 1.0), *, smooth: float = 0.5,
-                                     min_speed: float = 0.05, window: Optional[float] = 60.0,
-                                     max_drift: float = math.radians(20.0) / 60.0, step: float = 0.02,
-                                     min_duration: float = 10.0, min_turn_rate: float = math.radians(2.0),
-                                     sigma_ref: float = 0.01, prism_in_base=None) -> OffsetEstimate:
+def estimate_offset_from_marker_yaws(markers: YawSeries, t_track, xy_track, vo: Optional[YawSeries] = None,
+                                     search=(-1.0, 1.0), *, params: Optional[TimeSyncParams] = None,
+                                     prism_in_base=None) -> OffsetEstimate:
     """Time offset τ (s, camera stamp = total-station time + τ) from absolute marker yaws.
 
-    ``t_marker`` (K,) s on the camera clock and ``yaw_marker`` (K,) rad: per-frame absolute yaws of
-    base_link derived from markers (no drift: each marker, if ``marker_ids`` is given, or all of
-    them together get one constant phase, which absorbs a per-marker bias); optionally the VO yaw
-    (``t_vo``, ``yaw_vo``) as a second channel with its own offset and drift. The other parameters
-    and the errors are those of ``estimate_offset``.
+    ``markers``: per-frame absolute yaws of base_link derived from markers (:class:`YawSeries` on the camera
+    clock; no drift: each marker, if ``markers.ids`` is given, or all of them together get one constant
+    phase, which absorbs a per-marker bias); optionally the VO yaw ``vo`` as a second channel with its own
+    offset and drift. The other parameters and the errors are those of ``estimate_offset``.
     """
-    grid = _HeadingGrid(t_track, xy_track, smooth, min_speed, prism_in_base=prism_in_base)
-    t_m, yaw_m = np.asarray(t_marker, dtype=float).ravel(), np.asarray(yaw_marker, dtype=float).ravel()
+    params = params or TimeSyncParams()
+    window = params.window
+    grid = _HeadingGrid(t_track, xy_track, params.smooth, params.min_speed, prism_in_base=prism_in_base)
+    t_m, yaw_m = np.asarray(markers.t, dtype=float).ravel(), np.asarray(markers.yaw, dtype=float).ravel()
     if len(t_m) != len(yaw_m):
         raise TimeSyncError(f"marker yaws: {len(t_m)} stamps but {len(yaw_m)} yaws")
     if len(t_m) < 3:
         raise TimeSyncError(f"too short: only {len(t_m)} marker yaws (no markers seen?)")
     channels = []
-    if marker_ids is None:
+    if markers.ids is None:
         channels.append(_make_channel(t_m, yaw_m, None, "marker yaws", window, drift=False))
     else:
-        ids = np.asarray(marker_ids).ravel()
+        ids = np.asarray(markers.ids).ravel()
         if len(ids) != len(t_m):
             raise TimeSyncError(f"marker yaws: {len(t_m)} stamps but {len(ids)} marker ids")
         for mid in np.unique(ids):
             sel = ids == mid
             if np.sum(sel) >= 3:
                 channels.append(_make_channel(t_m[sel], yaw_m[sel], None, f"marker {mid} yaws", window, drift=False))
-    if t_vo is not None and yaw_vo is not None:
-        channels.append(_make_channel(t_vo, yaw_vo, None, "VO yaw", window, drift=True))
-    return _estimate(channels, grid, search, step, max_drift, min_duration, min_turn_rate, sigma_ref, 4.0 * smooth)
+    if vo is not None:
+        channels.append(_make_channel(vo.t, vo.yaw, None, "VO yaw", window, drift=True))
+    return _estimate(channels, grid, search, params)

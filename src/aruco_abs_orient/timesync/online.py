@@ -14,7 +14,7 @@ from typing import Deque, Optional, Tuple
 
 import numpy as np
 
-from .coherence import estimate_offset, estimate_offset_from_marker_yaws
+from .coherence import YawSeries, estimate_offset, estimate_offset_from_marker_yaws
 from .estimate import OffsetEstimate, TimeSyncError, _check_search
 
 __all__ = ["OnlineOffsetEstimator"]
@@ -33,7 +33,8 @@ class OnlineOffsetEstimator:
     Confident estimates are fused (a scalar Kalman filter, ``applied_sigma`` its σ in s): the first
     counts fully; each later one shares all but ``update_period`` s of its data with the previous,
     so it enters with its variance × ``horizon / update_period``; the offset may wander as a random
-    walk of ``offset_walk`` s/√s (clock drift).
+    walk of ``offset_walk`` s/√s (clock drift). ``**kwargs`` go to :func:`.coherence.estimate_offset`:
+    ``params`` (:class:`~.coherence.TimeSyncParams`) and ``prism_in_base``.
 
     Thread-safe: the ``add_*`` calls may come from one thread while ``update_in_background`` runs the
     estimate (0.1–0.5 s of numpy) in another, so a live node's image loop never waits for it.
@@ -146,8 +147,8 @@ class OnlineOffsetEstimator:
         try:
             if len(mk) >= 3:
                 est = estimate_offset_from_marker_yaws(
-                    mk[:, 0], mk[:, 1], track[:, 0], track[:, 1:], t_vo=vo[:, 0] if len(vo) else None,
-                    yaw_vo=vo[:, 1] if len(vo) else None, search=self.search, **self.kwargs)
+                    YawSeries(mk[:, 0], mk[:, 1]), track[:, 0], track[:, 1:],
+                    YawSeries(vo[:, 0], vo[:, 1]) if len(vo) else None, search=self.search, **self.kwargs)
             else:
                 est = estimate_offset(vo[:, 0], vo[:, 1], track[:, 0], track[:, 1:], search=self.search,
                                       **self.kwargs)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from aruco_abs_orient.calibration import calibrate
+from aruco_abs_orient.calibration import Recording, calibrate
 from aruco_abs_orient.markers import Marker, MarkerMap
 from aruco_abs_orient.transforms import make_T, rot_z, rpy_to_matrix
 from aruco_abs_orient.tum import Trajectory
@@ -94,6 +94,6 @@ def simulate(boresight_rpy=(0.0, 0.0, 0.0), lever_delta=(0.0, 0.0, 0.0), duratio
     return (np.array(times), np.array(ids), bearings, np.array(sigmas), odom, tp, np.array(pp), mmap)
 
 
-def run(rec, **kw):
-    t, ids, b, s, odom, tp, pp, mmap = rec
-    return calibrate(t, ids, b, s, odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM, **kw)
+def run(rec, unknowns=None, params=None):
+    """calibrate() of a simulated recording (NOMINAL_CAMERA, PRISM)."""
+    return calibrate(Recording(*rec, NOMINAL_CAMERA, PRISM), unknowns, params)

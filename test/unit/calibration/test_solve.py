@@ -16,8 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, calibrate
-from aruco_abs_orient.solver import yaw_from_marker
+from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
+from aruco_abs_orient.solver import Mounting, yaw_from_marker
 from aruco_abs_orient.transforms import matrix_to_rpy, wrap_angle
 from aruco_abs_orient.tum import Trajectory
 
@@ -60,7 +60,7 @@ def test_half_degree_boresight_recovered_to_the_no_error_level():
        st.lists(st.floats(-0.03, 0.03), min_size=3, max_size=3), st.integers(0, 1000))
 def test_random_boresight_and_lever_arm(rpy_deg, lever, seed):
     truth = np.radians(rpy_deg)
-    cal = run(simulate(truth, lever, duration=50.0, fps=3.0, seed=seed), estimate_lever_arm=True)
+    cal = run(simulate(truth, lever, duration=50.0, fps=3.0, seed=seed), Unknowns(lever_arm=True))
     assert np.all(np.degrees(np.abs(cal.boresight_rpy - truth)) < 0.04), (np.degrees(cal.boresight_rpy), rpy_deg)
     assert np.all(np.abs(cal.lever_arm_delta - np.array(lever)) < 0.005), (cal.lever_arm_delta, lever)
     assert np.all(np.abs(cal.lever_arm_delta - np.array(lever)) < 5 * cal.lever_arm_sigma)
@@ -91,7 +91,7 @@ def test_yaw_from_marker_bias_removed_after_applying():
         yaw_true = float(matrix_to_rpy(T[:3, :3])[2]) + 0.4 + math.radians(0.05) * t[k] + \
             math.radians(0.5) * math.sin(t[k] / 17.0)
         for Tc, out in ((NOMINAL_CAMERA, err_before), (calibrated, err_after)):
-            est = yaw_from_marker(b[k], mmap[int(ids[k])].position, P, float(roll), float(pitch), Tc, PRISM[:3, 3])
+            est = yaw_from_marker(b[k], mmap[int(ids[k])].position, P, (roll, pitch), Mounting(Tc, PRISM[:3, 3]))
             out.append(float(wrap_angle(est.yaw - yaw_true)))
     assert abs(math.degrees(np.mean(err_before))) > 0.3
     assert abs(math.degrees(np.mean(err_after))) < 0.02
@@ -106,12 +106,12 @@ def test_standstill_is_refused():
 def test_too_few_markers_is_refused():
     t, ids, b, s, odom, tp, pp, mmap = simulate(duration=30.0)
     with pytest.raises(CalibrationError, match="usable marker observations"):
-        calibrate(t[:5], ids[:5], b[:5], s[:5], odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM)
+        run((t[:5], ids[:5], b[:5], s[:5], odom, tp, pp, mmap))
     with pytest.raises(CalibrationError, match="no marker observations"):
-        calibrate(t[:0], ids[:0], b[:0], s[:0], odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM)
+        run((t[:0], ids[:0], b[:0], s[:0], odom, tp, pp, mmap))
     one = ids == ids[0]
     with pytest.raises(CalibrationError, match="1 distinct markers"):
-        calibrate(t[one], ids[one], b[one], s[one], odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM)
+        run((t[one], ids[one], b[one], s[one], odom, tp, pp, mmap))
 
 
 def test_unknown_ids_and_missing_prism_are_counted():
@@ -119,7 +119,7 @@ def test_unknown_ids_and_missing_prism_are_counted():
     ids = ids.copy()
     ids[:10] = 99
     keep = (tp < 20.0) | (tp > 22.0)           # a 2 s prism dropout
-    cal = calibrate(t, ids, b, s, odom, tp[keep], pp[keep], mmap, NOMINAL_CAMERA, PRISM)
+    cal = run((t, ids, b, s, odom, tp[keep], pp[keep], mmap))
     assert cal.skipped["id not in the marker map"] == 10
     # the fixes around the gap are 19.95 s and 22.05 s apart: every frame between them has no prism
     assert cal.skipped["no prism position at the time"] == int(np.sum((t > 19.95) & (t < 22.05)))
@@ -128,10 +128,9 @@ def test_unknown_ids_and_missing_prism_are_counted():
 def test_malformed_inputs():
     t, ids, b, s, odom, tp, pp, mmap = simulate(duration=20.0)
     with pytest.raises(CalibrationError, match="bearings"):
-        calibrate(t, ids, b[:, :2], s, odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM)
+        run((t, ids, b[:, :2], s, odom, tp, pp, mmap))
     with pytest.raises(CalibrationError, match="knot_spacing"):
-        calibrate(t, ids, b, s, odom, tp, pp, mmap, NOMINAL_CAMERA, PRISM,
-                  params=CalibrationParams(knot_spacing=0.0))
+        run((t, ids, b, s, odom, tp, pp, mmap), params=CalibrationParams(knot_spacing=0.0))
 
 
 @pytest.mark.parametrize("readout, seed", [(0.0, 0), (0.015, 1), (0.030, 2)])
@@ -151,10 +150,10 @@ def test_readout_recovered_from_feed_observations(readout, seed):
     frames = sc.frame_times
     ob = marker_observations(sc, frames, noise=SIGMA_BEARING, rng=np.random.default_rng(seed), readout=readout)
     grid = np.arange(frames[0], frames[-1], 1 / 30)
-    cal = calibrate(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), SIGMA_BEARING),
+    rec = Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), SIGMA_BEARING),
                     Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off,
-                    sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism,
-                    estimate_time_offset=True, obs_rows=ob.rows, estimate_readout=True)
+                    sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows)
+    cal = calibrate(rec, Unknowns(time_offset=True, readout=True))
     miss = cal.readout - readout
     assert abs(miss) < 0.002 and abs(miss) < 3 * cal.readout_sigma, (miss, cal.readout_sigma)
     assert "readout_ms" in cal.report_dict()
@@ -177,9 +176,9 @@ def test_synthetic_scenario_geometry(seed):
     k, ids, b = sc.marker_bearings(frames, noise=SIGMA_BEARING, rng=np.random.default_rng(seed))
     grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
     odom = Trajectory.from_transforms(grid + offset, sc.odom_T_base(grid))
-    cal = calibrate(frames[k] + offset, ids, b, np.full(len(k), SIGMA_BEARING), odom,
-                    sc.prism.stamps + offset, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
-                    sc.base_T_prism)
+    cal = calibrate(Recording(frames[k] + offset, ids, b, np.full(len(k), SIGMA_BEARING), odom,
+                              sc.prism.stamps + offset, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
+                              sc.base_T_prism))
     truth = np.array(matrix_to_rpy(sc.base_T_camera_true[:3, :3]))
     err = np.degrees(np.abs(cal.boresight_rpy - truth))
     assert np.all(err < 0.03), err
@@ -194,7 +193,7 @@ def test_time_offset_estimated_beside_the_boresight(error, seed):
     back within 2 ms (and within 4 σ), and the boresight is not disturbed by it."""
     truth = np.radians([0.3, -0.2, 0.5])
     t, ids, b, s, odom, tp, pp, mmap = simulate(truth, duration=40.0, fps=3.0, seed=seed)
-    cal = run((t, ids, b, s, odom, tp + error, pp, mmap), estimate_time_offset=True)
+    cal = run((t, ids, b, s, odom, tp + error, pp, mmap), Unknowns(time_offset=True))
     assert cal.time_offset_estimated
     miss = cal.time_offset_delta + error  # the prism clock was late by `error`: Δτ = −error
     assert abs(miss) < 2e-3 and abs(miss) < 4 * cal.time_offset_sigma + 5e-4, (miss, cal.time_offset_sigma)
@@ -220,9 +219,9 @@ def test_time_offset_of_generator_scenarios_within_5ms(offset):
                              prism_in_base=sc.base_T_prism[:3, 3]).offset
     assert abs(coarse - offset) < 0.1
     k, ids, b = sc.marker_bearings(sc.frame_times[::3], noise=SIGMA_BEARING, rng=np.random.default_rng(1))
-    cal = calibrate(stamps[::3][k], ids, b, np.full(len(k), SIGMA_BEARING), Trajectory.from_transforms(stamps, odom_T),
-                    sc.prism.stamps + coarse, sc.prism.positions, sc.markers, sc.base_T_camera_nominal,
-                    sc.base_T_prism, estimate_time_offset=True)
+    cal = calibrate(Recording(stamps[::3][k], ids, b, np.full(len(k), SIGMA_BEARING),
+                              Trajectory.from_transforms(stamps, odom_T), sc.prism.stamps + coarse, sc.prism.positions,
+                              sc.markers, sc.base_T_camera_nominal, sc.base_T_prism), Unknowns(time_offset=True))
     assert abs(coarse + cal.time_offset_delta - offset) < 0.005, (coarse - offset, cal.time_offset_delta)
 
 
@@ -245,10 +244,10 @@ def test_vo_tilt_drift_of_the_realistic_world_does_not_bias_the_calibration():
     noise = math.radians(0.02)  # what the rendered realistic demo's residuals show (0.029° RMS angle)
     ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(5), readout=readout)
     grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
-    cal = calibrate(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise),
+    rec = Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise),
                     Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off + 0.02,
-                    sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism,
-                    estimate_time_offset=True, obs_rows=ob.rows, estimate_readout=True)
+                    sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows)
+    cal = calibrate(rec, Unknowns(time_offset=True, readout=True))
     err = np.array(cal.boresight_rpy) - np.array(matrix_to_rpy(sc.base_T_camera_true[:3, :3]))
     assert np.all(np.abs(np.degrees(err)) < 0.03), np.degrees(err)
     assert np.all(np.abs(err) < 3 * cal.boresight_sigma), (np.degrees(err), np.degrees(cal.boresight_sigma))

@@ -21,8 +21,8 @@ def test_unknown_dictionary_and_bad_params():
         MarkerDetector("DICT_9X9_1")
     with pytest.raises(DetectionError, match="corner_refinement"):
         DetectorParams(corner_refinement="magic")
-    with pytest.raises(DetectionError, match="gate_deg"):
-        DetectorParams(gate_deg=-1.0)
+    with pytest.raises(DetectionError, match="seam_strip_deg"):
+        DetectorParams(seam_strip_deg=-1.0)
 
 
 # --------------------------------------------------------------------------- OpenCV APIs

@@ -121,7 +121,7 @@ def test_cli_bad_input_is_one_line(rendered, tmp_path, capsys):
 def test_process_takes_the_readout_from_the_calibration_file(rendered, calibrated, tmp_path):
     """The calibration file's camera_readout_ms reaches process's pipeline (summary.json says which), and
     a file without one means a global shutter."""
-    from aruco_abs_orient.offline.process import process_bag
+    from aruco_abs_orient.offline.process import RunSetup, process_bag
 
     out, hidden = rendered
     yaml_path = calibrated[0]
@@ -133,8 +133,8 @@ def test_process_takes_the_readout_from_the_calibration_file(rendered, calibrate
         path = tmp_path / f"cal_{readout_ms}.yaml"
         path.write_text(yaml.safe_dump(data))
         res_dir = tmp_path / f"out_{readout_ms}"
-        process_bag(str(out / "scenario.bag"), markers, str(res_dir), time_offset=hidden["camera_time_offset"],
-                    calibration=load_calibration(str(path)), progress=False)
+        process_bag(str(out / "scenario.bag"), markers, str(res_dir),
+                    RunSetup(hidden["camera_time_offset"], calibration=load_calibration(str(path)), progress=False))
         summary = json.loads((res_dir / "summary.json").read_text())
         assert summary["readout_ms"] == pytest.approx(readout_ms or 0.0)
 

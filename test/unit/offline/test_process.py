@@ -20,7 +20,7 @@ from aruco_abs_orient.offline.bagio import BagError, BagTopics, read_bag_data
 from aruco_abs_orient.offline.cli import build_parser
 from aruco_abs_orient.offline.cli import main as cli_main
 from aruco_abs_orient.offline.evaluate import read_observations
-from aruco_abs_orient.offline.process import process_bag
+from aruco_abs_orient.offline.process import RunSetup, process_bag
 from aruco_abs_orient.transforms import wrap_angle, yaw_of
 from aruco_abs_orient.tum import read_tum
 
@@ -35,7 +35,7 @@ def ci_run(scenario_factory, tmp_path_factory):
     scen = scenario_factory("ci")
     out = tmp_path_factory.mktemp("ci_run")
     res = process_bag(scen.bag, MarkerMap.load(scen.markers), str(out),
-                      time_offset=_hidden(scen)["camera_time_offset"], progress=False)
+                      RunSetup(_hidden(scen)["camera_time_offset"], progress=False))
     return scen, res
 
 
@@ -90,7 +90,7 @@ def test_outputs_are_complete_and_described(ci_run):
 def test_wrong_time_offset_is_worse(ci_run, scenario_factory, tmp_path):
     """The time offset matters: ignoring the camera's 0.367 s lag costs accuracy while turning."""
     scen, res = ci_run
-    bad = process_bag(scen.bag, MarkerMap.load(scen.markers), str(tmp_path), time_offset=0.0, progress=False)
+    bad = process_bag(scen.bag, MarkerMap.load(scen.markers), str(tmp_path), RunSetup(0.0, progress=False))
     _, _, ape_good = _heading_errors(os.path.dirname(res.trajectory_path), scen.truth)
     # the pose stamps are wrong by the offset too: compare at the right (true) times
     est = read_tum(bad.trajectory_path)
@@ -231,7 +231,7 @@ def test_corrupt_images_and_nan_tf_are_counted_and_skipped(tiny, tmp_path):
     _rewrite_bag(tiny.bag, dst, edit)
     hidden = _hidden(tiny)
     res = process_bag(dst, MarkerMap.load(tiny.markers), str(tmp_path / "out"),
-                      time_offset=hidden["camera_time_offset"], progress=False)
+                      RunSetup(hidden["camera_time_offset"], progress=False))
     skipped = res.summary["skipped"]
     assert skipped.get("corrupt image") == (counter["img"] + 5) // 10
     assert skipped.get("NaN/inf transform odom->base_link") == (counter["tf"] + 3) // 10
@@ -307,7 +307,7 @@ def test_false_marker_id_in_5_percent_of_frames(ci_run, scenario_factory, tmp_pa
     n_impostor = sum(truth.has_impostor(t) for t in truth.frame_times)
     assert 0.02 * len(truth.frame_times) <= n_impostor <= 0.09 * len(truth.frame_times)
     out = process_bag(dirty.bag, MarkerMap.load(dirty.markers), str(tmp_path),
-                      time_offset=_hidden(dirty)["camera_time_offset"], progress=False)
+                      RunSetup(_hidden(dirty)["camera_time_offset"], progress=False))
     _, _, clean = _heading_errors(os.path.dirname(res.trajectory_path), scen.truth)
     _, _, noisy = _heading_errors(os.path.dirname(out.trajectory_path), dirty.truth)
     assert noisy.stats.rmse <= 1.1 * clean.stats.rmse, (noisy.stats, clean.stats)

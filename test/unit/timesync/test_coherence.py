@@ -11,7 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aruco_abs_orient.timesync import TimeSyncError, estimate_offset, estimate_offset_from_marker_yaws
+from aruco_abs_orient.timesync import (
+    TimeSyncError,
+    TimeSyncParams,
+    YawSeries,
+    estimate_offset,
+    estimate_offset_from_marker_yaws,
+)
 
 from .signals import FPS, YAW_OFFSET, A, B, scenario, true_heading
 
@@ -57,13 +63,13 @@ def test_marker_yaws_alone_and_with_vo():
     ids = np.where(np.cos(0.1 * t_true) > 0, 3, 7)[seen]
     bias = np.where(ids == 3, math.radians(1.0), math.radians(-0.6))
     yaw_m = true_heading(t_true[seen]) + bias + rng.normal(0.0, math.radians(0.3), int(seen.sum()))
-    alone = estimate_offset_from_marker_yaws(t_vo[seen], yaw_m, tp, xy, marker_ids=ids)
+    alone = estimate_offset_from_marker_yaws(YawSeries(t_vo[seen], yaw_m, ids), tp, xy)
     assert alone.sigma < 0.01 and abs(alone.offset - tau) <= 3 * alone.sigma  # half the data: honest σ
-    both = estimate_offset_from_marker_yaws(t_vo[seen], yaw_m, tp, xy, marker_ids=ids, t_vo=t_vo, yaw_vo=yaw_vo)
+    both = estimate_offset_from_marker_yaws(YawSeries(t_vo[seen], yaw_m, ids), tp, xy, YawSeries(t_vo, yaw_vo))
     assert abs(both.offset - tau) <= 0.005
     assert both.n_samples > alone.n_samples
     with pytest.raises(TimeSyncError, match="no markers seen"):
-        estimate_offset_from_marker_yaws([], [], tp, xy)
+        estimate_offset_from_marker_yaws(YawSeries([], []), tp, xy)
 
 
 @pytest.mark.parametrize("case, message", [
@@ -120,3 +126,20 @@ def test_braking_in_a_turn_does_not_bias_the_offset():
     tp = np.arange(-1.0, 41.0, 1.0 / 19.0)
     est = estimate_offset(t_true + tau, yaw, tp, pos(tp))
     assert abs(est.offset - tau) < 0.001
+
+
+def test_the_params_change_what_is_estimated():
+    """TimeSyncParams (cfg/params.yaml's timesync section) reach the estimate: a longer required overlap than
+    the recording refuses it; one window for the whole recording still finds the true offset."""
+    tau = 0.3
+    data = scenario(tau, seed=3)
+    default = estimate_offset(*data)
+    assert default.overlap < 1000.0
+    with pytest.raises(TimeSyncError, match="need at least 1000.0 s"):
+        estimate_offset(*data, params=TimeSyncParams(min_duration=1000.0))
+    with pytest.raises(TimeSyncError, match="does not change enough"):
+        estimate_offset(*data, params=TimeSyncParams(min_turn_rate_deg=1000.0))
+    one_window = estimate_offset(*data, params=TimeSyncParams(window=0.0))
+    assert abs(one_window.offset - tau) < 3 * max(one_window.sigma, 1.0 / FPS / 10)
+    with pytest.raises(TimeSyncError, match=r"TimeSyncParams\.step: expected a positive number"):
+        TimeSyncParams(step=0.0)
