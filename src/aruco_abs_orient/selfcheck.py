@@ -155,12 +155,15 @@ def observation_columns(rows: Sequence[Sequence]) -> Dict[str, np.ndarray]:
 class RunContext(NamedTuple):
     """What :func:`check_run` says about the run besides its data: the pipeline's counters ``stats`` and the
     number of ``frames``; the ``time_offset`` (s) in use; ``commands``: the command lines that fix things
-    ({"timesync": ..., "calibrate": ...}), quoted in the messages."""
+    ({"timesync": ..., "calibrate": ...}), quoted in the messages; ``prism_lever``: the prism in base_link (m;
+    None: at its origin), whose swing in turns (yaw rate × lever arm) is taken out of the track's direction
+    of travel."""
 
     stats: Optional[Mapping[str, int]] = None
     frames: int = 0
     time_offset: float = 0.0
     commands: Optional[Mapping[str, str]] = None
+    prism_lever: Optional[Sequence[float]] = None
 
 
 def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Sequence[float]], poses=((), ()),
@@ -177,7 +180,7 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
     """
     prism_t, prism_xyz = prism
     pose_t, pose_yaw = poses
-    stats, frames, time_offset, commands = run or RunContext()
+    stats, frames, time_offset, commands, prism_lever = run or RunContext()
     commands = dict(commands or {})
     p = params or SelfCheckParams()
     out: Dict[str, object] = {}
@@ -313,6 +316,11 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
         vx = (np.interp(pose_t + h, pt, pp[:, 0]) - np.interp(pose_t - h, pt, pp[:, 0])) / (2 * h)
         vy = (np.interp(pose_t + h, pt, pp[:, 1]) - np.interp(pose_t - h, pt, pp[:, 1])) / (2 * h)
         rate = np.gradient(np.unwrap(pose_yaw), pose_t) if len(pose_t) > 1 else np.zeros(0)
+        if prism_lever is not None:  # base_link origin's velocity: the prism's minus ω ẑ × (Rz(ψ) · lever)
+            lx, ly = float(prism_lever[0]), float(prism_lever[1])
+            c, s = np.cos(pose_yaw), np.sin(pose_yaw)
+            vx = vx + rate * (s * lx + c * ly)
+            vy = vy - rate * (c * lx - s * ly)
         straight = inside & (np.hypot(vx, vy) > p.straight_speed) & (np.abs(rate) < p.straight_turn_rate)
         if straight.sum() >= p.min_samples:
             d = wrap_angle(pose_yaw[straight] - np.arctan2(vy[straight], vx[straight]))
@@ -347,6 +355,7 @@ class RollingSelfCheck:
     time_offset: float = 0.0
     window: float = 120.0
     params: Optional[SelfCheckParams] = None
+    prism_lever: Optional[Sequence[float]] = None    # m, the prism in base_link (check_run's)
     _obs: Deque[tuple] = field(default_factory=collections.deque)
     _prism: Deque[tuple] = field(default_factory=collections.deque)
     _poses: Deque[tuple] = field(default_factory=collections.deque)
@@ -376,8 +385,8 @@ class RollingSelfCheck:
         prism = sorted(self._prism)
         poses = sorted(self._poses)
         return check_run(obs, ([p[0] for p in prism], [p[1] for p in prism]), self.marker_xyz,
-                         ([p[0] for p in poses], [p[1] for p in poses]), RunContext(time_offset=self.time_offset),
-                         self.params)
+                         ([p[0] for p in poses], [p[1] for p in poses]),
+                         RunContext(time_offset=self.time_offset, prism_lever=self.prism_lever), self.params)
 
     def diagnostics(self) -> Tuple[str, str, Dict[str, object]]:
         r = self.check()

@@ -25,7 +25,8 @@ from ..tum import Trajectory
 
 __all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", "Unknowns", "N_GLOBALS"]
 
-#: length of the vector of global unknowns x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ)
+#: length of the vector of named global unknowns x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ); the
+#: odometry's tilt error at the tilt knots follows them in x (``problem.Problem.n_x``)
 N_GLOBALS = 8
 
 
@@ -56,6 +57,11 @@ class CalibrationParams:
       :class:`CalibrationError`.
     - ``max_readout_sigma``: a rolling-shutter readout time (s) with a larger 1-σ is not determined.
     - ``max_iterations``: Gauss-Newton iterations per stage.
+    - ``vo_tilt``: also estimate the odometry's tilt error (a VO drifting in roll/pitch: its odom frame
+      tilts against gravity) as a piecewise-linear rotation about map's x and y axes with knots every
+      ``tilt_knot_spacing`` s, each knot tied to 0 by ``tilt_sigma_deg`` and to its neighbour by
+      ``tilt_drift_sigma_deg`` (1-σ, degrees). Without it a VO tilt drift of 0.5°/min biases the boresight
+      by tenths of a degree and leaves the time offset and readout undetermined (issue 17).
     - ``vo_track_heading``: measure δ(t) by the prism track's direction against the VO's own direction
       of travel (the prism track its positions and attitude predict, smoothed alike) instead of
       against the VO's yaw (base_link x taken as the direction of travel): for weaving or crabbing
@@ -82,6 +88,10 @@ class CalibrationParams:
     max_readout_sigma: float = 0.005
     max_iterations: int = 30
     vo_track_heading: bool = False
+    vo_tilt: bool = True
+    tilt_knot_spacing: float = 10.0
+    tilt_sigma_deg: float = 2.0
+    tilt_drift_sigma_deg: float = 0.3
 
     def validate(self) -> None:
         for name, value in self.__dict__.items():

@@ -93,7 +93,7 @@ def _solve(pb: Problem, sol: _Solution, free: Tuple[int, ...], weights: _Weights
         # Jacobians: globals and δ by central differences (the model is cheap and vectorised)
         Jg = np.empty(r.shape + (n_glob,))
         for j, g in enumerate(free):
-            step = np.zeros(N_GLOBALS)
+            step = np.zeros(len(x))
             step[g] = h
             Jg[:, :, j] = (pb.residuals(x + step, delta) - pb.residuals(x - step, delta)) / (2 * h)
         c = (pb.residuals(x, delta + h) - pb.residuals(x, delta - h)) / (2 * h)   # ∂r/∂δ
@@ -127,6 +127,24 @@ def _solve(pb: Problem, sol: _Solution, free: Tuple[int, ...], weights: _Weights
                 col = np.bincount(ia, wh * pb.rate_head * wa, minlength=K)
                 H[jt, n_glob:] += col
                 H[n_glob:, jt] += col
+        # the odometry's tilt knots (the first one is 0: its tilt drift since the recording's start): each tied
+        # to 0, adjacent ones to each other (random walk, the second knot to the first's 0)
+        tilt = [free.index(g) for g in pb.tilt_indices() if g in free]
+        if tilt:
+            tj = np.array(tilt)
+            w0, w1 = 1.0 / pb.tilt_sigma ** 2, 1.0 / pb.tilt_drift_sigma ** 2
+            H[tj, tj] += w0
+            gvec[tj] += w0 * x[list(pb.tilt_indices())]
+            H[tj[:2], tj[:2]] += w1
+            gvec[tj[:2]] += w1 * x[list(pb.tilt_indices()[:2])]
+            for a_, b_ in zip(tj[:-2], tj[2:]):   # same axis, next knot
+                diff = x[free[b_]] - x[free[a_]]
+                H[a_, a_] += w1
+                H[b_, b_] += w1
+                H[a_, b_] -= w1
+                H[b_, a_] -= w1
+                gvec[a_] -= w1 * diff
+                gvec[b_] += w1 * diff
         # random-walk prior between adjacent knots
         wp = 1.0 / pb.drift_sigma ** 2
         dd = np.diff(d)
@@ -300,12 +318,12 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
     yh, sh = pb.yaw_head, pb.sigma_head
     sub = np.linspace(0, len(yh) - 1, min(len(yh), 2000)).astype(int)
     d0 = yaw_consensus(yh[sub], sh[sub], floor=math.radians(2.0))[0]
-    start = _Solution(np.zeros(N_GLOBALS), np.full(len(pb.knots), d0))
+    start = _Solution(np.zeros(pb.n_x), np.full(len(pb.knots), d0))
     # before: the nominal transform, δ(t) fitted
     before = _fit(pb, start, (), params).sol
     pb.refine_heading(before.d)
     free = unknowns.free()
-    fit = _fit(pb, before, free, params)
+    fit = _fit(pb, before, free + pb.tilt_indices(), params)
     sol = fit.sol
 
     cov = fit.Hinv[:len(free), :len(free)]

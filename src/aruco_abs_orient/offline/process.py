@@ -134,7 +134,7 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
                        (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"],
-                                                  summary["time_offset_s"], commands))
+                                                  summary["time_offset_s"], commands, data.base_T_prism[:3, 3]))
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
@@ -214,7 +214,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     if calibration is not None:
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
         readout = float(calibration.get("readout", 0.0))
-    pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout, **tunables.pipeline_kwargs())
+    pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout,
+                             calibrated=calibration is not None, **tunables.pipeline_kwargs())
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
     next_imu = 0
 

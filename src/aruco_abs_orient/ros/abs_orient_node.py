@@ -482,7 +482,9 @@ class AbsOrientNode:
             self.rospy.logwarn(f"abs_orient: {text} ({n} so far)")
 
     def _new_selfcheck(self) -> RollingSelfCheck:
-        return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset)
+        lever = None if self.pipeline is None else self.pipeline.base_T_prism[:3, 3]
+        return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset,
+                                prism_lever=lever)
 
     def _feed_selfcheck(self, result: FrameResult, odom_T_base: np.ndarray) -> None:
         """The frame's marker yaws and pose for the rolling self-checks (time offset, tilt, moved marker)."""
@@ -546,7 +548,8 @@ class AbsOrientNode:
             if c.markers_only:
                 kwargs["params"] = replace(kwargs["params"], markers_only=True)
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
-                                              readout=readout, **kwargs)
+                                              readout=readout, calibrated=calibrated is not None, **kwargs)
+            self.selfcheck.prism_lever = arms[c.prism_frame][:3, 3]
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3],
                                                               params=c.tunables().timesync)
