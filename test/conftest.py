@@ -67,11 +67,11 @@ def generated_cfg(tmp_path_factory):
 
 # --------------------------------------------------------------------------- two workers (tools/test.sh: -n 2)
 ROOT = Path(__file__).resolve().parents[1]
-#: groups handed out first, one worker each: the Python 3.8 run of the core unit tests (test_noetic.py; mostly
-#: it waits on simulated instruments and clocks) and, if they are in the run (make test runs them alone
-#: first), the rostests, one after another. The unit tests, one test file per group (its module fixtures are
-#: computed once), fill the workers as they free up.
-FIRST_GROUPS = ("noetic", "rostests")
+#: groups handed out first, one worker each: the rostests, one after another, and the Python 3.8 run of the
+#: core unit tests (test_noetic.py; mostly it waits on simulated instruments and clocks). The unit tests, one
+#: test file per group (its module fixtures are computed once), fill the workers as they free up
+#: (tools/test.sh runs them separately, after).
+FIRST_GROUPS = ("rostests", "noetic")
 
 
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
