@@ -100,5 +100,6 @@ if LoadGroupScheduling is not None:
                     self.workqueue.move_to_end(group, last=False)
             super()._assign_work_unit(node)
 
+    @pytest.hookimpl(optionalhook=True)  # pytest-xdist installed but off (-p no:xdist)
     def pytest_xdist_make_scheduler(config, log):
         return _FirstGroupsFirst(config, log) if config.getvalue("dist") == "loadgroup" else None
