@@ -68,9 +68,9 @@ def generated_cfg(tmp_path_factory):
 # --------------------------------------------------------------------------- two workers (tools/test.sh: -n 2)
 ROOT = Path(__file__).resolve().parents[1]
 #: groups handed out first, one worker each: the rostests, one after another, and the Python 3.8 run of the
-#: core unit tests (test_noetic.py; mostly it waits on simulated instruments and clocks). The unit tests, one
-#: test file per group (its module fixtures are computed once), fill the workers as they free up
-#: (tools/test.sh runs them separately, after).
+#: core unit tests (test_noetic.py; mostly it waits on simulated instruments and clocks). A unit test file
+#: with a module or class fixture (computed once) is a group; the other unit tests go one by one to the
+#: worker that is free (tools/test.sh runs them after the first two).
 FIRST_GROUPS = ("rostests", "noetic")
 
 
@@ -81,7 +81,10 @@ def pytest_collection_modifyitems(session, config, items):
     for item in items:
         path = Path(str(item.fspath))
         group = {"test_rostests.py": "rostests", "test_noetic.py": "noetic"}.get(path.name)
-        item.add_marker(pytest.mark.xdist_group(group or path.relative_to(ROOT).as_posix()))
+        shared = getattr(item, "_fixtureinfo", None) and any(
+            d[-1].scope in ("module", "class", "package") for d in item._fixtureinfo.name2fixturedefs.values())
+        if group or shared:
+            item.add_marker(pytest.mark.xdist_group(group or path.relative_to(ROOT).as_posix()))
 
 
 try:
@@ -100,5 +103,6 @@ if LoadGroupScheduling is not None:
                     self.workqueue.move_to_end(group, last=False)
             super()._assign_work_unit(node)
 
+    @pytest.hookimpl(optionalhook=True)  # pytest-xdist installed but off (-p no:xdist)
     def pytest_xdist_make_scheduler(config, log):
         return _FirstGroupsFirst(config, log) if config.getvalue("dist") == "loadgroup" else None

@@ -28,7 +28,7 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
      (25 ms old), each with a 50 ms timeout, while the bag's odometry runs (at 50 Hz: the scenario's bag
      with odometry added from its own model, ``with_odometry_at``). From 1 s after the node's first
      absolute yaw on, ≥ 99.5 % of the lookups succeed, and after the standstill their yaw agrees with the
-     truth (RMSE ≤ 0.3°, or ≤ 1.1 × the owner's own estimate's RMSE over the same window when that is
+     truth (RMSE ≤ 0.3°, or ≤ the owner's own estimate's RMSE over the same window + 0.05° when that is
      worse); the owner's map->odom stamps only go forward (never an older map->odom for a time covered);
      ``--duration``: the scenario is the preset re-rendered at that length (cached likewise);
    - ``--mode consumer_bad``: the same consumer with bad input, one after another: the bag replayed at rate 4
@@ -486,7 +486,9 @@ class BagRun(unittest.TestCase):
             own = heading_errors_from_tf(self.rec, self.truth, self.offset, self.t_still, self.truth.stamps[-1])[0]
         self.report(f"{ARGS.owner} owner: yaw RMSE of its own estimate after the standstill", rmse_deg(own),
                     ARGS.max_yaw_rmse_deg, "deg")
-        limit = max(ARGS.max_yaw_rmse_deg, 1.1 * rmse_deg(own))
+        # as accurate: at most 0.05° worse than the owner's own (a lookup at now extrapolates the odometry a
+        # little further on a loaded machine; a ratio would be too tight where the owner's error is large)
+        limit = max(ARGS.max_yaw_rmse_deg, rmse_deg(own) + 0.05)
         self.report(f"{ARGS.owner} owner: yaw RMSE of the lookups after the standstill", rmse_deg(e), limit, "deg")
         self.assertLessEqual(rmse_deg(e), limit)
 

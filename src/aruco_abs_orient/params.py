@@ -3,9 +3,9 @@
 In: the params dataclasses of the modules they configure (:data:`SECTIONS`: the pipeline's
 :data:`aruco_abs_orient.pipeline.PARAM_GROUPS`, ``PipelineParams`` in pipeline.py, ``DetectorParams`` in
 detection/params.py, ``TrackingParams`` in tracking.py, ``FilterParams`` in correction.py, and the time-offset
-estimate's ``TimeSyncParams`` in timesync/coherence.py and the report's ``EvaluationParams`` in evaluation.py;
-their defaults are written there, once) and, to read, a YAML file with any subset of
-them under the group's section::
+estimate's ``TimeSyncParams`` in timesync/coherence.py, the report's ``EvaluationParams`` in evaluation.py and
+``calibrate``'s ``CalibrationParams`` in calibration/model.py; their defaults are written there, once) and, to
+read, a YAML file with any subset of them under the group's section::
 
     tracking:
       gate_deg: 1.5
@@ -30,6 +30,7 @@ from typing import Dict, NamedTuple, Optional
 
 import yaml
 
+from .calibration import CalibrationParams
 from .correction import FilterParams
 from .detection import DetectorParams
 from .errors import AbsOrientError, ConfigurationError
@@ -43,8 +44,9 @@ __all__ = ["SECTIONS", "ParamsError", "Tunables", "load_params", "parse_params",
 
 #: (section, params class) of every section of cfg/params.yaml, in its order: the pipeline's groups (what
 #: ``AbsOrientPipeline`` and dynamic_reconfigure take), then the time-offset estimate's (``timesync``, the
-#: node's ``~estimate_time_offset``) and the report's (``evaluation``)
-SECTIONS = PARAM_GROUPS + (("timesync", TimeSyncParams), ("evaluation", EvaluationParams))
+#: node's ``~estimate_time_offset``), the report's (``evaluation``) and calibrate's (``calibration``)
+SECTIONS = PARAM_GROUPS + (("timesync", TimeSyncParams), ("evaluation", EvaluationParams),
+                           ("calibration", CalibrationParams))
 
 
 class ParamsError(ConfigurationError, ValueError):
@@ -60,6 +62,7 @@ class Tunables(NamedTuple):
     filter: FilterParams
     timesync: TimeSyncParams
     evaluation: EvaluationParams
+    calibration: CalibrationParams
 
     def pipeline_kwargs(self) -> dict:
         """Keyword arguments of :class:`~aruco_abs_orient.pipeline.AbsOrientPipeline`."""
@@ -67,8 +70,10 @@ class Tunables(NamedTuple):
                 "filter_params": self.filter}
 
     def flat(self) -> Dict[str, object]:
-        """name → value of every tunable (names are unique across sections: dynamic_reconfigure's view)."""
-        return {f.name: getattr(obj, f.name) for obj in self for f in fields(obj)}
+        """name → value of every tunable the node reads (names are unique across those sections:
+        dynamic_reconfigure's view); calibrate's own section is not among them."""
+        return {f.name: getattr(obj, f.name) for obj in self if not isinstance(obj, CalibrationParams)
+                for f in fields(obj)}
 
 
 def _expected(default) -> str:

@@ -14,6 +14,7 @@ Units: seconds, metres, radians inside; degrees and millimetres in what is print
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -213,7 +214,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help=f"(default {getattr(d, name)})")
     for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
         g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
-    add_params_option(p, "detection section (the marker search)")
+    add_params_option(p, "detection section (the marker search) and calibration section (the solve)")
     add_video_inputs(p)
     p.set_defaults(func=run)
     return p
@@ -246,12 +247,15 @@ def run(args: argparse.Namespace) -> int:
         marker_map = MarkerMap.load(args.markers)
         recording = video_recording(args, marker_map) or args.bag
         data = read_bag_data(recording, topics)
+        tunables = load_params(args.params)
         obs = collect_observations(recording, marker_map, topics, progress=not args.quiet, data=data,
-                                   every=args.every, detector_params=load_params(args.params).detection)
+                                   every=args.every, detector_params=tunables.detection)
     except AbsOrientError as e:
         return _fail(str(e))
     try:
-        params = CalibrationParams(vo_track_heading=True) if args.vo_track_heading else None
+        params = tunables.calibration
+        if args.vo_track_heading:
+            params = dataclasses.replace(params, vo_track_heading=True)
         cal = calibrate_bag(recording, marker_map, args.time_offset, topics, observations=obs, params=params,
                             unknowns=Unknowns(args.lever_arm, args.refine_time_offset, args.readout))
     except CalibrationError as e:

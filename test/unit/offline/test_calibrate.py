@@ -150,3 +150,22 @@ def test_cli_vo_track_heading_recovers_the_rendered_boresight(rendered, tmp_path
     true_T = np.array(hidden["base_T_camera_true"])
     dR = load_calibration(str(yaml_path))["camera"][:3, :3].T @ true_T[:3, :3]
     assert math.degrees(math.acos(min(1.0, (np.trace(dR) - 1) / 2))) < 0.1
+
+
+def test_cli_params_calibration_section_reaches_the_solve(rendered, tmp_path, capsys):
+    """``--params`` with a ``calibration:`` section: the solve takes its values (here more observations
+    than the recording has: refused, naming the limit), and a wrong name there is one line naming it."""
+    out, hidden = rendered
+    args = [out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset", hidden["camera_time_offset"],
+            "--out", tmp_path / "calibration.yaml", "--quiet", "--params"]
+    strict = tmp_path / "strict.yaml"
+    strict.write_text("calibration:\n  min_observations: 100000\n")
+    assert _cli(args + [strict]) == 1
+    err = capsys.readouterr().err
+    assert "cannot calibrate" in err and "100000" in err, err
+    assert not (tmp_path / "calibration.yaml").exists()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("calibration:\n  knot_spacin: 2.0\n")
+    assert _cli(args + [bad]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calibration.knot_spacin" in err[0] and "knot_spacing" in err[0], err
