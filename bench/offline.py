@@ -38,14 +38,17 @@ from dataclasses import replace
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def scenario(duration: float) -> str:
+def scenario(duration: float, preset: str = "bench") -> str:
+    """The ``preset`` scenario (``bench``: the easy world at 3840×1920, 30 fps; ``demo``: the realistic world
+    with its rolling shutter), ``duration`` s long, rendered once into .cache/bench/."""
     from aruco_abs_orient.synthetic.bag import generate
     from aruco_abs_orient.synthetic.scenario import PRESETS
 
-    out = os.path.join(ROOT, ".cache", "bench", f"offline_{duration:g}s")
+    name = "offline" if preset == "bench" else f"offline_{preset}"
+    out = os.path.join(ROOT, ".cache", "bench", f"{name}_{duration:g}s")
     if not os.path.exists(os.path.join(out, "scenario.bag")):
-        print(f"rendering a {duration:g} s 3840x1920 30 fps scenario into {out} (once)", file=sys.stderr)
-        generate(replace(PRESETS["bench"], duration=duration), out, progress=True, force=True)
+        print(f"rendering a {duration:g} s scenario (preset {preset}) into {out} (once)", file=sys.stderr)
+        generate(replace(PRESETS[preset], duration=duration), out, progress=True, force=True)
     return out
 
 
@@ -114,18 +117,6 @@ def heading_rmse(scen: str, out: str) -> float:
         return float(json.load(f)["heading_ape"]["rmse_deg"])
 
 
-def speed_scenario(seconds: float) -> str:
-    """The realistic world with its rolling shutter (preset ``demo``), ``seconds`` long (rendered once)."""
-    from aruco_abs_orient.synthetic.bag import generate
-    from aruco_abs_orient.synthetic.scenario import PRESETS
-
-    out = os.path.join(ROOT, ".cache", "bench", f"offline_demo_{seconds:g}s")
-    if not os.path.exists(os.path.join(out, "scenario.bag")):
-        print(f"rendering a {seconds:g} s realistic scenario (preset demo) into {out} (once)", file=sys.stderr)
-        generate(replace(PRESETS["demo"], duration=seconds), out, progress=True, force=True)
-    return out
-
-
 def naive(scen: str, frames: int) -> dict:
     """The naive way in this process: each frame decoded whole and searched whole (no tracking)."""
     import itertools
@@ -166,7 +157,7 @@ def render_cost(frames: int) -> tuple:
 
 
 def speed(a) -> None:
-    scen = a.speed_scenario or speed_scenario(a.speed_seconds)
+    scen = a.speed_scenario or scenario(a.speed_seconds, "demo")
     cores = str(os.cpu_count() or 2)
     base = os.path.join(ROOT, ".cache", "bench", "offline_speed")
     ours = run(scen, base + "_ours")  # the package's own default (aruco_abs_orient.offline)
