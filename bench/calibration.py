@@ -27,11 +27,13 @@ wandering platform; ``--preset easy --duration 60`` for the figures below; a see
 counted, not judged) (``synthetic.feed``'s exact bearings + noise; ``--wander`` a platform weaving sideways,
 ``--readout`` a rolling shutter, ``--set``/``--param`` scenario and calibration fields) the table of the
 boresight yaw's error, σ and error/σ (and the readout), and the share within 2.5 σ. Realistic world,
-20 s, seeds 201-210: 90 % within 2.5 σ (yaw error RMS 0.048°), 100 % with ``--param 'vo_track_heading:
-true'`` (0.026°), 60 % (0.164°) with ``--param 'vo_tilt: false'`` (no VO tilt drift model). Measured (12 seeds,
-easy preset, 60 s, every 3rd frame): σ 0.011–0.015°, error RMS 0.006°, largest 0.012°, 100 % within 2.5 σ;
-weaving ±1 cm every 1 m: σ 0.025–0.045°, error RMS 0.032°, largest 0.057° (2.1 σ); a 30 ms readout on a
-6 × 4 m loop with markers 0–3 m high, every frame: readout error RMS 0.5 ms, largest 1.1 ms (σ 0.6–1.7 ms).
+20 s, seeds 201-210, calibrate's defaults (the VO's track): 100 % within 2.5 σ (yaw error RMS 0.026°; seeds
+211-230 100 % as well); 90 % (0.048°) with ``--param 'vo_track_heading: false'`` (the VO's yaw), 60 %
+(0.164°) with ``--param 'vo_tilt: false'`` (no VO tilt drift model). Measured (12 seeds, easy preset, 60 s,
+every 3rd frame, ``vo_track_heading: false``): σ 0.011–0.015°, error RMS 0.006°, largest 0.012°, 100 %
+within 2.5 σ (the default: σ 0.014–0.017°, 0.013°, 0.029°, 100 %); weaving ±1 cm every 1 m: σ
+0.025–0.045°, error RMS 0.032°, largest 0.057° (2.1 σ); a 30 ms readout on a 6 × 4 m loop with markers 0–3
+m high, every frame: readout error RMS 0.5 ms, largest 1.1 ms (σ 0.6–1.7 ms).
 
 Measured (demo preset, 60 s, 30 fps, 3840×1920, seed 3, every 3rd image, 2 cores): boresight error
 0.0070° (−0.0017, −0.0022, −0.0064 rpy; σ 0.0007, 0.0008, 0.0081); time offset 396.4 ms from the VO

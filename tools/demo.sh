@@ -51,12 +51,12 @@ step "3/5 calibrate the boresight and refine the time offset with the marker bea
 CAL=()
 CALFILE=
 # the camera's rolling shutter is a property its user knows: its readout is estimated when it has one; the
-# platform wanders (steering corrections), so the boresight yaw is taken against the VO's own track
+# platform wanders (steering corrections): calibrate takes the boresight yaw against the VO's own track (its default)
 READOUT=()
 python -c "import yaml,sys; sys.exit(not yaml.safe_load(open(sys.argv[1]))['config'].get('rolling_shutter_readout'))" \
   "$SCEN/hidden.yaml" && READOUT=(--readout)
 if aruco-abs-orient calibrate "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --time-offset "$OFFSET" \
-  --refine-time-offset "${READOUT[@]}" --vo-track-heading --every 3 --out "$RUN/calibration.yaml" \
+  --refine-time-offset "${READOUT[@]}" --every 3 --out "$RUN/calibration.yaml" \
   | tee "$RUN/calibration.txt"; then
   CALFILE=$RUN/calibration.yaml
   CAL=(--calibration "$CALFILE")

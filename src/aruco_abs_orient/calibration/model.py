@@ -64,8 +64,11 @@ class CalibrationParams:
       by tenths of a degree and leaves the time offset and readout undetermined (issue 17).
     - ``vo_track_heading``: measure δ(t) by the prism track's direction against the VO's own direction
       of travel (the prism track its positions and attitude predict, smoothed alike) instead of
-      against the VO's yaw (base_link x taken as the direction of travel): for weaving or crabbing
-      platforms; needs the VO's translation.
+      against the VO's yaw (base_link x taken as the direction of travel). The default: a real platform
+      wanders sideways and crabs, and against the VO's yaw that wander went into the boresight yaw with a
+      σ too small for it (realistic world, 20 s, 10 seeds: error RMS 0.048°, within 2.5 σ in 90 %;
+      with this 0.026°, 100 %). Needs the VO's translation; ``false`` for a smooth drive of a platform
+      that never crabs (easy world, 60 s, 12 seeds: error RMS 0.008° against this 0.013°).
     """
 
     knot_spacing: float = 1.0
@@ -87,7 +90,7 @@ class CalibrationParams:
     max_time_offset_sigma: float = 0.005
     max_readout_sigma: float = 0.005
     max_iterations: int = 30
-    vo_track_heading: bool = False
+    vo_track_heading: bool = True
     vo_tilt: bool = True
     tilt_knot_spacing: float = 10.0
     tilt_sigma_deg: float = 2.0

@@ -139,13 +139,14 @@ def test_process_takes_the_readout_from_the_calibration_file(rendered, calibrate
         assert summary["readout_ms"] == pytest.approx(readout_ms or 0.0)
 
 
-def test_cli_vo_track_heading_recovers_the_rendered_boresight(rendered, tmp_path, capsys):
-    """``--vo-track-heading`` on the same recording: the boresight within 0.1° as well (the generator's
-    platform is non-holonomic, so both ways of separating the yaw must agree)."""
+def test_cli_vo_yaw_heading_recovers_the_rendered_boresight(rendered, tmp_path, capsys):
+    """``--no-vo-track-heading`` (the VO's yaw as the direction of travel, not its track) on the same
+    recording: the boresight within 0.1° as well (the generator's platform is non-holonomic, so both ways
+    of separating the yaw must agree)."""
     out, hidden = rendered
     yaml_path = tmp_path / "calibration.yaml"
     code = _cli([out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset",
-                 hidden["camera_time_offset"], "--out", yaml_path, "--quiet", "--vo-track-heading"])
+                 hidden["camera_time_offset"], "--out", yaml_path, "--quiet", "--no-vo-track-heading"])
     assert code == 0, capsys.readouterr()
     true_T = np.array(hidden["base_T_camera_true"])
     dR = load_calibration(str(yaml_path))["camera"][:3, :3].T @ true_T[:3, :3]
