@@ -356,6 +356,7 @@ class RollingSelfCheck:
     window: float = 120.0
     params: Optional[SelfCheckParams] = None
     prism_lever: Optional[Sequence[float]] = None    # m, the prism in base_link (check_run's)
+    last_time_offset: Optional[Dict[str, float]] = None  # the last check's time-offset estimate (check_run's)
     _obs: Deque[tuple] = field(default_factory=collections.deque)
     _prism: Deque[tuple] = field(default_factory=collections.deque)
     _poses: Deque[tuple] = field(default_factory=collections.deque)
@@ -388,10 +389,21 @@ class RollingSelfCheck:
                          ([p[0] for p in poses], [p[1] for p in poses]),
                          RunContext(time_offset=self.time_offset, prism_lever=self.prism_lever), self.params)
 
+    def supports(self, offset: float) -> bool:
+        """Whether the marker yaws of the last :meth:`diagnostics` agree with the time offset ``offset`` (s):
+        within the time-offset check's own bound (``significance`` × its σ, at least ``min_offset``) of the
+        offset they suggest. False while no check has estimated one."""
+        off = self.last_time_offset
+        if not off:
+            return False
+        p = self.params or SelfCheckParams()
+        return abs(offset - off["suggested_s"]) <= max(p.significance * off["sigma_s"], p.min_offset)
+
     def diagnostics(self) -> Tuple[str, str, Dict[str, object]]:
         r = self.check()
         values: Dict[str, object] = {"self-check findings": len(r["findings"])}
         off = r.get("time_offset")
+        self.last_time_offset = off
         if off:
             values["self-check suggested time offset [s]"] = off["suggested_s"]
             values["self-check time offset sigma [ms]"] = 1e3 * off["sigma_s"]

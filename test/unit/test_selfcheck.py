@@ -20,8 +20,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.markers import MarkerMap
+from aruco_abs_orient.nodestate import live_offset_to_apply
 from aruco_abs_orient.offline.process import RunSetup, process_bag
 from aruco_abs_orient.selfcheck import RollingSelfCheck, RunContext, YawObservation, bearing_rate, check_run
+from aruco_abs_orient.timesync.online import OnlineOffsetEstimator
 
 DEG = math.pi / 180
 
@@ -99,21 +101,46 @@ def test_a_consistent_run_has_no_finding_and_a_moved_marker_is_named():
     assert [f["kind"] for f in findings[1:]] == ["sigma"] and findings[1]["message"].endswith("likely cause: marker")
 
 
-def test_rolling_window_for_the_node():
-    rng = np.random.default_rng(5)
+def _rolling(rng, eps, in_use, window=60.0):
+    """A node's rolling self-check fed 60 s whose marker yaws are ``eps`` s off the offset ``in_use``, checked
+    once (``diagnostics``, returned with it) over the last ``window`` s; and how many yaws it was fed."""
     pt, prism, heading, markers = _world(rng)
-    obs = _observations(rng, pt, prism, heading, markers, 0.3, (0.0, 0.0))
-    live = RollingSelfCheck(markers, time_offset=0.0, window=30.0)
+    obs = _observations(rng, pt, prism, heading, markers, eps, (0.0, 0.0))
+    live = RollingSelfCheck(markers, time_offset=in_use, window=window)
     for t, p in zip(pt, prism):
         live.add_prism(float(t), p)
     for i in range(len(obs["time"])):
         live.add_observation(YawObservation(*(obs[k][i] for k in YawObservation._fields)))
-    level, message, values = live.diagnostics()
-    assert len(live._obs) < len(obs["time"])  # bounded: the last 30 s only
+    return live, live.diagnostics(), len(obs["time"])
+
+
+def test_rolling_window_for_the_node():
+    live, (level, message, values), fed = _rolling(np.random.default_rng(5), 0.3, 0.0, window=30.0)
+    assert len(live._obs) < fed  # bounded: the last 30 s only
     assert level == "warn" and "observations disagree with a time offset" in message
     assert values["self-check suggested time offset [s]"] == pytest.approx(0.3, abs=0.03)
-    empty = RollingSelfCheck(markers)
+    # what the node asks before it applies a live time-offset estimate: the true offset is supported, the one
+    # in use (0) and one 50 ms off are not
+    assert live.supports(0.3) and not live.supports(0.0) and not live.supports(0.35)
+    empty = RollingSelfCheck(live.marker_xyz)
+    assert not empty.supports(0.0)  # no check yet: no verdict either way
     assert empty.diagnostics()[0] == "ok"
+
+
+def test_the_marker_yaws_veto_a_live_offset_estimate_that_contradicts_a_good_offset():
+    """The node's rule (nodestate.live_offset_to_apply) with a real estimator's suggestion: a biased live
+    estimate (0.317 ± 0.0095 s, as on the realistic demo) does not replace a good offset (0.367 s) the marker
+    yaws support; it does replace a forgotten one (0 s) they contradict, and it does before any check."""
+    estimator = OnlineOffsetEstimator()
+    estimator.applied, estimator.applied_sigma = 0.317, 0.0095
+    good = _rolling(np.random.default_rng(7), 0.0, 0.367)[0]
+    assert live_offset_to_apply(0.367, estimator, good) == (None, True)
+    forgotten = _rolling(np.random.default_rng(7), 0.367, 0.0)[0]
+    estimator.applied, estimator.applied_sigma = 0.367, 0.0095
+    assert live_offset_to_apply(0.0, estimator, forgotten) == (0.367, False)
+    assert live_offset_to_apply(0.0, estimator, RollingSelfCheck(good.marker_xyz)) == (0.367, False)
+    estimator.applied = 0.37  # agrees with the offset in use: nothing to switch to
+    assert live_offset_to_apply(0.367, estimator, good) == (None, False)
 
 
 # ----------------------------------------------------------------------------- rendered scenario

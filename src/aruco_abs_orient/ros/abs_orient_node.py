@@ -68,7 +68,15 @@ from ..debugview import debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, decode_jpeg
 from ..errors import ConfigurationError
 from ..markers import MarkerMap, MarkerMapError
-from ..nodestate import IMAGE_JUMPED_BACK, IMAGE_NOT_AFTER, MapOdomPrediction, MapOdomStamps, NodeHealth, NodeSnapshot
+from ..nodestate import (
+    IMAGE_JUMPED_BACK,
+    IMAGE_NOT_AFTER,
+    MapOdomPrediction,
+    MapOdomStamps,
+    NodeHealth,
+    NodeSnapshot,
+    live_offset_to_apply,
+)
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import RollingSelfCheck, YawObservation
@@ -708,7 +716,15 @@ class AbsOrientNode:
         if result.fused_yaw is not None and any(r.accepted for r in result.observations):
             est.add_marker_yaw(s, result.fused_yaw)
         est.update_in_background(s)
-        better = est.suggestion(self.time_offset) if self.config.apply_estimated_time_offset else None
+        if not self.config.apply_estimated_time_offset:
+            return
+        with self._selfcheck_lock:
+            better, vetoed = live_offset_to_apply(self.time_offset, est, self.selfcheck)
+        if vetoed:
+            self.health.count("time_offset_switch_refused")
+            self.rospy.logwarn_throttle(30.0, f"abs_orient: keeping the time offset {self.time_offset:.4f} s: the "
+                                              f"live estimate {est.applied:.4f} s contradicts it, but the marker yaws "
+                                              "support it and contradict the estimate (self-check)")
         if better is not None:
             self.rospy.logwarn(f"abs_orient: time offset {self.time_offset:.4f} s -> {better:.4f} s "
                                f"(live estimate ± {1e3 * est.applied_sigma:.1f} ms contradicts the one in use)")
