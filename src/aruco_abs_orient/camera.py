@@ -27,6 +27,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from .errors import ConfigurationError
+from .transforms import cross3
 
 __all__ = [
     "CameraModelError",
@@ -66,7 +67,7 @@ def angle_between(a, b) -> np.ndarray:
     """Angle (radians) between vectors a and b (..., 3); accurate for tiny angles."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
-    cross = np.linalg.norm(np.cross(a, b), axis=-1)
+    cross = np.linalg.norm(cross3(a, b), axis=-1)
     dot = np.sum(a * b, axis=-1)
     return np.arctan2(cross, dot)
 
@@ -140,13 +141,13 @@ def _look_rotation(forward, up_hint=None) -> np.ndarray:
         raise CameraModelError(f"view direction must be a finite non-zero vector, got {forward!r}")
     f = f / n
     up = np.array([0.0, 0.0, 1.0]) if up_hint is None else np.asarray(up_hint, dtype=float)
-    right = np.cross(f, up)
+    right = cross3(f, up)
     if np.linalg.norm(right) < 1e-6:  # looking straight up/down: any right will do
-        right = np.cross(f, np.array([1.0, 0.0, 0.0]))
+        right = cross3(f, np.array([1.0, 0.0, 0.0]))
         if np.linalg.norm(right) < 1e-6:
-            right = np.cross(f, np.array([0.0, 1.0, 0.0]))
+            right = cross3(f, np.array([0.0, 1.0, 0.0]))
     right /= np.linalg.norm(right)
-    down = np.cross(f, right)
+    down = cross3(f, right)
     return np.stack([right, down, f], axis=1)
 
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from .camera import angle_between
 from .errors import GeometryError
-from .transforms import make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
+from .transforms import cross3, make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
 
 __all__ = [
     "Mounting",
@@ -281,16 +281,22 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _tangent_basis(u: np.ndarray) -> np.ndarray:
     """Orthonormal basis (..., 3, 2) of the plane perpendicular to unit vector(s) u (..., 3)."""
     a = np.where(np.abs(u[..., :1]) < 0.9, _EX, _EY)
-    e1 = _unit(np.cross(u, a))
-    e2 = np.cross(u, e1)
+    e1 = _unit(cross3(u, a))
+    e2 = cross3(u, e1)
     return np.stack([e1, e2], axis=-1)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrix(es) (..., 3, 3): skew(v) @ x = v × x."""
-    z = np.zeros(v.shape[:-1])
+    """Cross-product matrix(es) (..., 3, 3): skew(v) @ x = v × x (filled in place: called per observation)."""
+    S = np.zeros(v.shape[:-1] + (3, 3))
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+    S[..., 0, 1] = -w
+    S[..., 0, 2] = y
+    S[..., 1, 0] = w
+    S[..., 1, 2] = -x
+    S[..., 2, 0] = -y
+    S[..., 2, 1] = x
+    return S
 
 
 def _so3_exp(w: np.ndarray) -> np.ndarray:
@@ -395,8 +401,8 @@ def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting:
     dw_dalpha = Rt @ dv_db @ E
     dw_dD = Rt @ np.outer(b, ds_dD)
     dw_dl = Rt @ (np.eye(3) + np.outer(b, ds_dl))
-    dw_droll = Rt @ np.cross(_EX, v)
-    dw_dpitch = np.cross(_EY, w)
+    dw_droll = Rt @ cross3(_EX, v)
+    dw_dpitch = cross3(_EY, w)
     J = np.empty((2, 13))
     for row, (gD, gw) in enumerate(((_azimuth_gradient(D), _azimuth_gradient(w)),
                                     (_elevation_gradient(D), _elevation_gradient(w)))):
@@ -590,7 +596,7 @@ def _gauss_newton(pb: _Problem, R0: np.ndarray, p0: np.ndarray, settings: FitSet
 
 def _check_spread(directions: np.ndarray, min_spread: float, what: str) -> None:
     d = _unit(directions)
-    sin = np.linalg.norm(np.cross(d[:, None, :], d[None, :, :]), axis=-1)
+    sin = np.linalg.norm(cross3(d[:, None, :], d[None, :, :]), axis=-1)
     if float(sin.max()) < math.sin(min_spread):
         raise DegenerateGeometryError(
             f"{what} lie within {math.degrees(math.asin(min(1.0, float(sin.max())))):.2f}° of one line "
@@ -711,7 +717,7 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
     A = np.eye(3) - d[..., :, None] * d[..., None, :]                         # (G, N, 3, 3)
     C = np.linalg.solve(A.sum(axis=1) + 1e-12 * np.eye(3), np.einsum("gnij,nj->gi", A, M))
     v = M[None] - C[:, None]                                                  # (G, N, 3)
-    ang = np.arctan2(np.linalg.norm(np.cross(v, d), axis=-1), np.sum(v * d, axis=-1))  # behind ⇒ > π/2
+    ang = np.arctan2(np.linalg.norm(cross3(v, d), axis=-1), np.sum(v * d, axis=-1))  # behind ⇒ > π/2
     cost = np.sum(ang ** 2, axis=1)
     g = int(np.argmin(cost))
     return float(psi[g]), C[g]

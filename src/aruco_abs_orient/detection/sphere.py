@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from ..camera import Equirect, GnomonicView, angle_between
+from ..transforms import cross3
 from .quads import DECODE, EDGE_FIT, DecodeParams, EdgeFitParams, _remap_points, decode_quads, refine_quads
 
 __all__ = ["sphere_centre_bearing", "pixel_centre_bearing", "marker_angular_size", "refine_corners",
@@ -33,7 +34,7 @@ def sphere_centre_bearing(corners) -> np.ndarray:
     """
     c = np.asarray(corners, dtype=float)
     c = c / np.linalg.norm(c, axis=-1, keepdims=True)
-    m = np.cross(np.cross(c[..., 0, :], c[..., 2, :]), np.cross(c[..., 1, :], c[..., 3, :]))
+    m = cross3(cross3(c[..., 0, :], c[..., 2, :]), cross3(c[..., 1, :], c[..., 3, :]))
     norm = np.linalg.norm(m, axis=-1, keepdims=True)
     mean = c.mean(axis=-2)
     m = np.where(norm < 1e-15, mean, m / np.maximum(norm, 1e-300))
@@ -110,7 +111,7 @@ def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     the smallest ones (about a × b_k); for b_k nearly −a, a half turn about an axis ⟂ a
     followed by the smallest rotation from −a onto b_k."""
     def smallest(a, b):
-        v = np.cross(a, b)
+        v = cross3(a, b)
         vx = np.zeros((len(b), 3, 3))
         vx[:, 0, 1], vx[:, 0, 2], vx[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
         vx -= np.transpose(vx, (0, 2, 1))
@@ -121,7 +122,7 @@ def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     r = np.empty((len(b), 3, 3))
     r[~opposite] = smallest(a, b[~opposite])
     if np.any(opposite):
-        u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u = cross3(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
         u /= np.linalg.norm(u)
         r[opposite] = np.matmul(smallest(-a, b[opposite]), 2.0 * np.outer(u, u) - np.eye(3))
     return r
