@@ -210,6 +210,10 @@ PRESETS: Dict[str, ScenarioConfig] = {
     "realistic": dataclasses.replace(REALISTIC, duration=20.0),
     # the realistic world with a 30 ms rolling shutter
     "realistic-rs": dataclasses.replace(REALISTIC, duration=20.0, rolling_shutter_readout=0.030),
+    # the scenario tests' realistic world: ci's size (1920 px, 15 fps, 30 cm markers at 2-8 m, 20 s) in the
+    # demo's world with its 30 ms rolling shutter (rendered in ~10 s on 2 cores)
+    "ci-realistic": dataclasses.replace(REALISTIC, duration=20.0, fps=15.0, width=1920, n_markers=8,
+                                        marker_size=0.30, marker_distance=(2.0, 8.0), rolling_shutter_readout=0.030),
 }
 
 
