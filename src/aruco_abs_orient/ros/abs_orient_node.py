@@ -469,8 +469,7 @@ class AbsOrientNode:
         if not changes:
             return
         if "time_offset" in changes:
-            self.time_offset = float(changes.pop("time_offset"))
-            self.time_offset_source = "parameter"
+            self._use_time_offset(float(changes.pop("time_offset")), "parameter")
         self._pending_for_pipeline.update(changes)
         if self.pipeline is not None:
             self._update_pipeline_params()
@@ -728,7 +727,14 @@ class AbsOrientNode:
         if better is not None:
             self.rospy.logwarn(f"abs_orient: time offset {self.time_offset:.4f} s -> {better:.4f} s "
                                f"(live estimate ± {1e3 * est.applied_sigma:.1f} ms contradicts the one in use)")
-            self.time_offset, self.time_offset_source = better, "live estimate"
+            self._use_time_offset(better, "live estimate")
+
+    def _use_time_offset(self, offset: float, source: str) -> None:
+        """Switch to the time offset ``offset`` (s) from ``source``; the self-checks start afresh on it (their
+        marker yaws so far were made with the old one, and they measure the error of the offset in use)."""
+        self.time_offset, self.time_offset_source = offset, source
+        with self._selfcheck_lock:
+            self.selfcheck = self._new_selfcheck()
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, result: FrameResult, stamp, odom_T_base: np.ndarray) -> None:
