@@ -166,9 +166,11 @@ class Problem:
     def camera_to_marker(self, x, delta) -> np.ndarray:
         """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P + V Δτ − V f Δρ) − (t_cam +
         Δl − t_prism), map_R_base = Rz(δ) odom_R_base exp([ω f Δρ]×)."""
-        R = rot_z(delta) @ self.R_odom                                   # map_R_base (N, 3, 3)
-        if len(self.tilt_knots):
-            R = rot_z(delta) @ _rotations(self.tilt_at(x)) @ self.R_odom
+        Rz = rot_z(delta)
+        if len(self.tilt_knots):                                         # map_R_base (N, 3, 3)
+            R = Rz @ _rotations(self.tilt_at(x)) @ self.R_odom
+        else:
+            R = Rz @ self.R_odom
         g = self.M - self.P + self.V * x[6]
         if x[7] != 0.0:
             R = R @ _rotations(self.omega * (self.rows * x[7])[:, None])
