@@ -166,6 +166,12 @@ class RunContext(NamedTuple):
     prism_lever: Optional[Sequence[float]] = None
 
 
+def _offset_error_significant(error: float, sigma: float, p: SelfCheckParams) -> bool:
+    """Whether a time-offset error (s) with its 1-σ (s) is a finding: beyond ``significance`` σ and
+    ``min_offset``."""
+    return abs(error) > max(p.significance * sigma, p.min_offset)
+
+
 def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Sequence[float]], poses=((), ()),
               run: Optional[RunContext] = None, params: Optional[SelfCheckParams] = None) -> Dict[str, object]:
     """The self-checks of a run (see the module docstring).
@@ -292,7 +298,7 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
                               "suggested_s": suggested, "samples": int(use.sum())}
         out["camera_tilt_deg"] = {"roll": math.degrees(tilt[0]), "pitch": math.degrees(tilt[1]),
                                   "sigma": math.degrees(tilt_sigma)}
-        if abs(eps) > max(p.significance * eps_sigma, p.min_offset):
+        if _offset_error_significant(eps, eps_sigma, p):
             fix = commands.get("timesync", "aruco-abs-orient timesync")
             findings.append(Finding("time_offset", f"observations disagree with a time offset: this run suggests "
                                     f"{suggested:+.2f} s (in use {time_offset:+.3f} s, error {1e3 * eps:+.0f} ± "
@@ -396,8 +402,8 @@ class RollingSelfCheck:
         off = self.last_time_offset
         if not off:
             return False
-        p = self.params or SelfCheckParams()
-        return abs(offset - off["suggested_s"]) <= max(p.significance * off["sigma_s"], p.min_offset)
+        return not _offset_error_significant(offset - off["suggested_s"], off["sigma_s"],
+                                             self.params or SelfCheckParams())
 
     def diagnostics(self) -> Tuple[str, str, Dict[str, object]]:
         r = self.check()
