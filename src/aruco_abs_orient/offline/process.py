@@ -123,9 +123,10 @@ def _done(value) -> Future:
     return future
 
 
-def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag) -> Dict:
+def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag, prism_lever) -> Dict:
     """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`) with the commands that fix
-    what they find; each finding is also a warning of the summary."""
+    what they find (``prism_lever``: the prism in base_link the pipeline used, m); each finding is also a
+    warning of the summary."""
     obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
@@ -134,7 +135,7 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
                        (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"],
-                                                  summary["time_offset_s"], commands, data.base_T_prism[:3, 3]))
+                                                  summary["time_offset_s"], commands, prism_lever))
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
@@ -349,7 +350,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
     }
-    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag)
+    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe.base_T_prism[:3, 3])
     summary_path = os.path.join(out_dir, "summary.json")
     atomic_write_text(summary_path, json.dumps(summary, indent=2, default=float) + "\n")
     return ProcessResult(traj_path, obs_path, summary_path, summary, extra)

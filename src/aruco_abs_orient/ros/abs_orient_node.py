@@ -556,7 +556,8 @@ class AbsOrientNode:
                 kwargs["params"] = replace(kwargs["params"], markers_only=True)
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
                                               readout=readout, calibrated=calibrated is not None, **kwargs)
-            self.selfcheck.prism_lever = arms[c.prism_frame][:3, 3]
+            with self._selfcheck_lock:  # empty until now: started again with the pipeline's prism lever arm
+                self.selfcheck = self._new_selfcheck()
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3],
                                                               params=c.tunables().timesync)
