@@ -44,7 +44,9 @@ def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:
     """Decode JPEG bytes to a grey uint8 image, optionally reduced by 2, 4 or 8 in the DCT.
 
     Uses simplejpeg (libjpeg-turbo, the fastest measured here: bench/detection.py) when
-    installed, else ``cv2.imdecode`` (IMREAD_GRAYSCALE / IMREAD_REDUCED_GRAYSCALE_n).
+    installed, with libjpeg's fast integer IDCT: 13 % less CPU in ``process`` on the realistic
+    demo, its heading RMSE unchanged (0.012°), its pixels within a few grey levels of the exact
+    IDCT's. Else ``cv2.imdecode`` (IMREAD_GRAYSCALE / IMREAD_REDUCED_GRAYSCALE_n, exact IDCT).
     Raises DetectionError on a corrupt or truncated JPEG.
     """
     if reduce not in (1, 2, 4, 8):
@@ -60,7 +62,7 @@ def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:
         try:
             h, w = simplejpeg.decode_jpeg_header(buf)[:2]
             img = simplejpeg.decode_jpeg(buf, colorspace="GRAY", min_height=h // reduce, min_width=w // reduce,
-                                         min_factor=float(reduce))
+                                         min_factor=float(reduce), fastdct=True)
         except ValueError as e:
             raise DetectionError(f"{what}: corrupt JPEG: {e}") from None
         return img[:, :, 0] if img.ndim == 3 else img

@@ -55,9 +55,13 @@ def test_decode_jpeg(monkeypatch):
             decode_jpeg(bad, what="frame 17")
     with pytest.raises(DetectionError, match="reduce"):
         decode_jpeg(data, reduce=3)
-    # the OpenCV-only path (Noetic robots without simplejpeg) decodes the same pixels
+    # the OpenCV-only path (Noetic robots without simplejpeg) decodes the same pixels but for the fast
+    # IDCT's rounding (a few grey levels at most)
     monkeypatch.setitem(sys.modules, "simplejpeg", None)
-    assert np.array_equal(decode_jpeg(data), full)
+    exact = decode_jpeg(data)
+    assert exact.shape == full.shape
+    diff = np.abs(exact.astype(int) - full)
+    assert diff.max() <= 6 and diff.mean() < 0.6
     assert decode_jpeg(data, reduce=2).shape == (240, 480)
     with pytest.raises(DetectionError, match="corrupt"):
         decode_jpeg(data[: len(data) // 2])
