@@ -68,6 +68,9 @@ class ScenarioConfig:
     dictionary: str = "DICT_4X4_50"
     start_time: float = 1_700_000_000.0  # true time of the first image, s (ROS time)
     standstill: float = 3.0  # s at rest before driving
+    spin_deg: float = 0.0  # whole turns in place during the standstill, from 1 s in (a calibration manoeuvre)
+    spin_rate_deg_per_s: float = 60.0  # the spin's peak turn rate (it lasts 1.5 · spin_deg / rate s)
+    spin_markers: int = 0  # more markers 1.8-2.6 m around the start, alternately 0.2 and 2.6 m high, facing it
     speed: float = 0.8  # cruise speed, m/s
     accel_time: float = 2.0  # s from rest to cruise speed
     track_radii: Tuple[float, float] = (9.0, 6.0)  # loop semi-axes, m
@@ -122,6 +125,14 @@ class ScenarioConfig:
         need(self.profile in PROFILES, "profile", f"expected one of {', '.join(PROFILES)}")
         need(self.dictionary in ARUCO_DICTIONARIES, "dictionary", "expected a cv2.aruco dictionary name")
         need(self.standstill >= 0, "standstill", "expected seconds >= 0")
+        need(0 < self.spin_rate_deg_per_s <= 180, "spin_rate_deg_per_s", "expected deg/s in (0, 180]")
+        need(isinstance(self.spin_markers, int) and 0 <= self.spin_markers <= 8, "spin_markers",
+             "expected an integer in [0, 8]")
+        need(self.spin_deg % 360.0 == 0.0, "spin_deg", "expected whole turns (a multiple of 360°: the platform "
+             "drives off forwards)")
+        need(self.spin_deg == 0.0 or self.standstill >= self.spin_start + self.spin_time, "spin_deg",
+             f"a spin of {self.spin_deg:g}° at {self.spin_rate_deg_per_s:g}°/s takes {self.spin_time:.1f} s: "
+             f"expected a standstill of at least {self.spin_start + self.spin_time:.1f} s")
         need(self.speed >= 0 and self.accel_time > 0, "speed", "expected speed >= 0 and accel_time > 0")
         need(min(self.track_radii) > 0.5, "track_radii", "expected semi-axes > 0.5 m")
         need(self.n_markers >= 1, "n_markers", "expected at least one marker")
@@ -152,6 +163,14 @@ class ScenarioConfig:
         need(0 < self.seam_band_deg <= 20, "seam_band_deg", "expected degrees in (0, 20]")
         need(abs(self.clock_rate_error_ppm) <= 1000, "clock_rate_error_ppm", "expected |ppm| <= 1000")
         return self
+
+    #: s from the start to the spin in place (when spin_deg is not 0)
+    spin_start = 1.0
+
+    @property
+    def spin_time(self) -> float:
+        """Duration of the spin in place, s (0 without one): a smoothstep of peak rate spin_rate_deg_per_s."""
+        return 1.5 * abs(self.spin_deg) / self.spin_rate_deg_per_s
 
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
@@ -210,6 +229,10 @@ PRESETS: Dict[str, ScenarioConfig] = {
     "realistic": dataclasses.replace(REALISTIC, duration=20.0),
     # the realistic world with a 30 ms rolling shutter
     "realistic-rs": dataclasses.replace(REALISTIC, duration=20.0, rolling_shutter_readout=0.030),
+    # a calibration run in that world: a 360° spin in place at up to 60°/s beside 4 markers 0.2 and 2.6 m high,
+    # 2 m away (the rolling shutter's readout shows in a fast turn across elevations), then 19 s of the drive
+    "calibration-rs": dataclasses.replace(REALISTIC, duration=30.0, standstill=11.0, spin_deg=360.0,
+                                          spin_markers=4, rolling_shutter_readout=0.030),
     # the scenario tests' realistic world: ci's size (1920 px, 15 fps, 30 cm markers at 2-8 m, 20 s) in the
     # demo's world with its 30 ms rolling shutter (rendered in ~10 s on 2 cores)
     "ci-realistic": dataclasses.replace(REALISTIC, duration=20.0, fps=15.0, width=1920, n_markers=8,
@@ -387,8 +410,31 @@ class Scenario:
             centres.append(centre)
             normals[marker_id] = normal
             markers.append(Marker(marker_id, centre, c.marker_size, 0.002))
+        if c.spin_markers:
+            taken = {m.id for m in markers}
+            self._place_spin_markers(np.random.default_rng([c.seed, 19]), taken, markers, normals)
         markers.sort(key=lambda m: m.id)
         return MarkerMap(markers, c.dictionary, "map", source="synthetic scenario"), normals
+
+    def _place_spin_markers(self, rng, taken: set, markers: List[Marker], normals: Dict[int, np.ndarray]) -> None:
+        """``spin_markers`` markers around the start for a calibration spin, beside the track (left and right
+        in turn, 70° and 110° off its direction, then 50° and 130°), 1.8-2.6 m from base_link, two low (0.2 m)
+        then two high (2.6 m), each facing the camera: markers far above and below the horizon let the rolling
+        shutter's readout show."""
+        c = self.config
+        start = self._path_point(self._theta0)
+        heading = float(self._path_yaw(self._theta0))
+        eye = start + np.array([0.0, 0.0, c.camera_lever_arm[2]])
+        free = [i for i in range(_dictionary_size(c.dictionary)) if i not in taken]
+        for k, marker_id in enumerate(sorted(rng.choice(free, size=c.spin_markers, replace=False).tolist())):
+            side = 1.0 if k % 2 == 0 else -1.0
+            az = heading + side * math.radians((70.0, 110.0, 50.0, 130.0)[k // 2] + rng.uniform(-5.0, 5.0))
+            r = rng.uniform(1.8, 2.6)
+            centre = start + np.array([r * math.cos(az), r * math.sin(az), 0.0])
+            centre[2] = 0.2 if (k // 2) % 2 == 0 else 2.6
+            normal = (eye - centre) / np.linalg.norm(eye - centre)
+            normals[marker_id] = normal
+            markers.append(Marker(marker_id, centre, c.marker_size, 0.002))
 
     def _prism_track(self, rng) -> PrismTrack:
         c = self.config
@@ -450,7 +496,15 @@ class Scenario:
         """True pose(s) of base_link in map at true time(s) t."""
         theta = self._theta_at(t)
         roll, pitch = self._roll_pitch(theta)
-        return make_T(rpy_to_matrix(roll, pitch, self._path_yaw(theta)), self._path_point(theta))
+        return make_T(rpy_to_matrix(roll, pitch, self._path_yaw(theta) + self._spin(t)), self._path_point(theta))
+
+    def _spin(self, t):
+        """Yaw turned in place so far at true time(s) t (radians; 0 without ``spin_deg``)."""
+        c = self.config
+        if c.spin_deg == 0.0:
+            return 0.0
+        x = (np.asarray(t, dtype=float) - c.start_time - c.spin_start) / c.spin_time
+        return math.radians(c.spin_deg) * _smoothstep(x)
 
     def vo_yaw_error(self, t):
         """VO yaw error (radians) at true time(s) t: linear drift + random walk, 0 at start_time."""

@@ -262,3 +262,49 @@ def test_config_dict_round_trip():
     assert ScenarioConfig.from_dict(d) == CFG
     with pytest.raises(ScenarioError, match="track_radii"):
         ScenarioConfig.from_dict(dict(d, track_radii=[1.0]))
+
+
+def test_calibration_spin_in_place():
+    """A spin turns base_link once about its vertical in place, during the standstill, at its peak rate, and
+    the platform then drives off forwards; the VO sees the turn; the rest of the world is the seed's."""
+    cfg = dataclasses.replace(CFG, standstill=11.0, spin_deg=360.0, spin_rate_deg_per_s=60.0, spin_markers=4)
+    sc, plain = Scenario(cfg), Scenario(dataclasses.replace(CFG, standstill=11.0))
+    assert cfg.spin_time == pytest.approx(9.0)  # 1.5 · 360° / 60°/s: a smoothstep's peak is 1.5 × its mean
+    dt = 0.01
+    t = cfg.start_time + np.arange(0.0, cfg.standstill + 6.0, dt)
+    T = sc.map_T_base(t)
+    still = t - cfg.start_time <= cfg.standstill
+    assert np.abs(T[still, :3, 3] - T[0, :3, 3]).max() < 1e-9  # in place
+    yaw = np.unwrap(yaw_of(T[:, :3, :3]))
+    rate = np.degrees(np.diff(yaw)) / dt
+    assert rate.max() == pytest.approx(60.0, rel=0.01) and rate.min() > -0.5
+    assert np.degrees(yaw[still][-1] - yaw[0]) == pytest.approx(360.0, abs=1e-6)
+    spinning = (t[:-1] - cfg.start_time > cfg.spin_start + 0.1) & (t[:-1] - cfg.start_time < cfg.spin_start + 0.2)
+    assert np.all(rate[spinning] > 0.0)
+    assert np.all(rate[t[:-1] - cfg.start_time < cfg.spin_start] == 0.0)
+    # after the spin: the very poses of the plain scenario (same loop, same heading, same roll and pitch)
+    after = t - cfg.start_time > cfg.standstill
+    np.testing.assert_allclose(T[after], plain.map_T_base(t[after]), atol=1e-9)
+    # the VO turns with it, up to its yaw drift
+    vo = np.unwrap(yaw_of(sc.odom_T_base(t)[:, :3, :3]))
+    np.testing.assert_allclose(vo - vo[0] - (yaw - yaw[0]), sc.vo_yaw_error(t) - sc.vo_yaw_error(t[0]), atol=1e-6)
+    # the map's markers are the plain scenario's, and 4 more around the start, 2 low and 2 high
+    ids = set(sc.markers.ids) - set(plain.markers.ids)
+    assert set(plain.markers.ids) < set(sc.markers.ids) and len(ids) == 4
+    for i in plain.markers.ids:
+        np.testing.assert_array_equal(sc.markers[i].position, plain.markers[i].position)
+    eye = T[0, :3, 3] + np.array([0.0, 0.0, cfg.camera_lever_arm[2]])
+    elevation = sorted(math.degrees(math.atan2(sc.markers[i].position[2] - eye[2],
+                                               np.linalg.norm(sc.markers[i].position[:2] - eye[:2]))) for i in ids)
+    assert elevation[0] < -12.0 and elevation[1] < -12.0 and elevation[2] > 35.0 and elevation[3] > 35.0
+    for i in ids:  # each faces the camera at the start, 1.8-2.6 m away, off the track ahead
+        to_eye = eye - sc.markers[i].position
+        assert 1.8 <= np.linalg.norm(to_eye[:2]) <= 2.6
+        assert float(np.dot(sc.marker_normals[i], to_eye / np.linalg.norm(to_eye))) == pytest.approx(1.0)
+    # the calibration spin needs the standstill to hold it, in whole turns
+    with pytest.raises(ScenarioError, match="spin_deg.*standstill of at least 10.0 s"):
+        Scenario(dataclasses.replace(cfg, standstill=5.0))
+    with pytest.raises(ScenarioError, match="spin_deg.*whole turns"):
+        Scenario(dataclasses.replace(cfg, spin_deg=90.0))
+    with pytest.raises(ScenarioError, match="spin_markers"):
+        Scenario(dataclasses.replace(cfg, spin_markers=9))
