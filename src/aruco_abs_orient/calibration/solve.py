@@ -304,7 +304,9 @@ def _check_determined(sd: np.ndarray, unknowns: Unknowns, params: CalibrationPar
             + (f", readout {1e3 * sd[7]:.1f} ms" if unknowns.readout else "")
             + f"; limits {params.max_boresight_sigma_deg}°, {1e3 * params.max_lever_sigma:.0f} mm, "
             f"{1e3 * params.max_time_offset_sigma:.0f} ms and readout {1e3 * params.max_readout_sigma:.0f} ms): "
-            "record markers in more directions, at several ranges and elevations, while driving and turning")
+            "record markers in more directions, at several ranges and elevations, while driving and turning"
+            + ("; for the readout, turn in place (up to 60°/s) beside markers about 2 m away, some low and some "
+               "high (doc/field_guide.md, 'How to drive a calibration run')" if "readout time" in bad else ""))
 
 
 def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParams, time_shift: float,
