@@ -70,7 +70,7 @@ class ScenarioConfig:
     standstill: float = 3.0  # s at rest before driving
     spin_deg: float = 0.0  # whole turns in place during the standstill, from 1 s in (a calibration manoeuvre)
     spin_rate_deg_per_s: float = 60.0  # the spin's peak turn rate (it lasts 1.5 · spin_deg / rate s)
-    spin_markers: int = 0  # more markers 1.8-2.6 m around the start, alternately 0.2 and 2.6 m high, facing it
+    spin_markers: int = 0  # more markers 1.8-2.6 m around the start, two 0.2 m high then two 2.6 m, facing it
     speed: float = 0.8  # cruise speed, m/s
     accel_time: float = 2.0  # s from rest to cruise speed
     track_radii: Tuple[float, float] = (9.0, 6.0)  # loop semi-axes, m

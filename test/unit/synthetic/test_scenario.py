@@ -300,6 +300,8 @@ def test_calibration_spin_in_place():
     for i in ids:  # each faces the camera at the start, 1.8-2.6 m away, off the track ahead
         to_eye = eye - sc.markers[i].position
         assert 1.8 <= np.linalg.norm(to_eye[:2]) <= 2.6
+        off_track = wrap_angle(math.atan2(-to_eye[1], -to_eye[0]) - yaw[0])
+        assert 40.0 <= abs(math.degrees(off_track)) <= 140.0
         assert float(np.dot(sc.marker_normals[i], to_eye / np.linalg.norm(to_eye))) == pytest.approx(1.0)
     # the calibration spin needs the standstill to hold it, in whole turns
     with pytest.raises(ScenarioError, match="spin_deg.*standstill of at least 10.0 s"):
