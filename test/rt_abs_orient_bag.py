@@ -11,7 +11,9 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
    /odometry/filtered; then compares with truth.tum (base_link in map at each image's TRUE time; the
    images and odometry are stamped on the camera clock = true time + offset):
    - ``--mode node``: heading of base_link from tf (map->odom ∘ odom->base_link) vs truth after the
-     standstill: RMSE ≤ ``--max-yaw-rmse-deg`` (0.3°); the only map->odom publisher is /abs_orient;
+     standstill: RMSE ≤ ``--max-yaw-rmse-deg`` (0.3°); the only map->odom publisher is /abs_orient; with
+     ``--calibrated`` the node gets ``calibration:=`` the scenario's true camera mounting and rolling-shutter
+     readout (:func:`true_calibration`: what ``calibrate`` gives within its σ), as on a calibrated robot;
    - ``--mode ekf``: /odometry/filtered yaw RMSE ≤ 0.3° and position RMSE ≤ ``--max-pos-rmse`` (3 cm)
      after the standstill; the only map->odom publisher is the EKF (/ekf_map);
    - ``--mode markers_only``: ``markers_only:=true use_ekf:=true``: no prism used (the EKF on
@@ -142,6 +144,26 @@ def time_offset_of(directory: Path) -> float:
     from aruco_abs_orient.synthetic.scenario import Scenario
 
     return float(Scenario.from_hidden(str(directory / "hidden.yaml")).config.camera_time_offset)
+
+
+def true_calibration(directory: Path, turn_deg: float = 0.0) -> str:
+    """A calibration YAML (in ROS_HOME) of the scenario's TRUE camera mounting turned by ``turn_deg`` about
+    base_link z, its prism lever arm and its camera's rolling-shutter readout; returns its path."""
+    import yaml
+
+    from aruco_abs_orient.calibration.io import READOUT_KEY
+    from aruco_abs_orient.transforms import matrix_to_rpy, rot_z
+
+    hidden = yaml.safe_load((directory / "hidden.yaml").read_text())
+    camera = np.array(hidden["base_T_camera_true"], dtype=float)
+    turned = rot_z(math.radians(turn_deg)) @ camera[:3, :3]
+    prism = np.array(hidden["base_T_prism"], dtype=float)
+    path = Path(os.environ.get("ROS_HOME", "/tmp")) / f"rt_calibration_{ARGS.mode}.yaml"
+    path.write_text(yaml.safe_dump({
+        "base_link_to_camera": {"xyz": camera[:3, 3].tolist(), "rpy_deg": np.degrees(matrix_to_rpy(turned)).tolist()},
+        "base_link_to_prism": {"xyz": prism[:3, 3].tolist()},
+        READOUT_KEY: 1e3 * float(hidden["config"]["rolling_shutter_readout"])}))
+    return str(path)
 
 
 def standstill_end(truth: Trajectory, moved: float = 0.05) -> float:
@@ -415,7 +437,7 @@ class BagRun(unittest.TestCase):
         getattr(self, "check_" + ARGS.mode)()
 
     def check_node(self):
-        self.launch(use_ekf=False)
+        self.launch(use_ekf=False, calibration=true_calibration(self.dir) if ARGS.calibrated else "")
         self.assertEqual(self.rec.map_odom_publishers, {"/abs_orient"},
                          f"map->odom must have exactly one owner; the node said: {self.rec.last_status}")
         e, n_ok, n = heading_errors_from_tf(self.rec, self.truth, self.offset, self.t_still, self.truth.stamps[-1])
@@ -557,20 +579,7 @@ class BagRun(unittest.TestCase):
         self.assertEqual(problems, [])
 
     def check_calibration(self):
-        import yaml
-
-        from aruco_abs_orient.transforms import matrix_to_rpy, rot_z
-
-        hidden = yaml.safe_load((self.dir / "hidden.yaml").read_text())
-        camera = np.array(hidden["base_T_camera_true"], dtype=float)
-        turned = rot_z(math.radians(1.0)) @ camera[:3, :3]
-        prism = np.array(hidden["base_T_prism"], dtype=float)
-        path = Path(os.environ.get("ROS_HOME", "/tmp")) / "rt_calibration.yaml"
-        path.write_text(yaml.safe_dump({
-            "base_link_to_camera": {"xyz": camera[:3, 3].tolist(),
-                                    "rpy_deg": np.degrees(matrix_to_rpy(turned)).tolist()},
-            "base_link_to_prism": {"xyz": prism[:3, 3].tolist()}}))
-        self.launch(use_ekf=False, calibration=str(path))
+        self.launch(use_ekf=False, calibration=true_calibration(self.dir, turn_deg=1.0))
         e, n_ok, n = heading_errors_from_tf(self.rec, self.truth, self.offset, self.t_still, self.truth.stamps[-1])
         self.assertGreater(n_ok, 0.8 * n, f"map->base_link available at only {n_ok} of {n} truth times")
         mean = math.degrees(float(np.mean(e)))
@@ -653,6 +662,8 @@ if __name__ == "__main__":
     ap.add_argument("--scenario", help="use this generated scenario directory instead of generating --preset")
     ap.add_argument("--rate", type=float, default=1.0, help="playback rate")
     ap.add_argument("--max-yaw-rmse-deg", type=float, default=0.3)
+    ap.add_argument("--calibrated", action="store_true",
+                    help="node mode: calibration:= the scenario's true camera mounting and readout")
     ap.add_argument("--max-pos-rmse", type=float, default=0.03)
     ARGS, rest = ap.parse_known_args(rospy.myargv()[1:])
     rostest.rosrun("aruco_abs_orient", f"rt_abs_orient_bag_{ARGS.mode}_{ARGS.owner}", BagRun, [sys.argv[0]] + rest)
