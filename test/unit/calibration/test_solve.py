@@ -133,6 +133,22 @@ def test_malformed_inputs():
         run((t, ids, b, s, odom, tp, pp, mmap), params=CalibrationParams(knot_spacing=0.0))
 
 
+def _feed_recording(sc, every: int, noise: float, readout=None, prism_shift: float = 0.0):
+    """A Recording of ``sc``'s exact bearings (``synthetic.feed``, at their rows' capture times with the
+    ``readout`` given, default the scenario's, + ``noise`` rad) in every ``every``-th frame, the VO as the
+    generator makes it and the prism track with its stamps moved by ``prism_shift`` s."""
+    from aruco_abs_orient.synthetic.feed import marker_observations
+
+    readout = sc.config.rolling_shutter_readout if readout is None else readout
+    off = sc.config.camera_time_offset
+    frames = sc.frame_times[::every]
+    ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(sc.config.seed), readout=readout)
+    grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
+    return Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise),
+                     Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off + prism_shift,
+                     sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows)
+
+
 @pytest.mark.parametrize("readout, seed", [(0.0, 0), (0.015, 1), (0.030, 2)])
 def test_readout_recovered_from_feed_observations(readout, seed):
     """Issue 17: bearings of the generator's world taken at their rows' capture times with a 0/15/30 ms
@@ -141,19 +157,11 @@ def test_readout_recovered_from_feed_observations(readout, seed):
     boresight (yaw within 3 σ)."""
     import dataclasses
 
-    from aruco_abs_orient.synthetic.feed import marker_observations
     from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
 
     sc = Scenario(dataclasses.replace(PRESETS["easy"], seed=seed, boresight_deg=0.5, marker_height=(0.0, 3.0),
                                       track_radii=(6.0, 4.0), marker_distance=(1.5, 8.0), n_markers=12))
-    off = sc.config.camera_time_offset
-    frames = sc.frame_times
-    ob = marker_observations(sc, frames, noise=SIGMA_BEARING, rng=np.random.default_rng(seed), readout=readout)
-    grid = np.arange(frames[0], frames[-1], 1 / 30)
-    rec = Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), SIGMA_BEARING),
-                    Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off,
-                    sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows)
-    cal = calibrate(rec, Unknowns(time_offset=True, readout=True))
+    cal = calibrate(_feed_recording(sc, 1, SIGMA_BEARING, readout=readout), Unknowns(time_offset=True, readout=True))
     miss = cal.readout - readout
     assert abs(miss) < 0.002 and abs(miss) < 3 * cal.readout_sigma, (miss, cal.readout_sigma)
     assert "readout_ms" in cal.report_dict()
@@ -236,40 +244,17 @@ def test_vo_tilt_drift_of_the_realistic_world_does_not_bias_the_calibration():
     offset and readout undetermined on this world's rendered demo."""
     import dataclasses
 
-    from aruco_abs_orient.synthetic.feed import marker_observations
     from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
 
     sc = Scenario(dataclasses.replace(PRESETS["demo"], seed=5, boresight_deg=0.5))
     readout = sc.config.rolling_shutter_readout
-    off = sc.config.camera_time_offset
-    frames = sc.frame_times[::3]
     noise = math.radians(0.02)  # what the rendered realistic demo's residuals show (0.029° RMS angle)
-    ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(5), readout=readout)
-    grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
-    rec = Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise),
-                    Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off + 0.02,
-                    sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows)
-    cal = calibrate(rec, Unknowns(time_offset=True, readout=True))
+    cal = calibrate(_feed_recording(sc, 3, noise, prism_shift=0.02), Unknowns(time_offset=True, readout=True))
     err = np.array(cal.boresight_rpy) - np.array(matrix_to_rpy(sc.base_T_camera_true[:3, :3]))
     assert np.all(np.abs(np.degrees(err)) < 0.03), np.degrees(err)
     assert np.all(np.abs(err) < 3 * cal.boresight_sigma), (np.degrees(err), np.degrees(cal.boresight_sigma))
     assert abs(cal.time_offset_delta + 0.02) < 0.002, cal.time_offset_delta
     assert abs(cal.readout - readout) < 0.003, cal.readout
-
-
-def _feed_recording(sc, every: int, noise: float):
-    """A Recording of ``sc``'s exact bearings (``synthetic.feed``, at their rows' capture times, + ``noise``
-    rad) in every ``every``-th frame, the prism track and the VO as the generator makes them."""
-    from aruco_abs_orient.synthetic.feed import marker_observations
-
-    off = sc.config.camera_time_offset
-    frames = sc.frame_times[::every]
-    ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(sc.config.seed),
-                             readout=sc.config.rolling_shutter_readout)
-    grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
-    return Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise),
-                     Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off,
-                     sc.prism.positions, sc.markers, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows)
 
 
 def test_readout_from_a_calibration_spin():
