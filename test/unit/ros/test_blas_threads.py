@@ -1,7 +1,5 @@
-"""Every node keeps OpenBLAS to one thread (``aruco_abs_orient/__init__``), even where the user's environment
-says nothing: OpenBLAS's waiting threads spin. Before, the abs_orient node replaying a bag at 4× real time
-used 1.6 of 2 cores, a third of it in the kernel, and its map->odom reached the other processes up to 0.4 s
-late; with one thread, 1.0 core and 8 % in the kernel (``test/abs_orient_consumer_bad.test``).
+"""Every node keeps OpenBLAS to one thread, even where the user's environment says nothing: its waiting
+threads spin and starve the robot's other processes (``aruco_abs_orient/__init__`` has the figures).
 
 Each script in ``scripts/`` is run up to its ``main()`` call in a fresh interpreter, and asked how many
 threads each OpenBLAS it loaded uses (numpy's and the system's: their own ``openblas_get_num_threads``,
