@@ -108,8 +108,8 @@ def workflow(scen: str, run: str, readout: bool = False, calib_scen: str = None)
     import yaml
 
     os.makedirs(run, exist_ok=True)
-    cal_bag, cal_markers = os.path.join(calib_scen or scen, "scenario.bag"), os.path.join(calib_scen or scen,
-                                                                                           "markers.yaml")
+    cal_dir = calib_scen or scen
+    cal_bag, cal_markers = os.path.join(cal_dir, "scenario.bag"), os.path.join(cal_dir, "markers.yaml")
     with open(os.path.join(scen, "hidden.yaml")) as f:
         hidden = yaml.safe_load(f)
     try:
