@@ -11,6 +11,12 @@ of column u), has
 
 and the unit bearing (cos el cos az, cos el sin az, sin el).
 
+A real 360° camera is two back-to-back fisheye lenses whose projection centres are not one point;
+:class:`DualFisheye` is that geometry (each lens's centre offset along its own axis, each lens's residual
+rotation, the stitching distance and the blend band at the seams): the ray in space of a stitched bearing
+(:meth:`DualFisheye.rays`), and the stitched bearing of a point (:meth:`DualFisheye.project`). With a zero
+offset and rotation it is the single-centre model above (a ray from the camera origin along the bearing).
+
 A gnomonic view is a virtual pinhole camera (OpenCV convention: x right, y down,
 z forward, pixel centres at integers) whose optical axis points along a chosen bearing
 of the equirectangular camera; it is used to detect markers without the equirect
@@ -27,11 +33,13 @@ from typing import Optional, Tuple
 import numpy as np
 
 from .errors import ConfigurationError
-from .transforms import cross3
+from .transforms import cross3, rotvec_to_matrix
 
 __all__ = [
     "CameraModelError",
     "Equirect",
+    "DualFisheye",
+    "SINGLE_CENTRE",
     "GnomonicView",
     "azel_to_bearing",
     "bearing_to_azel",
@@ -131,6 +139,149 @@ class Equirect:
         """
         u = np.asarray(u, dtype=float)
         return u - self.width * np.round((u - reference) / self.width)
+
+
+class DualFisheye:
+    """The stitched image of two back-to-back fisheye lenses, as a stitcher makes it.
+
+    Camera frame as for :class:`Equirect`. The front lens looks along ``a`` = (cos α, sin α, 0), α =
+    ``axis_azimuth`` (rad; 0: the image's centre column), the back lens along −a; the stitch seams are the
+    great circle a·d = 0 (azimuths α ± 90°).
+
+    - ``lens_offset`` (m): each lens's projection centre sits this far from the camera origin along its own
+      axis: front ``+o·a``, back ``−o·a`` (the camera origin is their midpoint).
+    - ``lens_rotation`` (3,) rad: rotation vector of the back lens relative to the front one (what is left of
+      the factory's stitching calibration); each lens is turned by half of it, front ``exp(−ε/2)``, back
+      ``exp(+ε/2)``, so that the camera frame (the boresight) stays their mean.
+    - ``stitch_distance`` (m, may be inf): the stitcher maps a stitched direction d to lens k's direction
+      ``(D·d − c_k)/|D·d − c_k|``: a point at that distance from the camera origin is seen where a single
+      centre would see it; nearer or farther points are displaced by about o·sin θ·(1/r − 1/D) rad (θ from
+      the lens axis, r the range).
+    - ``blend_band`` (rad): width of the band at each seam across which the two images are blended (the
+      front lens's weight rises linearly from 0 to 1 over it); a marker in it shows twice, weighted.
+
+    A lens k with centre ``c_k`` and rotation ``E_k`` records a point X at direction ``g = E_kᵀ (X − c_k)/|·|``
+    and the stitcher puts it at the stitched direction d solving ``(D d − c_k)/|·| = g``, |d| = 1. Pure
+    numpy, vectorised over leading dimensions, Python 3.8.
+
+    >>> cam = DualFisheye(lens_offset=0.01)
+    >>> az, _ = bearing_to_azel(cam.project([1.0, 3.0, 0.0]))   # 71.565° from one centre, 0.172° further
+    >>> round(float(np.degrees(az)), 3)                           # from the front lens's axis
+    71.737
+    >>> o, w = cam.rays(cam.project([1.0, 3.0, 0.0]))             # that lens's ray passes through the point
+    >>> bool(np.allclose(np.cross(np.array([1.0, 3.0, 0.0]) - o, w), 0.0, atol=1e-12))
+    True
+    """
+
+    def __init__(self, lens_offset: float = 0.0, lens_rotation=(0.0, 0.0, 0.0), stitch_distance: float = math.inf,
+                 blend_band: float = math.radians(2.0), axis_azimuth: float = 0.0):
+        rot = np.asarray(lens_rotation, dtype=float).reshape(-1)
+        checks = (
+            ("lens_offset", math.isfinite(lens_offset) and 0.0 <= lens_offset < 0.2, "metres in [0, 0.2)"),
+            ("lens_rotation", rot.shape == (3,) and bool(np.all(np.isfinite(rot)))
+             and float(np.linalg.norm(rot)) < math.radians(10.0), "a rotation vector of 3 finite radians, < 10°"),
+            ("stitch_distance", stitch_distance > 0.5 and not math.isnan(stitch_distance), "metres > 0.5, or inf"),
+            ("blend_band", math.isfinite(blend_band) and 0.0 < blend_band < math.radians(30.0), "radians in (0, 30°)"),
+            ("axis_azimuth", math.isfinite(axis_azimuth), "a finite angle in radians"),
+        )
+        for name, ok, what in checks:
+            if not ok:
+                raise CameraModelError(f"DualFisheye.{name}: expected {what}, got {locals()[name]!r}")
+        self.lens_offset = float(lens_offset)
+        self.lens_rotation = rot.copy()
+        self.stitch_distance = float(stitch_distance)
+        self.blend_band = float(blend_band)
+        self.axis_azimuth = float(axis_azimuth)
+        self.axis = np.array([math.cos(axis_azimuth), math.sin(axis_azimuth), 0.0])
+        self.centres = np.stack([self.lens_offset * self.axis, -self.lens_offset * self.axis])   # front, back
+        self.rotations = np.stack([rotvec_to_matrix(-0.5 * rot), rotvec_to_matrix(0.5 * rot)])  # E_front, E_back
+
+    def __repr__(self) -> str:
+        return (f"DualFisheye(lens_offset={self.lens_offset!r}, lens_rotation={self.lens_rotation.tolist()!r}, "
+                f"stitch_distance={self.stitch_distance!r}, blend_band={self.blend_band!r}, "
+                f"axis_azimuth={self.axis_azimuth!r})")
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, DualFisheye) and repr(self) == repr(other)
+
+    def replace(self, **changes) -> DualFisheye:
+        """A copy with some of the constructor's arguments changed."""
+        args = {"lens_offset": self.lens_offset, "lens_rotation": self.lens_rotation,
+                "stitch_distance": self.stitch_distance, "blend_band": self.blend_band,
+                "axis_azimuth": self.axis_azimuth}
+        args.update(changes)
+        return DualFisheye(**args)
+
+    @property
+    def single_centre(self) -> bool:
+        """True when the model is the single-centre one (no offset, no relative rotation)."""
+        return self.lens_offset == 0.0 and not np.any(self.lens_rotation)
+
+    def front_weight(self, bearings) -> np.ndarray:
+        """The front lens's share (...) of the stitched image at stitched bearing(s) (..., 3): 1 in the front
+        hemisphere beyond the blend band, 0 in the back one, linear in the angle from the seam across it."""
+        b = np.asarray(bearings, dtype=float)
+        s = (b @ self.axis) / np.linalg.norm(b, axis=-1)
+        return np.clip(np.arcsin(np.clip(s, -1.0, 1.0)) / self.blend_band + 0.5, 0.0, 1.0)
+
+    def _lens_direction(self, d: np.ndarray, k: int) -> np.ndarray:
+        """Lens k's own direction g (..., 3) sampled for stitched unit directions ``d`` (..., 3)."""
+        if math.isinf(self.stitch_distance):
+            return d
+        g = self.stitch_distance * d - self.centres[k]
+        return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+    def _stitched(self, g: np.ndarray, k: int) -> np.ndarray:
+        """The stitched unit direction (..., 3) where lens k's direction ``g`` (unit, ..., 3) lands: d with
+        (D·d − c_k) ∥ g, |d| = 1 (exact: the positive root of |c_k + λ g| = D)."""
+        if math.isinf(self.stitch_distance):
+            return g
+        c = self.centres[k]
+        cg = g @ c
+        lam = -cg + np.sqrt(cg * cg - float(c @ c) + self.stitch_distance ** 2)
+        return (c + lam[..., None] * g) / self.stitch_distance
+
+    def lens_rays(self, bearings, lens: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Lens ``lens``'s rays (origin (3,) m, unit directions (..., 3)) in the camera frame that the stitcher
+        samples for stitched bearing(s) (..., 3) (0 the front lens, 1 the back one; a renderer blends both
+        in the band with :meth:`front_weight`)."""
+        b = np.asarray(bearings, dtype=float)
+        d = b / np.linalg.norm(b, axis=-1, keepdims=True)
+        return self.centres[lens], self._lens_direction(d, lens) @ self.rotations[lens].T   # w = E_k g
+
+    def rays(self, bearings) -> Tuple[np.ndarray, np.ndarray]:
+        """The rays (origins (..., 3) m, unit directions (..., 3)) in the camera frame along which stitched
+        bearing(s) (..., 3) look: from the centre of the lens that dominates there (exact outside the blend
+        band; in it, that of the lens with the larger weight), whatever the range."""
+        b = np.asarray(bearings, dtype=float)
+        front = self.front_weight(b) >= 0.5
+        (o_f, w_f), (o_b, w_b) = self.lens_rays(b, 0), self.lens_rays(b, 1)
+        return np.where(front[..., None], o_f, o_b), np.where(front[..., None], w_f, w_b)
+
+    def project(self, points) -> np.ndarray:
+        """Stitched unit bearing(s) (..., 3) of camera-frame point(s) (..., 3) m: each lens's image of the
+        point, weighted by that lens's share of the stitched image where the image lands (one of them outside
+        the blend band; both, ghosted, in it)."""
+        X = np.asarray(points, dtype=float)
+        copies, weights = [], []
+        for k in (0, 1):
+            w = X - self.centres[k]
+            g = (w / np.linalg.norm(w, axis=-1, keepdims=True)) @ self.rotations[k]   # g = E_kᵀ w
+            d = self._stitched(g, k)
+            copies.append(d)
+            share = self.front_weight(d)
+            weights.append(share if k == 0 else 1.0 - share)
+        wf, wb = weights
+        total = wf + wb
+        none = total <= 0.0    # the point falls in neither lens's part (nearer than the band allows): its side
+        wf = np.where(none, (X @ self.axis >= 0).astype(float), wf)
+        wb = np.where(none, 1.0 - wf, wb)
+        d = wf[..., None] * copies[0] + wb[..., None] * copies[1]
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+#: the single-centre camera (no lens offset or rotation): rays from the camera origin along the bearing
+SINGLE_CENTRE = DualFisheye()
 
 
 def _look_rotation(forward, up_hint=None) -> np.ndarray:

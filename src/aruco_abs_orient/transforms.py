@@ -18,6 +18,7 @@ __all__ = [
     "rot_z",
     "rpy_to_matrix",
     "matrix_to_rpy",
+    "rotvec_to_matrix",
     "yaw_of",
     "wrap_angle",
     "quat_to_matrix",
@@ -80,6 +81,21 @@ def cross3(a, b) -> np.ndarray:
 def rpy_to_matrix(roll, pitch, yaw) -> np.ndarray:
     """``Rz(yaw) · Ry(pitch) · Rx(roll)`` (..., 3, 3); angles in radians."""
     return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
+
+
+def rotvec_to_matrix(w) -> np.ndarray:
+    """Rotation matrix/matrices (..., 3, 3) of rotation vector(s) ``w`` (..., 3): the axis times the angle in
+    radians (Rodrigues; exact for any angle, the identity for a zero vector)."""
+    w = np.asarray(w, dtype=float)
+    theta = np.sqrt(np.sum(w * w, axis=-1))
+    small = theta < 1e-12
+    k = w / np.where(small, 1.0, theta)[..., None]
+    K = np.zeros(w.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -k[..., 2], k[..., 1], -k[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = k[..., 2], -k[..., 1], k[..., 0]
+    s = np.sin(theta)[..., None, None]
+    c = (1.0 - np.cos(theta))[..., None, None]
+    return np.eye(3) + s * K + c * (K @ K)
 
 
 def matrix_to_rpy(R):

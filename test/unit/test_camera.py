@@ -9,7 +9,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from aruco_abs_orient.camera import (
+    SINGLE_CENTRE,
     CameraModelError,
+    DualFisheye,
     Equirect,
     GnomonicView,
     angle_between,
@@ -148,3 +150,99 @@ def test_gnomonic_rejects_bad_parameters():
         GnomonicView([0, 0, 0], (10, 10), 5.0)
     with pytest.raises(CameraModelError):
         GnomonicView([1, 0, 0], (10, 10), -1.0)
+
+
+# ---------------------------------------------------------------------------- the two lenses (DualFisheye)
+
+offsets = st.floats(0.0, 0.03)
+stitch = st.sampled_from([math.inf, 1.0, 2.0, 5.0])
+rotations = st.lists(st.floats(-0.003, 0.003), min_size=3, max_size=3)
+ranges = st.floats(0.8, 30.0)
+
+
+def _point(az, el, r):
+    return r * azel_to_bearing(az, el)
+
+
+def test_single_centre_is_the_one_centre_model():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(500, 3)) * 5
+    d = X / np.linalg.norm(X, axis=1, keepdims=True)
+    assert np.allclose(SINGLE_CENTRE.project(X), d, atol=1e-15)
+    o, w = SINGLE_CENTRE.rays(d)
+    assert np.all(o == 0.0) and np.allclose(w, d, atol=1e-15)
+    assert SINGLE_CENTRE.single_centre and not DualFisheye(lens_offset=0.01).single_centre
+
+
+@pytest.mark.parametrize("az_deg, r, stitch_m", [(70.0, 3.0, math.inf), (110.0, 3.0, math.inf), (45.0, 6.0, math.inf),
+                                                  (80.0, 3.0, 2.0), (-60.0, 1.5, 2.0), (150.0, 8.0, 2.0)])
+def test_parallax_matches_the_small_angle_formula(az_deg, r, stitch_m):
+    """A point at range r, θ from its lens's axis, is pushed away from that axis by o·sin θ·(1/r − 1/D) rad
+    (hand formula, to first order in o): 1 cm at 3 m abeam is 0.18° at infinity stitching, none at r = D."""
+    o = 0.01
+    cam = DualFisheye(lens_offset=o, stitch_distance=stitch_m)
+    az = math.radians(az_deg)
+    az_seen, el_seen = bearing_to_azel(cam.project(_point(az, 0.0, r)))
+    theta = abs(az) if abs(az) < math.pi / 2 else math.pi - abs(az)   # angle from the lens's own axis
+    away = 1.0 if abs(az) < math.pi / 2 else -1.0                   # front: away from +x is away from az 0
+    expected = away * math.copysign(1.0, az) * o * math.sin(theta) * (1.0 / r - 1.0 / stitch_m)
+    assert float(el_seen) == pytest.approx(0.0, abs=1e-12)
+    assert float(az_seen) - az == pytest.approx(expected, rel=0.01, abs=2e-6)
+    # the issue's figure: 1 cm, 3 m abeam, stitched at infinity → about 0.19°
+    if stitch_m == math.inf and az_deg == 70.0:
+        assert math.degrees(abs(float(az_seen) - az)) == pytest.approx(0.18, abs=0.01)
+
+
+@given(azimuths, st.floats(-1.2, 1.2), ranges, offsets, stitch, rotations)
+def test_the_ray_of_a_projected_point_passes_through_it(az, el, r, o, d_stitch, rot):
+    """Outside the blend band the ray of the stitched bearing of any point goes through the point, for any
+    offset, rotation and stitching distance (the forward and inverse models agree exactly)."""
+    cam = DualFisheye(lens_offset=o, lens_rotation=rot, stitch_distance=d_stitch)
+    X = _point(az, el, r)
+    d = cam.project(X)
+    if 0.0 < float(cam.front_weight(d)) < 1.0:
+        return
+    origin, w = cam.rays(d)
+    assert np.linalg.norm(np.cross(X - origin, w)) < 1e-9 * r and float((X - origin) @ w) > 0
+
+
+@given(azimuths, st.floats(-1.2, 1.2), st.floats(1.0, 20.0), st.floats(0.001, 0.03))
+def test_a_point_at_the_stitching_distance_shows_no_parallax(az, el, d_stitch, o):
+    cam = DualFisheye(lens_offset=o, stitch_distance=d_stitch)
+    X = _point(az, el, d_stitch)
+    assert angle_between(cam.project(X), X) < 1e-12
+
+
+def test_each_lens_is_turned_by_half_the_relative_rotation():
+    """Front points turn by −ε/2, back points by +ε/2: ε is the back lens's rotation relative to the front."""
+    eps = np.radians([0.0, 0.0, 0.05])   # the back lens turned 0.05° about z relative to the front
+    cam = DualFisheye(lens_rotation=eps)
+    for az, sign in ((0.3, -1.0), (2.8, 1.0), (-2.8, 1.0), (-0.3, -1.0)):
+        seen = float(bearing_to_azel(cam.project(_point(az, 0.0, 5.0)))[0])
+        assert seen - az == pytest.approx(-sign * 0.5 * eps[2], abs=1e-12)
+
+
+def test_the_blend_band_ghosts_both_images_and_is_continuous():
+    """On the seam both copies are weighted equally; across the band the stitched bearing moves smoothly from
+    the front copy to the back copy (no jump larger than the parallax between neighbouring points)."""
+    cam = DualFisheye(lens_offset=0.01, blend_band=math.radians(2.0))
+    r = 3.0
+    az = np.radians(np.linspace(85.0, 95.0, 2001))
+    X = _point(az, np.zeros_like(az), r)
+    seen = bearing_to_azel(cam.project(X))[0]
+    step = np.diff(seen - az)
+    assert np.max(np.abs(step)) < 2e-4                      # continuous (0.01° per 0.005° step at most)
+    front = np.degrees(seen - az)[az < np.radians(88.0)]
+    back = np.degrees(seen - az)[az > np.radians(92.0)]
+    assert np.all(front > 0.15) and np.all(back < -0.15)    # front lens pushes to larger az, back to smaller
+    on_seam = cam.project(_point(math.pi / 2, 0.0, r))
+    assert float(bearing_to_azel(on_seam)[0]) == pytest.approx(math.pi / 2, abs=1e-12)
+
+
+def test_lens_model_rejects_bad_parameters():
+    for kwargs in ({"lens_offset": -0.01}, {"lens_offset": math.nan}, {"stitch_distance": 0.1},
+                   {"lens_rotation": [0.0, 0.0]}, {"blend_band": 0.0}, {"lens_rotation": [1.0, 0.0, 0.0]}):
+        with pytest.raises(CameraModelError, match=list(kwargs)[0]):
+            DualFisheye(**kwargs)
+    assert DualFisheye(lens_offset=0.01).replace(stitch_distance=2.0) == DualFisheye(lens_offset=0.01,
+                                                                                     stitch_distance=2.0)

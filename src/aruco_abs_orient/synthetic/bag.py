@@ -249,7 +249,7 @@ def generate(config: ScenarioConfig, out_dir: str, progress: bool = True, force:
         write_tum(truth_path, truth, header="base_link in map at each image's TRUE capture time (of its middle "
                                             f"row; image stamps = these + {c.camera_time_offset} s{clock})")
         markers_path = os.path.join(out_dir, "markers.yaml")
-        scenario.markers.save(markers_path)
+        scenario.surveyed_markers.save(markers_path)
         hidden_path = os.path.join(out_dir, "hidden.yaml")
         scenario.save_hidden(hidden_path)
         os.replace(tmp_bag, bag_path)

@@ -3,9 +3,10 @@
 Inverse mapping with supersampling: for every (sub)pixel in a marker's bounding pixel box the
 ray of ``camera.Equirect.pixel_to_bearing`` (the package's one pixel↔bearing convention) is
 intersected with the marker plane, the ArUco bit under the hit point is looked up and the
-sub-samples are averaged. The rest of the frame is a precomputed background panorama (textured
-or flat grey) rolled by the camera's yaw. Then optional Gaussian blur, sensor noise and a JPEG
-round trip, as set by a :class:`RenderProfile`.
+sub-samples are averaged. A two-lens camera (``camera.DualFisheye``) casts each pixel's ray from
+its lens's centre along its lens's direction, both lenses' in the blend band, weighted. The rest of
+the frame is a precomputed background panorama (textured or flat grey) rolled by the camera's yaw.
+Then optional Gaussian blur, sensor noise and a JPEG round trip, as set by a :class:`RenderProfile`.
 
 Units: metres for positions and sizes, radians for angles, pixels for blur, grey levels (DN,
 0–255) for noise. Frames: the camera frame of DESIGN §2 (x = image centre column, y left, z up).
@@ -21,7 +22,7 @@ from typing import Dict, Optional, Sequence, Tuple, Union
 import cv2
 import numpy as np
 
-from ..camera import Equirect, bearing_to_azel
+from ..camera import SINGLE_CENTRE, DualFisheye, Equirect, bearing_to_azel
 from ..errors import ConfigurationError
 from ..markers import ARUCO_DICTIONARIES
 from ..transforms import rot_x, rot_z
@@ -234,10 +235,11 @@ def _noise_field(height: int, width: int, seed: int) -> np.ndarray:
     return field
 
 
-def _bounding_box(equirect: Equirect, marker: PlacedMarker, half: float
+def _bounding_box(equirect: Equirect, marker: PlacedMarker, half: float, extra_pad: float = 0.0
                   ) -> Optional[Tuple[int, int, int, int]]:
     """Pixel box (u0, u1, v0, v1), inclusive, u possibly outside [0, W) (wraps), of the marker's
-    face square of half side ``half`` (m). None when the square is behind the camera entirely."""
+    face square of half side ``half`` (m), padded by ``extra_pad`` px. None when the square is behind
+    the camera entirely."""
     n_edge = 24
     t = np.linspace(-1.0, 1.0, n_edge, endpoint=False)
     ones = np.ones_like(t)
@@ -268,7 +270,8 @@ def _bounding_box(equirect: Equirect, marker: PlacedMarker, half: float
             else:
                 el_min = -math.pi / 2
     # great-circle edges bulge between outline samples: pad by the sample spacing's sagitta + 2 px
-    pad = 2.0 + (2.0 * half / n_edge) / max(float(np.linalg.norm(pts, axis=-1).min()), 1e-9) / equirect.rad_per_px
+    pad = 2.0 + extra_pad + (2.0 * half / n_edge) / max(float(np.linalg.norm(pts, axis=-1).min()), 1e-9) \
+        / equirect.rad_per_px
     if all_columns or float(az_u.max() - az_u.min()) > math.pi:
         u0, u1 = 0, equirect.width - 1
     else:
@@ -293,11 +296,17 @@ class _MarkerShader:
 
     The placement may be one pose (``center`` (3,), ``camera_R_marker`` (3, 3)) or one pose per
     image row (``center`` (H, 3), ``camera_R_marker`` (H, 3, 3)): a rolling shutter, each row
-    seeing the square where it was at that row's capture time. ``origins`` (H, 3), optional: the
-    ray origin of each row in the camera frame of that row (the camera at row time when the
-    placement is given relative to one reference pose)."""
+    seeing the square where it was at that row's capture time. ``lens`` (a ``DualFisheye`` and the index
+    of one of its lenses), optional: the rays start at that lens's centre and run along its direction for
+    each stitched pixel (the placement is then relative to the camera origin, as always)."""
 
-    def __init__(self, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray, n_bits_black: int):
+    def __init__(self, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray, n_bits_black: int,
+                 lens: Optional[Tuple[DualFisheye, int]] = None):
+        self.lens = lens
+        if lens is not None:   # ray casting from the lens centre: the square relative to it
+            centre = np.asarray(marker.center, dtype=float) - lens[0].centres[lens[1]]
+            marker = PlacedMarker(marker.id, marker.size, centre, marker.camera_R_marker)
+        self.marker = marker
         self.equirect = equirect
         R = np.asarray(marker.camera_R_marker, dtype=float)
         c = np.asarray(marker.center, dtype=float)
@@ -323,6 +332,8 @@ class _MarkerShader:
         """(inside, grey, distance) at pixel coordinates u, v (same shape): whether the ray hits the
         face (square + quiet zone), its grey level (float32) and the distance along the ray (m)."""
         d = self.equirect.pixel_to_bearing(u, v)
+        if self.lens is not None:
+            d = self.lens[0].lens_rays(d, self.lens[1])[1]
         if self.per_row:
             # pixel centres at integer rows: a sub-sample belongs to the nearest row
             row = np.clip(np.floor(np.asarray(v) + 0.5).astype(np.intp), 0, self.R.shape[0] - 1)
@@ -356,7 +367,7 @@ _ADAPTIVE_MIN_BIT_PX = 3.0
 
 def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, bits: np.ndarray,
                   n_bits_black: int, supersample: int, depth: Optional[np.ndarray] = None,
-                  light: Tuple[float, float] = (1.0, 0.0)) -> None:
+                  light: Tuple[float, float] = (1.0, 0.0), lenses: DualFisheye = SINGLE_CENTRE) -> None:
     """Average the marker (with its quiet zone) into ``canvas`` (H, W) float32 in place.
 
     Pixels are shaded by S×S sub-samples (S = ``supersample``). When a bit spans at least
@@ -368,27 +379,73 @@ def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, 
     The texture's grey g is painted as ``offset + gain · g`` (illumination: ``light`` = (gain, offset)).
     ``depth`` (H, W), optional: a depth buffer (m along the ray); pixels at least half covered get the face's
     distance where it is nearer, and the face is not painted where the buffer is nearer.
+    ``lenses``: the camera's two lenses; each pixel is shaded through the lens(es) the stitcher takes it from,
+    weighted by their share (:meth:`DualFisheye.front_weight`).
     """
     gain, offset = light
-    shader = _MarkerShader(equirect, marker, bits, n_bits_black)
-    if shader.edge_on:
-        return
-    box = _bounding_box(equirect, _row_placement(marker, 0), shader.half)
-    if shader.per_row:  # the union of the boxes at the first, middle and last row's poses
-        rows = marker.center.shape[0]
-        box = _union_boxes(equirect, [box] + [_bounding_box(equirect, _row_placement(marker, k), shader.half)
-                                              for k in (rows // 2, rows - 1)])
+    if lenses.single_centre:
+        views = [(_MarkerShader(equirect, marker, bits, n_bits_black), None, 0.0)]
+    else:
+        # a lens's stitched image is its own view turned by half the relative rotation and moved by the
+        # stitching distance's parallax: pad each lens's box by that
+        pad = (0.5 * float(np.linalg.norm(lenses.lens_rotation)) + lenses.lens_offset / lenses.stitch_distance) \
+            / equirect.rad_per_px + 1.0
+        views = [(_MarkerShader(equirect, marker, bits, n_bits_black, (lenses, k)), k, pad) for k in (0, 1)]
+    views = [v for v in views if not v[0].edge_on]
+    boxes = []
+    for shader, _, pad in views:
+        boxes.append(_bounding_box(equirect, _row_placement(shader.marker, 0), shader.half, pad))
+        if shader.per_row:  # the union of the boxes at the first, middle and last row's poses
+            rows = shader.marker.center.shape[0]
+            boxes += [_bounding_box(equirect, _row_placement(shader.marker, k), shader.half, pad)
+                      for k in (rows // 2, rows - 1)]
+    box = _union_boxes(equirect, boxes)
     if box is None:
         return
     u0, u1, v0, v1 = box
-    rows_n, cols_n = v1 - v0 + 1, u1 - u0 + 1
-    S = int(supersample)
-    offs = (np.arange(S) + 0.5) / S - 0.5
     uu, vv = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), np.arange(v0, v1 + 1, dtype=float))
+    covered = paint = dist = None
+    front = None if lenses.single_centre else lenses.front_weight(equirect.pixel_to_bearing(uu, vv)).astype(np.float32)
+    for shader, k, _ in views:
+        share = None if k is None else (front if k == 0 else 1.0 - front)
+        if share is not None and not share.any():
+            continue
+        cover = _coverage(shader, uu, vv, int(supersample), depth is not None)
+        if cover is None:
+            continue
+        c_k, p_k, d_k = cover if share is None else (cover[0] * share, cover[1] * share, cover[2])
+        if covered is None:
+            covered, paint, dist = c_k, p_k, d_k
+        else:
+            covered, paint = covered + c_k, paint + p_k
+            if d_k is not None:   # the depth of the lens with the larger share
+                dist = d_k if dist is None else np.where(front >= 0.5, dist, d_k)
+    if covered is None:
+        return
+    if gain != 1.0 or offset != 0.0:
+        paint = (gain * paint + offset * covered).astype(np.float32)
+    cols = np.arange(u0, u1 + 1) % equirect.width
+    if depth is not None:
+        behind = depth[v0:v1 + 1][:, cols]
+        dist = np.where(np.isfinite(dist) & (dist > 0), dist, np.inf).astype(np.float32)
+        hidden = behind < dist
+        covered = np.where(hidden, np.float32(0.0), covered)
+        paint = np.where(hidden, np.float32(0.0), paint)
+        depth[v0:v1 + 1, cols] = np.where(covered >= 0.5, dist, behind)
+    patch = canvas[v0:v1 + 1][:, cols]
+    canvas[v0:v1 + 1, cols] = patch * (1.0 - covered) + paint
+
+
+def _coverage(shader: _MarkerShader, uu: np.ndarray, vv: np.ndarray, S: int, with_depth: bool):
+    """(covered fraction, mean grey × covered, distance or None) float32 per pixel of the grid ``uu``, ``vv``
+    (pixel centres of a box) by S×S sub-samples (adaptive, see :func:`_splat_marker`); None when the face
+    covers none of it."""
+    rows_n, cols_n = uu.shape
+    offs = (np.arange(S) + 0.5) / S - 0.5
     if S > 1 and shader.bit_px >= _ADAPTIVE_MIN_BIT_PX:
         inside, grey, dist = shader.shade(uu, vv)
         if not inside.any():
-            return
+            return None
         label = np.pad(np.where(inside, grey, -1.0), 1, mode="edge")
         centre = label[1:-1, 1:-1]
         mixed = np.zeros(centre.shape, dtype=bool)
@@ -404,29 +461,16 @@ def _splat_marker(canvas: np.ndarray, equirect: Equirect, marker: PlacedMarker, 
             s_in, s_grey, _ = shader.shade(su, sv)
             covered[iy, ix] = s_in.mean(axis=(1, 2), dtype=np.float32)
             paint[iy, ix] = np.where(s_in, s_grey, np.float32(0.0)).mean(axis=(1, 2), dtype=np.float32)
-    else:
-        us = (np.arange(u0, u1 + 1)[:, None] + offs[None, :]).ravel()
-        vs = (np.arange(v0, v1 + 1)[:, None] + offs[None, :]).ravel()
-        inside, grey, _ = shader.shade(*np.meshgrid(us, vs))
-        if not inside.any():
-            return
-        # per pixel: the covered fraction and the mean of the covered samples' grey
-        covered = inside.reshape(rows_n, S, cols_n, S).mean(axis=(1, 3), dtype=np.float32)
-        paint = np.where(inside, grey, np.float32(0.0)).reshape(rows_n, S, cols_n, S).mean(
-            axis=(1, 3), dtype=np.float32)
-        dist = shader.shade(uu, vv)[2] if depth is not None else None
-    if gain != 1.0 or offset != 0.0:
-        paint = (gain * paint + offset * covered).astype(np.float32)
-    cols = np.arange(u0, u1 + 1) % equirect.width
-    if depth is not None:
-        behind = depth[v0:v1 + 1][:, cols]
-        dist = np.where(np.isfinite(dist) & (dist > 0), dist, np.inf).astype(np.float32)
-        hidden = behind < dist
-        covered = np.where(hidden, np.float32(0.0), covered)
-        paint = np.where(hidden, np.float32(0.0), paint)
-        depth[v0:v1 + 1, cols] = np.where(covered >= 0.5, dist, behind)
-    patch = canvas[v0:v1 + 1][:, cols]
-    canvas[v0:v1 + 1, cols] = patch * (1.0 - covered) + paint
+        return covered, paint, dist
+    us = (uu[0][:, None] + offs[None, :]).ravel()
+    vs = (vv[:, 0][:, None] + offs[None, :]).ravel()
+    inside, grey, _ = shader.shade(*np.meshgrid(us, vs))
+    if not inside.any():
+        return None
+    # per pixel: the covered fraction and the mean of the covered samples' grey
+    covered = inside.reshape(rows_n, S, cols_n, S).mean(axis=(1, 3), dtype=np.float32)
+    paint = np.where(inside, grey, np.float32(0.0)).reshape(rows_n, S, cols_n, S).mean(axis=(1, 3), dtype=np.float32)
+    return covered, paint, (shader.shade(uu, vv)[2] if with_depth else None)
 
 
 def _row_placement(marker: PlacedMarker, row: int) -> PlacedMarker:

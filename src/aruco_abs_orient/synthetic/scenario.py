@@ -9,11 +9,21 @@ Visual odometry ``odom → base_link`` drifts: its yaw error grows linearly plus
 its translation integrates the true motion through that yaw error with a scale error, plus
 jitter. The camera/VO clock runs ``camera_time_offset`` seconds ahead of true time.
 
-The realistic world and the camera effects (issue 17; all off in the easy world's presets):
+The realistic world and the camera effects (all off in the easy world's presets):
 ``world="hall"`` puts the loop in an interior (walls, floor, ceiling with lights, pillars that
 hide markers, posters and checker patterns; synthetic/world.py); the platform wanders
 sideways (``lateral_wander``, m) and its heading follows its path (non-holonomic), with a roll/
 pitch wobble (``tilt_wobble_deg``); the VO also drifts in tilt (``vo_tilt_drift_deg_per_min``).
+A platform may crab (``crab_deg``: base_link x off its direction of travel); a VO without gravity
+keeps odom at base_link's starting pose, tilt included (``odom_levelled=False``); the marker map
+written is the survey, each position off the truth by ``survey_noise`` m per axis.
+
+The camera is two back-to-back fisheye lenses (``camera.DualFisheye``): each lens's centre
+``lens_offset`` m from the camera origin along its axis (camera ±x, seams at ±90° azimuth), the
+back lens turned by ``lens_rotation_deg`` about a random axis relative to the front, the two images
+stitched at ``stitch_distance`` m and blended over ``blend_band_deg`` at the seams; every pixel is
+rendered along its lens's ray (:attr:`Scenario.lenses`), and :meth:`Scenario.marker_bearings` gives
+the stitched bearings.
 
 Rolling shutter (``rolling_shutter_readout`` = R seconds from the first to the last row): the
 frame's stamp is the capture time of its middle row, and image row v (0 = top, H rows) is
@@ -38,12 +48,13 @@ from typing import Dict, List, Tuple
 
 import numpy as np
 
+from ..camera import DualFisheye
 from ..errors import ConfigurationError
 from ..markers import ARUCO_DICTIONARIES, Marker, MarkerMap
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
 from ..tum import atomic_write_text, read_yaml
 from .render import PROFILES, PlacedMarker, facing_marker
-from .world import SEAM_AZIMUTHS_DEG, WORLDS, Hall
+from .world import WORLDS, Hall
 
 __all__ = ["ScenarioError", "ScenarioConfig", "PRESETS", "Scenario", "PrismTrack"]
 
@@ -107,8 +118,13 @@ class ScenarioConfig:
     exposure_wander: float = 0.0  # relative amplitude of exposure and per-surface brightness changes
     jpeg_quality: int = 0  # 1-100; 0 = the render profile's
     rolling_shutter_readout: float = 0.0  # s from the first to the last image row (0 = global)
-    seam_step_px: float = 0.0  # dual-fisheye stitch seam: parallax step, px (0 = no seam)
-    seam_band_deg: float = 2.0  # width of the seam's blend band, deg
+    lens_offset: float = 0.0  # m, each fisheye lens's centre from the camera origin along its axis (0: one centre)
+    lens_rotation_deg: float = 0.0  # the back lens's rotation relative to the front, about a random axis, deg
+    stitch_distance: float = math.inf  # m, the scene distance the two images are stitched at
+    blend_band_deg: float = 2.0  # width of the blend band at each seam, deg
+    crab_deg: float = 0.0  # base_link heading off the direction of travel: 0.7 of it constant, 0.3 swinging
+    odom_levelled: bool = True  # False: odom is base_link's starting pose, roll and pitch too (a VO without gravity)
+    survey_noise: float = 0.0  # m per axis: the written marker map's positions off the true ones
     clock_rate_error_ppm: float = 0.0  # camera clock rate (frame rate) error, parts per million
 
     def validate(self) -> ScenarioConfig:
@@ -159,8 +175,12 @@ class ScenarioConfig:
         need(0 <= self.jpeg_quality <= 100, "jpeg_quality", "expected 1-100, or 0 for the profile's")
         need(0 <= self.rolling_shutter_readout <= 0.04, "rolling_shutter_readout",
              "expected a readout time in [0, 0.04] s")
-        need(0 <= self.seam_step_px <= 20, "seam_step_px", "expected pixels in [0, 20]")
-        need(0 < self.seam_band_deg <= 20, "seam_band_deg", "expected degrees in (0, 20]")
+        need(0 <= self.lens_offset <= 0.05, "lens_offset", "expected metres in [0, 0.05]")
+        need(0 <= self.lens_rotation_deg <= 2, "lens_rotation_deg", "expected degrees in [0, 2]")
+        need(self.stitch_distance >= 1.0, "stitch_distance", "expected metres >= 1, or inf")
+        need(0 < self.blend_band_deg <= 20, "blend_band_deg", "expected degrees in (0, 20]")
+        need(abs(self.crab_deg) <= 10, "crab_deg", "expected |degrees| <= 10")
+        need(0 <= self.survey_noise <= 0.05, "survey_noise", "expected metres in [0, 0.05]")
         need(abs(self.clock_rate_error_ppm) <= 1000, "clock_rate_error_ppm", "expected |ppm| <= 1000")
         return self
 
@@ -204,8 +224,8 @@ class ScenarioConfig:
 REALISTIC = ScenarioConfig(
     duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19, marker_distance=(2.0, 12.0),
     profile="hall", world="hall", lateral_wander=0.01, tilt_wobble_deg=0.3, vo_tilt_drift_deg_per_min=0.5,
-    exposure_time=0.006, exposure_wander=0.15, jpeg_quality=85, seam_step_px=1.5, seam_band_deg=2.0,
-    clock_rate_error_ppm=20.0)
+    exposure_time=0.006, exposure_wander=0.15, jpeg_quality=85, clock_rate_error_ppm=20.0, lens_offset=0.01,
+    lens_rotation_deg=0.05, blend_band_deg=2.0, survey_noise=0.002, odom_levelled=False)
 
 PRESETS: Dict[str, ScenarioConfig] = {
     # plumbing tests: big markers so they are visible at 960 px
@@ -291,6 +311,12 @@ class Scenario:
         tilt_az = rng_real.uniform(-math.pi, math.pi)
         self.vo_tilt_axis = np.array([math.cos(tilt_az), math.sin(tilt_az), 0.0])
         self.exposure_phase = rng_real.uniform(0.0, 2.0 * math.pi, 2)
+        # --- the two lenses and the crab (their own random stream: the other draws stay as they were)
+        rng_lens = np.random.default_rng([c.seed, 28])
+        lens_axis = rng_lens.normal(size=3)
+        self.lens_rotation = math.radians(c.lens_rotation_deg) * lens_axis / np.linalg.norm(lens_axis)
+        self.lenses = DualFisheye(c.lens_offset, self.lens_rotation, c.stitch_distance, math.radians(c.blend_band_deg))
+        self._crab_phase = float(rng_lens.uniform(0.0, 2.0 * math.pi))
         # --- lever arms and the boresight error (a rotation of boresight_deg about a random axis)
         axis = rng.normal(size=3)
         axis /= np.linalg.norm(axis)
@@ -298,8 +324,9 @@ class Scenario:
         self.base_T_camera_nominal = make_T(np.eye(3), c.camera_lever_arm)
         self.base_T_camera_true = make_T(_axis_angle(axis, math.radians(c.boresight_deg)), c.camera_lever_arm)
         self.base_T_prism = make_T(np.eye(3), c.prism_lever_arm)
-        # --- markers around the track, facing it (± a random yaw/tilt)
+        # --- markers around the track, facing it (± a random yaw/tilt), and the survey of them
         self.markers, self.marker_normals = self._place_markers(rng)
+        self.surveyed_markers = self._survey(np.random.default_rng([c.seed, 29]))
         # --- visual odometry: yaw error = drift·t + random walk; position integrates the motion
         walk_dt = 0.1
         walk_n = int(math.ceil((c.duration + _TAIL) / walk_dt)) + 2
@@ -313,13 +340,18 @@ class Scenario:
         self._jitter = rng.normal(0.0, c.vo_translation_noise, (jitter_n, 3))
         self._jitter -= self._jitter[0]
         p = self._path_point(self._theta)
-        psi0 = float(self._path_yaw(theta[0]))
+        psi0 = float(self._path_yaw(theta[0]) + self._crab(theta[0]))
         yaw_err = self.vo_yaw_error(self._tg + c.start_time)
         mid_err = 0.5 * (yaw_err[1:] + yaw_err[:-1])
         dp = np.diff(p, axis=0)
-        steps_o = (rot_z(mid_err - psi0) @ dp[:, :, None])[:, :, 0] * (1.0 + c.vo_scale_error)
-        self._vo_pos = np.concatenate([np.zeros((1, 3)), np.cumsum(steps_o, axis=0)])
         self._psi0 = psi0
+        # odom: levelled, at base_link's starting heading; or base_link's starting pose, tilt included
+        self._odom_R_map0 = None if c.odom_levelled else self.map_T_base(c.start_time)[:3, :3].T
+        if self._odom_R_map0 is None:
+            steps_o = (rot_z(mid_err - psi0) @ dp[:, :, None])[:, :, 0] * (1.0 + c.vo_scale_error)
+        else:
+            steps_o = (self._odom_R_map0 @ rot_z(mid_err) @ dp[:, :, None])[:, :, 0] * (1.0 + c.vo_scale_error)
+        self._vo_pos = np.concatenate([np.zeros((1, 3)), np.cumsum(steps_o, axis=0)])
         # --- total station samples (true time stamps), with jitter, dropouts and gaps
         self.prism = self._prism_track(rng)
         # --- the interior around it all (walls, pillars, posters, lights), or None: the easy world's panorama
@@ -359,6 +391,20 @@ class Scenario:
         h = 1e-5
         d = self._path_point(np.asarray(theta, dtype=float) + h) - self._path_point(np.asarray(theta, dtype=float) - h)
         return np.arctan2(d[..., 1], d[..., 0])
+
+    def _crab(self, theta):
+        """How far base_link's heading is off its direction of travel at θ (radians): 0.7 of ``crab_deg``
+        constant, 0.3 swinging twice a loop (a skid-steer platform, a holonomic one side-stepping)."""
+        if self.config.crab_deg == 0.0:
+            return 0.0
+        return math.radians(self.config.crab_deg) * (0.7 + 0.3 * np.sin(2.0 * np.asarray(theta) + self._crab_phase))
+
+    def _survey(self, rng) -> MarkerMap:
+        """The marker map as surveyed: each true position off by ``survey_noise`` m per axis (σ written as the
+        marker's survey σ; 2 mm when exact)."""
+        noise = self.config.survey_noise
+        out = [Marker(m.id, m.position + rng.normal(0.0, noise, 3), m.size, noise or m.sigma) for m in self.markers]
+        return MarkerMap(out, self.markers.dictionary, self.markers.frame_id, source="synthetic scenario's survey")
 
     def _roll_pitch(self, theta):
         amp = math.radians(self.config.roll_pitch_deg)
@@ -496,7 +542,8 @@ class Scenario:
         """True pose(s) of base_link in map at true time(s) t."""
         theta = self._theta_at(t)
         roll, pitch = self._roll_pitch(theta)
-        return make_T(rpy_to_matrix(roll, pitch, self._path_yaw(theta) + self._spin(t)), self._path_point(theta))
+        yaw = self._path_yaw(theta) + self._spin(t) + self._crab(theta)
+        return make_T(rpy_to_matrix(roll, pitch, yaw), self._path_point(theta))
 
     def _spin(self, t):
         """Yaw turned in place so far at true time(s) t (radians; 0 without ``spin_deg``)."""
@@ -530,10 +577,14 @@ class Scenario:
 
     def odom_T_base(self, t) -> np.ndarray:
         """The VO's pose(s) of base_link in odom at true time(s) t (what /tf carries, stamped
-        t + camera_time_offset). odom is the base_link pose at start_time, levelled; its roll and pitch
+        t + camera_time_offset). odom is the base_link pose at start_time, levelled (or, with
+        ``odom_levelled`` false, tilted as base_link was); its roll and pitch
         drift by :meth:`vo_tilt_error`."""
         tr = np.asarray(t, dtype=float) - self.config.start_time
-        R = rot_z(self.vo_yaw_error(t) - self._psi0) @ self.map_T_base(t)[..., :3, :3]
+        if self._odom_R_map0 is None:
+            R = rot_z(self.vo_yaw_error(t) - self._psi0) @ self.map_T_base(t)[..., :3, :3]
+        else:
+            R = self._odom_R_map0 @ rot_z(self.vo_yaw_error(t)) @ self.map_T_base(t)[..., :3, :3]
         if self.config.vo_tilt_drift_deg_per_min != 0.0:
             R = _axis_angle(self.vo_tilt_axis, self.vo_tilt_error(t)) @ R
         pos = np.stack([np.interp(tr, self._tg, self._vo_pos[:, k]) for k in range(3)], axis=-1)
@@ -583,7 +634,8 @@ class Scenario:
         those within ``max_range`` m whose face is turned less than ``max_incidence_deg`` from the camera.
 
         Returns (frame index into ``t`` (K,), marker ids (K,), unit bearings (K, 3) in the true camera
-        frame, boresight error included), each bearing perturbed by ``noise`` rad per axis (``rng``: a
+        frame, boresight error included, where the stitched image shows the marker's centre: the lenses'
+        parallax and rotations included), each bearing perturbed by ``noise`` rad per axis (``rng``: a
         numpy Generator). For tests and benchmarks of the geometry that detection would only slow down."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         T = self.map_T_camera(t)                                                   # (N, 4, 4)
@@ -595,7 +647,7 @@ class Scenario:
         facing = -np.einsum("njk,jk->nj", d, normals) / r                          # cos(incidence)
         seen = (r < max_range) & (facing > math.cos(math.radians(max_incidence_deg)))
         frame, j = np.nonzero(seen)
-        u = np.einsum("nki,nk->ni", T[frame, :3, :3], d[frame, j] / r[frame, j, None])
+        u = self.lenses.project(np.einsum("nki,nk->ni", T[frame, :3, :3], d[frame, j]))
         if noise > 0:
             u = u + (rng or np.random.default_rng()).normal(0.0, noise, u.shape)
             u /= np.linalg.norm(u, axis=1, keepdims=True)
@@ -633,12 +685,13 @@ class Scenario:
                              self.vo_yaw_error(c.start_time + c.duration))), 6)},
             "map_T_odom_at_start": _rows(self.map_T_odom(c.start_time)),
             "marker_normals": {int(k): [round(float(x), 9) for x in v] for k, v in self.marker_normals.items()},
+            "marker_positions": {int(m.id): [round(float(x), 9) for x in m.position] for m in self.markers},
             "prism_samples": int(self.prism.stamps.size),
             "realism": self._hidden_realism(),
         }
 
     def _hidden_realism(self) -> dict:
-        """The parameters of issue 17's effects (those of the easy world are zero / absent)."""
+        """The parameters of the realistic world's effects (those of the easy world are zero / absent)."""
         c = self.config
         out = {
             "world": c.world,
@@ -649,7 +702,10 @@ class Scenario:
             "camera_clock": {"rate_error_ppm": c.clock_rate_error_ppm,
                              "convention": "stamp = t + camera_time_offset + rate_error_ppm * 1e-6 * (t - start_time); "
                                            "a frame every 1/fps s of the camera clock"},
-            "platform": {"lateral_wander_m": c.lateral_wander,
+            "platform": {"lateral_wander_m": c.lateral_wander, "crab_deg": c.crab_deg,
+                         "crab_convention": "base_link yaw = direction of travel + crab_deg * (0.7 + 0.3 sin(2 theta "
+                                            "+ crab_phase)), theta the loop parameter",
+                         "crab_phase_rad": round(self._crab_phase, 9),
                          "wander_cycles_per_loop_and_share": [list(w) for w in self._WANDER],
                          "wander_phase_rad": [round(float(x), 9) for x in self._wander_phase],
                          "tilt_wobble_deg": c.tilt_wobble_deg,
@@ -661,8 +717,17 @@ class Scenario:
                          "phase_rad": [round(float(x), 9) for x in self.exposure_phase],
                          "motion_blur": "horizontal box of |camera yaw rate| * time_s, centred on each row's time"},
             "jpeg_quality": c.jpeg_quality or PROFILES[c.profile].jpeg_quality,
-            "stitch_seam": {"step_px": c.seam_step_px, "band_deg": c.seam_band_deg,
-                            "azimuths_deg": list(SEAM_AZIMUTHS_DEG)},
+            "camera_lenses": {
+                "lens_offset_m": c.lens_offset, "stitch_distance_m": c.stitch_distance,
+                "blend_band_deg": c.blend_band_deg,
+                "back_lens_rotation_deg": [round(math.degrees(float(x)), 9) for x in self.lens_rotation],
+                "convention": "two fisheye lenses along camera +x (front) and -x (back), centres at +-lens_offset_m "
+                              "on their axes; the back lens turned by back_lens_rotation_deg (a rotation vector) "
+                              "relative to the front, each by half of it (front -1/2, back +1/2); stitched at "
+                              "stitch_distance_m, the front lens's weight rising linearly across blend_band_deg at "
+                              "azimuths +-90 deg"},
+            "odom_levelled": c.odom_levelled,
+            "survey_noise_m": c.survey_noise,
         }
         if self.world is not None:
             out["hall"] = self.world.hidden()

@@ -1,4 +1,4 @@
-"""The realistic world of the synthetic scenarios (issue 17) and the frame renderer of both worlds.
+"""The realistic world of the synthetic scenarios and the frame renderer of both worlds.
 
 :class:`Hall` is an interior around the scenario's loop: a box room (floor with tiles, walls with
 panels, a ceiling with bright light panels), floor-to-ceiling pillars (some placed on the line
@@ -13,10 +13,11 @@ time; the camera's exposure wanders as well.
 + (v/H − ½)·readout, :meth:`Scenario.row_times`). The room is shaded at an eighth of the
 resolution and scaled up (it is smooth); posters and markers are shaded at full resolution with
 the renderer's supersampling and a depth buffer, pillars at full resolution with anti-aliased
-edges and the depth test. Then the camera: exposure, a horizontal motion blur of the camera's
-yaw rate × exposure time, the dual-fisheye stitch seam (at azimuths ``SEAM_AZIMUTHS_DEG`` of the
-camera frame: a blend band in which the image of the second lens, shifted by the parallax step,
-fades in, and the step where the band ends), sensor noise, optical blur (render.finish_frame).
+edges and the depth test. Every ray starts at the centre of the lens the stitched pixel comes from
+and runs along that lens's direction (the scenario's ``lenses``, a ``camera.DualFisheye``; markers and
+posters blend both lenses across the seams' band, the room and the pillars take the lens with the
+larger share). Then the camera: exposure, a horizontal motion blur of the camera's yaw rate × exposure
+time, sensor noise, optical blur (render.finish_frame).
 
 Units: metres, seconds, radians; grey levels 0-255 (values above 255 saturate).
 """
@@ -30,15 +31,14 @@ from typing import List, Optional, Tuple
 import cv2
 import numpy as np
 
-from ..camera import Equirect, bearing_to_azel
+from ..camera import DualFisheye, Equirect, bearing_to_azel
 from ..transforms import invert_T
 from . import render
 from .render import PlacedMarker, finish_frame
 
-__all__ = ["WORLDS", "SEAM_AZIMUTHS_DEG", "Hall", "render_frame"]
+__all__ = ["WORLDS", "Hall", "render_frame"]
 
 WORLDS = ("open", "hall")
-SEAM_AZIMUTHS_DEG = (90.0, -90.0)  # camera-frame azimuths of the stitch seams (lenses facing ±x)
 
 _LOW_RES = 8  # the room is shaded at 1/_LOW_RES of the resolution
 _FLOOR_Z = -0.15  # m, below base_link's ground contact
@@ -253,9 +253,10 @@ def _centre_row(eq: Equirect, camera_T_rows: np.ndarray, point) -> int:
     return int(np.clip(round(float(v)), 0, camera_T_rows.shape[0] - 1))
 
 
-def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarray, gain: float) -> None:
+def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarray, gain: float,
+                   lenses: DualFisheye) -> None:
     """Paint the hall's pillars (vertical cylinders, floor to ceiling) where they are nearer than ``depth``,
-    with edges anti-aliased over one pixel."""
+    with edges anti-aliased over one pixel, each pixel seen along the ray of the lens with the larger share."""
     H, W = canvas.shape
     camera_T_map = invert_T(map_T_rows[[0, H // 2, H - 1]])
     ang = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
@@ -270,19 +271,20 @@ def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarr
         az_u = az_c + (az - az_c + math.pi) % (2.0 * math.pi) - math.pi
         u_a, _ = eq.azel_to_pixel(float(az_u.max()), 0.0)
         u_a = float(eq.unwrap_u(u_a, eq.azel_to_pixel(az_c, 0.0)[0]))
-        u0 = int(math.floor(u_a - 3))
-        u1 = int(math.ceil(u_a + float(az_u.max() - az_u.min()) / eq.rad_per_px + 3))
-        v0 = max(0, int(math.floor(float(eq.azel_to_pixel(0.0, float(el.max()))[1]) - 3)))
-        v1 = min(H - 1, int(math.ceil(float(eq.azel_to_pixel(0.0, float(el.min()))[1]) + 3)))
+        pad = 3 + _lens_pad(eq, lenses)
+        u0 = int(math.floor(u_a - pad))
+        u1 = int(math.ceil(u_a + float(az_u.max() - az_u.min()) / eq.rad_per_px + pad))
+        v0 = max(0, int(math.floor(float(eq.azel_to_pixel(0.0, float(el.max()))[1]) - pad)))
+        v1 = min(H - 1, int(math.ceil(float(eq.azel_to_pixel(0.0, float(el.min()))[1]) + pad)))
         if u1 - u0 + 1 >= W:
             u0, u1 = 0, W - 1
         # shaded on every _PILLAR_ROW_STEP-th row and interpolated between (a pillar's edges are near vertical)
         rows = np.unique(np.r_[np.arange(v0, v1 + 1, _PILLAR_ROW_STEP), v1])
         uu, vv = np.meshgrid(np.arange(u0, u1 + 1, dtype=float), rows.astype(float))
         T = map_T_rows[rows]
-        d = np.matmul(eq.pixel_to_bearing(uu, vv), np.swapaxes(T[:, :3, :3], -1, -2))
-        ox = T[:, None, 0, 3] - px
-        oy = T[:, None, 1, 3] - py
+        origin, d = _ray_origins_and_directions(eq.pixel_to_bearing(uu, vv), T, lenses)
+        ox = origin[..., 0] - px
+        oy = origin[..., 1] - py
         a = d[..., 0] ** 2 + d[..., 1] ** 2
         b = ox * d[..., 0] + oy * d[..., 1]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -314,6 +316,24 @@ def _splat_pillars(canvas, depth, eq: Equirect, hall: Hall, map_T_rows: np.ndarr
         depth[v0:v1 + 1, cols] = np.where(cover >= 0.5, s, behind)
 
 
+def _lens_pad(eq: Equirect, lenses: DualFisheye) -> float:
+    """Pixels a lens's ray may be off the single-centre one for surfaces ≥ 0.5 m away (box padding)."""
+    if lenses.single_centre:
+        return 0.0
+    return (lenses.lens_offset / 0.5 + float(np.linalg.norm(lenses.lens_rotation))) / eq.rad_per_px
+
+
+def _ray_origins_and_directions(bearings: np.ndarray, map_T_rows: np.ndarray, lenses: DualFisheye):
+    """Map-frame origins and unit directions (R, C, 3) of the rays of stitched camera bearings (R, C, 3), row r
+    of the grid taken with the camera pose ``map_T_rows[r]``: from the centre of the lens with the larger share."""
+    R = np.swapaxes(map_T_rows[:, :3, :3], -1, -2)
+    t = map_T_rows[:, None, :3, 3]
+    if lenses.single_centre:
+        return np.broadcast_to(t, bearings.shape), np.matmul(bearings, R)
+    origin, direction = lenses.rays(bearings)
+    return t + np.matmul(origin, R), np.matmul(direction, R)
+
+
 def _yaw_rate(scenario, t: float) -> float:
     """The camera's rotation rate about its own z axis (rad/s) at true time t."""
     h = 0.005
@@ -333,27 +353,6 @@ def _motion_blur(canvas: np.ndarray, length_px: float) -> None:
     cv2.filter2D(canvas, -1, k[None, :], dst=canvas, borderType=cv2.BORDER_REPLICATE)
 
 
-def _stitch_seams(canvas: np.ndarray, eq: Equirect, step_px: float, band_deg: float) -> None:
-    """In a band of ``band_deg`` at each seam azimuth the second lens's image, shifted by the parallax
-    step (``step_px`` down and ``step_px``/2 to the right), fades in from 0 to 1; past the band the image is
-    the first lens's again: a ghost band and a step where it ends. In place."""
-    if step_px <= 0.0:
-        return
-    H, W = canvas.shape
-    band = max(2, int(round(math.radians(band_deg) / eq.rad_per_px)))
-    for az in SEAM_AZIMUTHS_DEG:
-        u_c = float(eq.azel_to_pixel(math.radians(az), 0.0)[0])
-        cols = (int(round(u_c - band / 2.0)) + np.arange(band)) % W
-        lo, hi = int(cols.min()), int(cols.max())
-        pad = int(math.ceil(step_px)) + 2
-        strip = canvas[:, np.arange(lo - pad, hi + pad + 1) % W]
-        M = np.float32([[1.0, 0.0, 0.5 * step_px], [0.0, 1.0, step_px]])  # content moved right and down
-        shifted = cv2.warpAffine(strip, M, (strip.shape[1], H), flags=cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_REPLICATE)[:, pad + cols - lo]
-        alpha = ((np.arange(band) + 0.5) / band).astype(np.float32)[None, :]
-        canvas[:, cols] = canvas[:, cols] * (1.0 - alpha) + shifted * alpha
-
-
 def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] = None) -> np.ndarray:
     """Frame ``index`` of ``scenario`` as a grey image (H, W) uint8, before the bag's JPEG step
     (``profile``: the scenario's render profile without its JPEG unless given)."""
@@ -363,7 +362,7 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
     p = profile or dataclasses.replace(render.PROFILES[c.profile], jpeg_quality=None)
     t = float(scenario.frame_times[index])
     noise_seed = (c.seed << 20) + index
-    effects = (c.rolling_shutter_readout, c.exposure_time, c.exposure_wander, c.seam_step_px)
+    effects = (c.rolling_shutter_readout, c.exposure_time, c.exposure_wander, not scenario.lenses.single_centre)
     if scenario.world is None and not any(effects):
         return render.render_equirect(c.width, scenario.placed_markers(t), dictionary=c.dictionary, profile=p,
                                       seed=c.seed, background_yaw=float(scenario.camera_yaw(t)),
@@ -383,9 +382,8 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
     else:
         f = _LOW_RES
         rows = f * np.arange(H // f) + (f - 1) // 2
-        Tl = map_T_rows[rows]
-        dirs = np.matmul(_low_res_bearings(W, f), np.swapaxes(Tl[:, :3, :3], -1, -2))
-        low = hall.shade_room(np.broadcast_to(Tl[:, None, :3, 3], dirs.shape), dirs, tr)
+        origins, dirs = _ray_origins_and_directions(_low_res_bearings(W, f), map_T_rows[rows], scenario.lenses)
+        low = hall.shade_room(origins, dirs, tr)
         # softened before scaling up: the block steps of a one-sample-per-block edge become a smooth line
         cv2.GaussianBlur(low, (0, 0), 0.6, dst=low, borderType=cv2.BORDER_REPLICATE)
         canvas = cv2.resize(low, (W, H), interpolation=cv2.INTER_LINEAR)
@@ -397,7 +395,8 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
             # sheared; they are distractors, the markers get every row's pose)
             face = _placed_per_row(camera_T_rows[_centre_row(eq, camera_T_rows, centre):][:1], centre, R, k, side,
                                    False)
-            render._splat_marker(canvas, eq, face, tex, tex.shape[0], 2, depth=depth, light=(g, 0.0))
+            render._splat_marker(canvas, eq, face, tex, tex.shape[0], 2, depth=depth, light=(g, 0.0),
+                                 lenses=scenario.lenses)
     n_black = render._marker_bit_count(c.dictionary)
     for m in scenario.markers:
         face = _placed_per_row(camera_T_rows, np.asarray(m.position, dtype=float), scenario.map_R_marker(m.id),
@@ -408,16 +407,15 @@ def render_frame(scenario, index: int, profile: Optional[render.RenderProfile] =
             light = hall.marker_light[int(m.id)](tr)
             gain, offset = light * (_PAPER - _INK) / 255.0, light * _INK
         render._splat_marker(canvas, eq, face, render._marker_bits(c.dictionary, m.id), n_black, p.supersample,
-                             depth=depth, light=(gain, offset))
+                             depth=depth, light=(gain, offset), lenses=scenario.lenses)
     impostor = scenario.impostor(t)
     if impostor is not None:
         render._splat_marker(canvas, eq, impostor, render._marker_bits(c.dictionary, impostor.id), n_black,
-                             p.supersample, depth=depth)
+                             p.supersample, depth=depth, lenses=scenario.lenses)
     if hall is not None:
-        _splat_pillars(canvas, depth, eq, hall, map_T_rows, hall.surface_light["pillars"](tr))
+        _splat_pillars(canvas, depth, eq, hall, map_T_rows, hall.surface_light["pillars"](tr), scenario.lenses)
     if c.exposure_wander > 0:
         canvas *= np.float32(scenario.exposure_gain(t))
     _motion_blur(canvas, abs(_yaw_rate(scenario, t)) * c.exposure_time / eq.rad_per_px)
-    _stitch_seams(canvas, eq, c.seam_step_px, c.seam_band_deg)
     np.minimum(canvas, 255.0, out=canvas)  # saturation before the noise (a clipped highlight stays white)
     return finish_frame(canvas, p, int(c.seed), noise_seed)

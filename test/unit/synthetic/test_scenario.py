@@ -310,3 +310,33 @@ def test_calibration_spin_in_place():
         Scenario(dataclasses.replace(cfg, spin_deg=90.0))
     with pytest.raises(ScenarioError, match="spin_markers"):
         Scenario(dataclasses.replace(cfg, spin_markers=9))
+
+
+@pytest.mark.parametrize("crab_deg, seed", [(2.0, 0), (-3.0, 5)])
+def test_a_crabbing_platform_heads_off_its_direction_of_travel(crab_deg, seed):
+    """``crab_deg``: base_link's heading is off its direction of travel by 0.4-1.0 × crab_deg (finite differences
+    of the true track), the VO's yaw carries it too, and the prism track follows base_link as before."""
+    cfg = dataclasses.replace(PRESETS["ci"], seed=seed, crab_deg=crab_deg)
+    sc = Scenario(cfg)
+    plain = Scenario(dataclasses.replace(cfg, crab_deg=0.0))
+    t = cfg.start_time + np.linspace(cfg.standstill + cfg.accel_time, cfg.duration - 1.0, 40)
+    h = 1e-3
+    v = sc.map_T_base(t + h)[:, :2, 3] - sc.map_T_base(t - h)[:, :2, 3]
+    crab = np.degrees(wrap_angle(yaw_of(sc.map_T_base(t)[:, :3, :3]) - np.arctan2(v[:, 1], v[:, 0])))
+    assert np.all(np.abs(crab) >= 0.4 * abs(crab_deg) - 1e-6) and np.all(np.abs(crab) <= abs(crab_deg) + 1e-6)
+    assert np.all(np.sign(crab) == np.sign(crab_deg)) and np.ptp(crab) > 0.1 * abs(crab_deg)
+    np.testing.assert_allclose(sc.map_T_base(t)[:, :3, 3], plain.map_T_base(t)[:, :3, 3], atol=1e-12)
+    vo_turn = np.degrees(wrap_angle(yaw_of(sc.odom_T_base(t)[:, :3, :3]) - yaw_of(plain.odom_T_base(t)[:, :3, :3])))
+    np.testing.assert_allclose(vo_turn - vo_turn[0], crab - crab[0], atol=1e-6)
+
+
+def test_the_written_map_is_the_survey():
+    """``survey_noise``: the map written (``surveyed_markers``) is off the rendered truth by about that σ per
+    axis, with that σ; without it the two are the same."""
+    cfg = dataclasses.replace(PRESETS["ci"], n_markers=30, survey_noise=0.003)
+    sc = Scenario(cfg)
+    diff = np.array([sc.surveyed_markers[m.id].position - m.position for m in sc.markers])
+    assert 0.002 < float(np.std(diff)) < 0.004 and np.abs(diff).max() < 0.015
+    assert all(sc.surveyed_markers[m.id].sigma == 0.003 for m in sc.markers)
+    exact = Scenario(dataclasses.replace(cfg, survey_noise=0.0))
+    assert all(np.array_equal(exact.surveyed_markers[m.id].position, m.position) for m in exact.markers)

@@ -1,4 +1,4 @@
-"""synthetic/world.py and issue 17's scenario options: the hall, the rolling shutter, the stitch seam,
+"""synthetic/world.py and the realistic scenario options: the hall, the rolling shutter, the two lenses,
 the camera clock, the wandering platform and the VO's tilt drift, each checked on rendered frames or
 motion against geometry computed independently here (plain cv2.aruco, finite differences)."""
 import dataclasses
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from aruco_abs_orient.camera import Equirect
 from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario, ScenarioError
-from aruco_abs_orient.synthetic.world import SEAM_AZIMUTHS_DEG, render_frame
+from aruco_abs_orient.synthetic.world import render_frame
 from aruco_abs_orient.transforms import invert_T, transform_points
 
 _PARAMS = cv2.aruco.DetectorParameters()
@@ -72,30 +72,32 @@ def test_row_times_convention():
     assert hidden["readout_s"] == 0.03 and "(v / H - 1/2)" in hidden["convention"]
 
 
-def test_stitch_seam_only_in_its_bands_with_the_parallax_step():
-    """The seam changes the frame only in the blend bands at ±90° azimuth; at the band's end the image is
-    the seamless one moved by the step (3 px down, 1.5 px right)."""
-    base = dataclasses.replace(PRESETS["tiny"], width=1920, exposure_wander=0.0)
-    plain = render_frame(Scenario(base), 30).astype(float)
-    seam = render_frame(Scenario(dataclasses.replace(base, seam_step_px=3.0, seam_band_deg=4.0)), 30).astype(float)
-    eq = Equirect(1920, 960)
-    band = round(math.radians(4.0) / eq.rad_per_px)
-    changed = np.nonzero(np.abs(seam - plain).max(axis=0) > 0)[0]
-    inside = np.zeros(1920, bool)
-    for az in SEAM_AZIMUTHS_DEG:
-        u_c = float(eq.azel_to_pixel(math.radians(az), 0.0)[0])
-        inside[(int(round(u_c - band / 2.0)) + np.arange(band)) % 1920] = True
-        last = (int(round(u_c - band / 2.0)) + band - 1) % 1920
-        col_s = seam[:, last]
-        col_p = 0.5 * (plain[:, last - 1] + plain[:, last - 2])  # 1.5 px to the left
-        errs = {dy: np.abs(col_s[10:-10] - np.roll(col_p, dy)[10:-10]).mean() for dy in range(-5, 6)}
-        assert min(errs, key=errs.get) == 3, errs
-        assert errs[3] < 0.75 * errs[0], errs  # the residual: the sensor noise, not shifted
-    # the noise and the optical blur come after the seam: a column or so of blur spills past the band
-    spill = np.zeros(1920, bool)
-    for k in (-2, -1, 0, 1, 2):
-        spill |= np.roll(inside, k)
-    assert changed.size > 0 and spill[changed].all()
+def test_two_lenses_rendered_where_the_lens_model_puts_them():
+    """Two lenses 3 cm off centre, the back one turned 0.3° against the front, stitched at 2 m: the markers
+    detected in the rendered frames (the package's whole-frame search, nothing of the model) sit where
+    ``DualFisheye.project`` puts them, and visibly off where a single centre would (0.1-0.9°)."""
+    from aruco_abs_orient.synthetic.feed import marker_observations
+    from aruco_abs_orient.tracking import MarkerTracker
+
+    base = dataclasses.replace(PRESETS["tiny"], width=1920, profile="clean", seed=2, marker_distance=(1.0, 3.0))
+    dual = Scenario(dataclasses.replace(base, lens_offset=0.03, lens_rotation_deg=0.3, stitch_distance=2.0))
+    single = Scenario(base)
+    tracker = MarkerTracker(dual.markers)
+    frames = list(range(0, len(dual.frame_times), 8))
+    seen = marker_observations(dual, dual.frame_times[frames])
+    one = marker_observations(single, single.frame_times[frames])
+    errors, parallax = [], []
+    for k, index in enumerate(frames):
+        for o in tracker.process(render_frame(dual, index), None).observations:
+            pick = (seen.frame == k) & (seen.ids == o.id)
+            if pick.any():
+                errors.append(math.degrees(float(np.arccos(np.clip(o.centre @ seen.bearings[pick][0], -1, 1)))))
+                parallax.append(math.degrees(float(np.arccos(np.clip(seen.bearings[pick][0] @ one.bearings[
+                    (one.frame == k) & (one.ids == o.id)][0], -1, 1)))))
+    errors, parallax = np.array(errors), np.array(parallax)
+    assert len(errors) >= 20, len(errors)
+    assert np.median(errors) < 0.03 and np.percentile(errors, 90) < 0.08, np.round(np.sort(errors), 3)
+    assert np.median(parallax) > 0.1 and np.median(parallax) > 5 * np.median(errors), np.round(parallax, 3)
 
 
 def test_camera_clock_rate_error():
@@ -125,7 +127,7 @@ def test_wander_and_non_holonomic_heading(seed, when):
 
 
 def test_vo_tilt_drift_grows_at_its_rate():
-    cfg = dataclasses.replace(PRESETS["realistic"], vo_tilt_drift_deg_per_min=2.0, duration=60.0)
+    cfg = dataclasses.replace(PRESETS["realistic"], vo_tilt_drift_deg_per_min=2.0, duration=60.0, odom_levelled=True)
     sc = Scenario(cfg)
     for dt in (0.0, 30.0, 60.0):
         t = cfg.start_time + dt
@@ -134,6 +136,22 @@ def test_vo_tilt_drift_grows_at_its_rate():
         up = (R_vo @ R_true.T)[2, 2]  # odom's vertical seen from map: the VO's yaw error cannot tilt it
         tilt = math.degrees(math.acos(np.clip(up, -1, 1)))
         assert tilt == pytest.approx(2.0 * dt / 60.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_an_unlevelled_odom_starts_at_base_link_and_stays_tilted(seed):
+    """``odom_levelled=False`` (a VO without gravity): odom is base_link's starting pose, its roll and pitch
+    included, so odom stays tilted against map by base_link's starting tilt; base_link's attitude in odom and
+    the true one differ by that tilt (plus the VO's yaw error), not by the platform's own tilt later on."""
+    cfg = dataclasses.replace(PRESETS["ci"], seed=seed, roll_pitch_deg=1.5, odom_levelled=False)
+    sc = Scenario(cfg)
+    t0 = cfg.start_time
+    assert np.allclose(sc.odom_T_base(t0)[:3, :3], np.eye(3), atol=1e-12)
+    start_tilt = math.degrees(math.acos(sc.map_T_base(t0)[2, 2]))
+    assert start_tilt > 0.05
+    for t in t0 + np.array([5.0, 12.0, 19.0]):
+        map_R_odom = sc.map_T_base(t)[:3, :3] @ sc.odom_T_base(t)[:3, :3].T
+        assert math.degrees(math.acos(np.clip(map_R_odom[2, 2], -1, 1))) == pytest.approx(start_tilt, abs=1e-9)
 
 
 def test_hall_frame_markers_where_they_are_and_no_false_ids():
@@ -190,7 +208,8 @@ def test_hidden_yaml_rebuilds_the_realistic_scenario(tmp_path):
     assert realism["rolling_shutter"]["readout_s"] == 0.03
     assert realism["camera_clock"]["rate_error_ppm"] == 20.0
     assert len(realism["hall"]["pillars_x_y_radius_m"]) == len(sc.world.pillars) > 0
-    assert realism["stitch_seam"]["step_px"] > 0 and realism["exposure"]["time_s"] > 0
+    assert realism["camera_lenses"]["lens_offset_m"] == 0.01 and realism["exposure"]["time_s"] > 0
+    assert len(realism["camera_lenses"]["back_lens_rotation_deg"]) == 3
 
 
 @pytest.mark.parametrize("field, value", [("world", "cave"), ("rolling_shutter_readout", 0.05),
