@@ -149,7 +149,8 @@ class DualFisheye:
     great circle a·d = 0 (azimuths α ± 90°).
 
     - ``lens_offset`` (m): each lens's projection centre sits this far from the camera origin along its own
-      axis: front ``+o·a``, back ``−o·a`` (the camera origin is their midpoint).
+      axis: front ``+o·a``, back ``−o·a`` (the camera origin is their midpoint; an estimate near 0 may be
+      negative).
     - ``lens_rotation`` (3,) rad: rotation vector of the back lens relative to the front one (what is left of
       the factory's stitching calibration); each lens is turned by half of it, front ``exp(−ε/2)``, back
       ``exp(+ε/2)``, so that the camera frame (the boresight) stays their mean.
@@ -177,7 +178,7 @@ class DualFisheye:
                  blend_band: float = math.radians(2.0), axis_azimuth: float = 0.0):
         rot = np.asarray(lens_rotation, dtype=float).reshape(-1)
         checks = (
-            ("lens_offset", math.isfinite(lens_offset) and 0.0 <= lens_offset < 0.2, "metres in [0, 0.2)"),
+            ("lens_offset", math.isfinite(lens_offset) and abs(lens_offset) < 0.2, "metres, |o| < 0.2"),
             ("lens_rotation", rot.shape == (3,) and bool(np.all(np.isfinite(rot)))
              and float(np.linalg.norm(rot)) < math.radians(10.0), "a rotation vector of 3 finite radians, < 10°"),
             ("stitch_distance", stitch_distance > 0.5 and not math.isnan(stitch_distance), "metres > 0.5, or inf"),
@@ -204,6 +205,9 @@ class DualFisheye:
     def __eq__(self, other) -> bool:
         return isinstance(other, DualFisheye) and repr(self) == repr(other)
 
+    def __hash__(self) -> int:     # a value: never changed after construction
+        return hash(repr(self))
+
     def replace(self, **changes) -> DualFisheye:
         """A copy with some of the constructor's arguments changed."""
         args = {"lens_offset": self.lens_offset, "lens_rotation": self.lens_rotation,
@@ -223,6 +227,16 @@ class DualFisheye:
         b = np.asarray(bearings, dtype=float)
         s = (b @ self.axis) / np.linalg.norm(b, axis=-1)
         return np.clip(np.arcsin(np.clip(s, -1.0, 1.0)) / self.blend_band + 0.5, 0.0, 1.0)
+
+    def blend_error(self, bearings, ranges) -> np.ndarray:
+        """How far (rad, ...) :meth:`rays` may be off for stitched bearing(s) (..., 3) of points at ``ranges`` (m)
+        in the blend band, where the image is a weighted mix of both lenses' (the ray is the dominant lens's):
+        twice the smaller weight times the lens offset's parallax |o|·|1/r − 1/D|; 0 outside the band."""
+        if self.single_centre:
+            return np.zeros(np.shape(bearings)[:-1])
+        w = self.front_weight(bearings)
+        r = np.maximum(np.asarray(ranges, dtype=float), 1e-3)
+        return 2.0 * np.minimum(w, 1.0 - w) * abs(self.lens_offset) * np.abs(1.0 / r - 1.0 / self.stitch_distance)
 
     def _lens_direction(self, d: np.ndarray, k: int) -> np.ndarray:
         """Lens k's own direction g (..., 3) sampled for stitched unit directions ``d`` (..., 3)."""
@@ -254,6 +268,8 @@ class DualFisheye:
         bearing(s) (..., 3) look: from the centre of the lens that dominates there (exact outside the blend
         band; in it, that of the lens with the larger weight), whatever the range."""
         b = np.asarray(bearings, dtype=float)
+        if self.single_centre:
+            return np.zeros(b.shape), b / np.linalg.norm(b, axis=-1, keepdims=True)
         front = self.front_weight(b) >= 0.5
         (o_f, w_f), (o_b, w_b) = self.lens_rays(b, 0), self.lens_rays(b, 1)
         return np.where(front[..., None], o_f, o_b), np.where(front[..., None], w_f, w_b)
@@ -263,6 +279,8 @@ class DualFisheye:
         point, weighted by that lens's share of the stitched image where the image lands (one of them outside
         the blend band; both, ghosted, in it)."""
         X = np.asarray(points, dtype=float)
+        if self.single_centre:
+            return X / np.linalg.norm(X, axis=-1, keepdims=True)
         copies, weights = [], []
         for k in (0, 1):
             w = X - self.centres[k]

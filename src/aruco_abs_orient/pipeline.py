@@ -25,7 +25,7 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from .camera import Equirect
+from .camera import DualFisheye, Equirect
 from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
 from .errors import ConfigurationError
@@ -104,6 +104,11 @@ class PipelineParams:
       uncalibrated camera roll or pitch (boresight) would be taken for a platform tilt (and the self-check
       could no longer see it). With a calibration file (``process --calibration``, the node's
       ``~calibration``) the markers correct the tilt whatever this says; an IMU wins over both.
+    - ``lens_offset``, ``stitch_distance``, ``blend_band_deg``: the camera's two fisheye lenses as known
+      without a calibration file (``camera.DualFisheye``): each lens's centre from the camera origin along
+      its axis (m; 0: one centre), the distance its images are stitched at (m; 0: infinity) and the width of
+      the blend band at the seams (degrees). A calibration file's ``camera_lenses`` replace them; ``calibrate``
+      starts its estimate from them.
     """
 
     prism_sigma: float = 0.005
@@ -120,6 +125,14 @@ class PipelineParams:
     resection_min_cone_deg: float = 10.0
     attitude_min_spread_deg: float = 20.0
     tilt_from_markers: bool = False
+    lens_offset: float = 0.0
+    stitch_distance: float = 0.0
+    blend_band_deg: float = 2.0
+
+    def lenses(self) -> DualFisheye:
+        """The camera's lenses these parameters describe (``camera.DualFisheye``)."""
+        return DualFisheye(self.lens_offset, stitch_distance=self.stitch_distance or math.inf,
+                           blend_band=math.radians(self.blend_band_deg))
 
     def validate(self) -> None:
         for f in fields(self):
@@ -130,6 +143,10 @@ class PipelineParams:
             raise PipelineError(f"PipelineParams.init_search_interval: expected ≥ 1, got {self.init_search_interval!r}")
         if self.jpeg_reduce not in (1, 2, 4, 8):
             raise PipelineError(f"PipelineParams.jpeg_reduce: expected 1, 2, 4 or 8, got {self.jpeg_reduce!r}")
+        try:
+            self.lenses()
+        except ConfigurationError as e:
+            raise PipelineError(f"PipelineParams: {e}") from None
 
 
 #: (group, params class) of every tunable the pipeline takes: cfg/params.yaml's sections, in its order
@@ -238,13 +255,16 @@ class AbsOrientPipeline:
     calibration); ``marker_map`` gives ids, positions, sizes and the dictionary; ``readout`` (s) the
     camera's rolling-shutter readout time (the calibration file's; 0 = global shutter, see the module
     docstring); ``calibrated``: ``base_T_camera`` comes from ``calibrate`` (its roll and pitch were
-    measured), so the markers' roll and pitch correct the odometry's tilt as with ``tilt_from_markers``.
+    measured), so the markers' roll and pitch correct the odometry's tilt as with ``tilt_from_markers``;
+    ``lenses``: the camera's two lenses (the calibration file's; default the params' ``lenses()``): each
+    marker's yaw is solved along the ray of the lens that saw it.
     """
 
     def __init__(self, marker_map: MarkerMap, base_T_camera, base_T_prism,
                  params: Optional[PipelineParams] = None, detector_params: Optional[DetectorParams] = None,
                  filter_params: Optional[FilterParams] = None, readout: float = 0.0,
-                 tracking_params: Optional[TrackingParams] = None, calibrated: bool = False):
+                 tracking_params: Optional[TrackingParams] = None, calibrated: bool = False,
+                 lenses: Optional[DualFisheye] = None):
         for name, T in (("base_T_camera", base_T_camera), ("base_T_prism", base_T_prism)):
             T = np.asarray(T, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -261,12 +281,14 @@ class AbsOrientPipeline:
         self.detector_params = detector_params or DetectorParams()
         self.tracking_params = tracking_params or TrackingParams()
         self.filter_params = filter_params or FilterParams()
+        self.lenses = lenses if lenses is not None else self.params.lenses()
         self.prism = PrismBuffer()
         self.stats: Dict[str, int] = {}
         self._build()
 
     def _build(self) -> None:
-        self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params)
+        self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params,
+                                     lenses=self.lenses)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
         self.tilt = TiltEstimator(TiltParams(odometry_sigma=math.radians(self.params.tilt_sigma_deg)))
         self.last_stamp: Optional[float] = None
@@ -281,6 +303,19 @@ class AbsOrientPipeline:
         0.0253° → 0.0249°, p95 0.044° → 0.040°, and the self-check no longer takes the tilt drift for a
         0.32° camera tilt)."""
         return self.params.tilt_from_markers or self.calibrated
+
+    def _rays(self, observations, from_point=None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The observations' rays in the camera frame (origins (N, 3) m, unit directions (N, 3): each from the
+        lens that saw it) and their σ (N,) rad, widened in the lenses' blend band by the ray's possible error
+        there for markers at their range from ``from_point`` (map, m; None: not widened)."""
+        bearings = np.array([o.centre for o in observations]).reshape(-1, 3)
+        origins, directions = self.lenses.rays(bearings)
+        sigma = np.array([o.sigma for o in observations], dtype=float)
+        if from_point is not None and len(observations):
+            ranges = np.linalg.norm(np.array([self.marker_map[o.id].position for o in observations]) - from_point,
+                                    axis=1)
+            sigma = np.hypot(sigma, self.lenses.blend_error(bearings, ranges))
+        return origins, directions, sigma
 
     def _mounting(self) -> Mounting:
         """The camera's and the prism's place on base_link, as the solvers take it."""
@@ -307,7 +342,8 @@ class AbsOrientPipeline:
             detector = replace(self.detector_params, **per_group["detection"])  # both validated before either
             tracking = replace(self.tracking_params, **per_group["tracking"])   # is taken
             self.detector_params, self.tracking_params = detector, tracking
-            self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params)
+            self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params,
+                                     lenses=self.lenses)
         if per_group["filter"]:
             self.filter_params = replace(self.filter_params, **per_group["filter"])
             self.filter.update_params(self.filter_params)
@@ -500,13 +536,13 @@ class AbsOrientPipeline:
         if len(observations) < 2:
             return False
         M = np.array([self.marker_map[o.id].position for o in observations])
+        origins, directions, sigma = self._rays(observations, prism_p)
         try:
-            noise = NoiseModel(bearing=np.array([o.sigma for o in observations]), prism_cov=prism_cov,
+            noise = NoiseModel(bearing=sigma, prism_cov=prism_cov,
                                marker=np.array([self.marker_map[o.id].sigma for o in observations]))
             est = attitude_from_markers(
-                np.array([o.centre for o in observations]), M, prism_p, self._mounting(), noise=noise,
-                tilt=(tilt.roll, tilt.pitch),
-                settings=FitSettings(min_spread=math.radians(self.params.attitude_min_spread_deg)))
+                directions, M, prism_p, self._mounting(), noise=noise, tilt=(tilt.roll, tilt.pitch),
+                settings=FitSettings(min_spread=math.radians(self.params.attitude_min_spread_deg)), origins=origins)
         except SolverError:
             self._count("tilt_from_markers_refused")
             return False
@@ -531,13 +567,14 @@ class AbsOrientPipeline:
         start = None
         if len(obs) == 2 and self.filter.initialised:      # two solutions possible: the one near the prediction
             start = self.filter.map_T_odom(t)[0] @ odom_T_base
+        origins, directions, sigma = self._rays(obs, None if start is None else start[:3, 3])
         try:
-            noise = NoiseModel(bearing=np.array([o.sigma for o in obs]),
-                               marker=np.array([self.marker_map[o.id].sigma for o in obs]))
-            est = resection(np.array([o.centre for o in obs]), np.array([self.marker_map[o.id].position for o in obs]),
+            noise = NoiseModel(bearing=sigma, marker=np.array([self.marker_map[o.id].sigma for o in obs]))
+            est = resection(directions, np.array([self.marker_map[o.id].position for o in obs]),
                             self.base_T_camera, noise=noise, tilt=(tilt.roll, tilt.pitch),
                             tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA), initial_pose=start,
-                            settings=FitSettings(min_cone=math.radians(self.params.resection_min_cone_deg)))
+                            settings=FitSettings(min_cone=math.radians(self.params.resection_min_cone_deg)),
+                            origins=origins)
         except SolverError as e:
             self._count("resection_degenerate")
             for r in rows:
@@ -586,7 +623,8 @@ class AbsOrientPipeline:
         estimates = []
         tracker_gated = {id(o) for o in gated}
         everything = list(observations) + list(gated)
-        for o, row in zip(everything, rows or [None] * len(everything)):
+        origins, directions, sigma = self._rays(everything, prism_p)
+        for k, (o, row) in enumerate(zip(everything, rows or [None] * len(everything))):
             m = self.marker_map[o.id]  # the tracker only returns ids of the map
             p_o, roll_o, pitch_o, dyaw = prism_p, tilt.roll, tilt.pitch, 0.0
             if row is not None:
@@ -603,9 +641,9 @@ class AbsOrientPipeline:
                 continue
             try:
                 est = yaw_from_marker(
-                    o.centre, m.position, p_o, (roll_o, pitch_o), self._mounting(),
-                    NoiseModel(bearing=o.sigma, prism_cov=prism_cov, marker=m.sigma, tilt=tilt.sigma,
-                               lever=q.lever_sigma), min_range=q.min_range)
+                    directions[k], m.position, p_o, (roll_o, pitch_o), self._mounting(),
+                    NoiseModel(bearing=float(sigma[k]), prism_cov=prism_cov, marker=m.sigma, tilt=tilt.sigma,
+                               lever=q.lever_sigma), min_range=q.min_range, origin=origins[k])
             except SolverError as e:
                 self._count("degenerate")
                 res.observations.append(ObservationResult(o, reason=f"geometry: {e}"))

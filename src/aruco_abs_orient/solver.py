@@ -3,8 +3,10 @@
 Frames (DESIGN §2): ``map`` (markers, prism), ``base_link`` with attitude
 ``R = Rz(yaw) · Ry(pitch) · Rx(roll)``, and the camera fixed to base_link by the static
 transform ``base_T_camera`` (rotation ``R_bc``, camera origin ``t_camera`` in base_link);
-the prism sits at ``prism_in_base`` (= ``t_prism``) in base_link. An observation is a unit
-bearing ``u`` in the camera frame (from ``camera``/``detection``).
+the prism sits at ``prism_in_base`` (= ``t_prism``) in base_link. An observation is a ray in the
+camera frame: a unit direction ``u`` and, for a two-lens camera, the ``origin`` of the lens that saw it
+(``camera.DualFisheye.rays``; the camera origin by default), so the lever arm of an observation is
+``t_camera + R_bc·origin − t_prism``.
 
 * :func:`yaw_from_marker` — one marker + prism position + lever arm + tilt (roll, pitch from
   VO) ⇒ yaw in closed form. With ``b = R_bc u``, ``l = t_camera − t_prism`` (body) and
@@ -340,7 +342,7 @@ def _rpy_jacobian(R: np.ndarray) -> np.ndarray:
 
 def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting: Mounting,
                     noise: NoiseModel = _EXACT, *, min_range: float = 0.1,
-                    min_horizontal: float = 0.02) -> YawEstimate:
+                    min_horizontal: float = 0.02, origin=None) -> YawEstimate:
     """Yaw of base_link (rad) from one marker bearing, in closed form.
 
     Args:
@@ -354,6 +356,7 @@ def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting:
         min_range: smallest accepted camera→marker range (m).
         min_horizontal: smallest accepted ratio horizontal/total length of ``M − P`` and of the
             predicted vector (below it the azimuth is ill-defined: marker straight above/below).
+        origin: where the bearing's ray starts in the camera frame (3,), m (a lens centre); default the origin.
 
     Raises:
         DegenerateGeometryError: ``|M − P| ≤ |l|`` (marker within the lever arm of the prism:
@@ -369,6 +372,8 @@ def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting:
     roll, pitch = _tilt(tilt)
 
     l = t_cam - t_prism  # noqa: E741  (the lever arm, as in DESIGN §4.4)
+    if origin is not None:
+        l = l + R_bc @ _vec3(origin, "origin")  # noqa: E741
     b = R_bc @ u
     D = M - P
     d2 = float(D @ D)
@@ -490,9 +495,10 @@ class _Fit(NamedTuple):
 class _Problem(NamedTuple):
     """What :func:`_gauss_newton` fits: observed unit bearings ``u_obs`` (N, 3) of the markers ``M`` (N, 3, m)
     with their σ ``sigma_b`` (N,, rad) and ``sigma_m`` (N,, m); the camera's rotation ``R_bc`` and offset ``a``
-    (3,, m) from the reference point p in base_link; ``prior`` None or (p_measured, L⁻¹) with L Lᵀ its
-    covariance (m²); ``estimate_p`` whether p is a parameter; ``tilt_prior`` None or (roll, pitch, σ) in rad
-    (a measured tilt: IMU, odometry); ``min_inliers`` the fewest markers for the least-squares stage."""
+    (3,) or per bearing (N, 3), m, from the reference point p in base_link (the ray's origin: a lens centre);
+    ``prior`` None or (p_measured, L⁻¹) with L Lᵀ its covariance (m²); ``estimate_p`` whether p is a parameter;
+    ``tilt_prior`` None or (roll, pitch, σ) in rad (a measured tilt: IMU, odometry); ``min_inliers`` the fewest
+    markers for the least-squares stage."""
 
     u_obs: np.ndarray
     M: np.ndarray
@@ -638,7 +644,7 @@ def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float
 
 def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise: NoiseModel = _MULTI_NOISE,
                           tilt: Tuple[float, float] = (0.0, 0.0), initial_yaw: Optional[float] = None,
-                          settings: FitSettings = _FIT) -> AttitudeEstimate:
+                          settings: FitSettings = _FIT, origins=None) -> AttitudeEstimate:
     """Full attitude of base_link from ≥ 2 marker bearings and the prism position.
 
     Args:
@@ -654,6 +660,7 @@ def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise
             per-marker closed-form yaws (:func:`yaw_from_marker`), else ``initial_yaw``.
         settings: the robust loss, the outlier gate (the least-squares stage needs ≥ 2 markers left),
             ``min_spread`` and the iterations (:class:`FitSettings`; ``min_cone`` is the resection's).
+        origins: (N, 3) where each bearing's ray starts in the camera frame (m, lens centres); default the origin.
 
     Raises:
         DegenerateGeometryError: all markers in one direction (or opposite) from the camera,
@@ -672,12 +679,13 @@ def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise
     sb = _per_marker(noise.bearing, n, "sigma_bearing")
     sm = _per_marker(noise.marker, n, "marker_sigma")
     roll0, pitch0 = _tilt(tilt)
+    o = np.zeros((n, 3)) if origins is None else _vecs3(origins, "origins")
 
     yaws, sigs = [], []
     for i in range(n):
         try:
             est = yaw_from_marker(u[i], M[i], P, (roll0, pitch0), Mounting(mounting.base_T_camera, t_prism),
-                                  NoiseModel(bearing=float(sb[i]), prism_cov=Cp, marker=float(sm[i])))
+                                  NoiseModel(bearing=float(sb[i]), prism_cov=Cp, marker=float(sm[i])), origin=o[i])
         except DegenerateGeometryError:
             continue
         yaws.append(est.yaw)
@@ -700,8 +708,8 @@ def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise
         except np.linalg.LinAlgError:
             raise SolverError("prism_cov: must be positive definite (or None for an exact prism)") from None
         prior = (P, Linv)
-    fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, t_cam - t_prism, prior, estimate_p, None, 2), R0, P.copy(),
-                        settings)
+    fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, t_cam - t_prism + o @ R_bc.T, prior, estimate_p, None, 2), R0,
+                        P.copy(), settings)
     K = _rpy_jacobian(fit.R)
     cov = K @ fit.cov[:3, :3] @ K.T
     r, pch, y = (float(x) for x in matrix_to_rpy(fit.R))
@@ -725,7 +733,7 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
 
 def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NOISE,
               tilt: Tuple[float, float] = (0.0, 0.0), tilt_sigma: Optional[float] = None, initial_pose=None,
-              settings: FitSettings = _FIT) -> ResectionEstimate:
+              settings: FitSettings = _FIT, origins=None) -> ResectionEstimate:
     """Position and attitude of base_link from ≥ 3 marker bearings (no prism), or from ≥ 2 when the
     tilt is known (``tilt_sigma`` given).
 
@@ -742,6 +750,7 @@ def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NO
             are needed for the least-squares stage); markers closer than ``min_spread`` (rad) to one line
             (collinear), or seen from the camera along one line through it, and markers whose directions
             from the camera all lie within ``min_cone`` (rad) of each other are degenerate.
+        origins: (N, 3) where each bearing's ray starts in the camera frame (m, lens centres); default the origin.
 
     Raises:
         DegenerateGeometryError: collinear markers, markers collinear with the camera or in one small
@@ -774,7 +783,8 @@ def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NO
         R0 = rpy_to_matrix(roll0, pitch0, yaw0)
         p0 = C0 - R0 @ t_cam
     tilt_prior = None if tilt_sigma is None else (roll0, pitch0, float(tilt_sigma))
-    fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, t_cam, None, True, tilt_prior, need), R0, p0, settings)
+    a = t_cam if origins is None else t_cam + _vecs3(origins, "origins") @ R_bc.T
+    fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, a, None, True, tilt_prior, need), R0, p0, settings)
     used = fit.weights > 0.5 if np.count_nonzero(fit.weights > 0.5) >= need else np.ones(n, bool)
     _check_cone(M[used] - (fit.p + fit.R @ t_cam), settings.min_spread, settings.min_cone)
     K = _rpy_jacobian(fit.R)

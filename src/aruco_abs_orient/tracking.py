@@ -34,7 +34,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from .camera import Equirect, GnomonicView, angle_between, bearing_to_azel
+from .camera import SINGLE_CENTRE, DualFisheye, Equirect, GnomonicView, angle_between, bearing_to_azel
 from .detection import (
     DetectionError,
     DetectorParams,
@@ -154,8 +154,10 @@ class MarkerTracker:
     """
 
     def __init__(self, marker_map: MarkerMap, detector_params: Optional[DetectorParams] = None,
-                 api: Optional[str] = None, params: Optional[TrackingParams] = None):
+                 api: Optional[str] = None, params: Optional[TrackingParams] = None,
+                 lenses: DualFisheye = SINGLE_CENTRE):
         self.map = marker_map
+        self.lenses = lenses
         self.detector = MarkerDetector(marker_map.dictionary, detector_params, api)
         self.params = params if params is not None else TrackingParams()
         self.reset()
@@ -188,7 +190,8 @@ class MarkerTracker:
         return view, maps
 
     def predict(self, map_T_camera, equirect: Equirect) -> List[MarkerPrediction]:
-        """Predicted bearings of all the map's markers, nearest first.
+        """Predicted bearings of all the map's markers (where the camera's stitched image shows them), nearest
+        first.
 
         ``map_T_camera``: 4×4 pose of the camera frame in the map.
         """
@@ -198,12 +201,14 @@ class MarkerTracker:
         ids = self.map.ids
         p = transform_points(invert_T(T), self.map.positions(ids))
         rng = np.linalg.norm(p, axis=1)
+        near = rng <= 1e-6
+        bearings = self.lenses.project(np.where(near[:, None], 1.0, p))
         out = []
-        for mid, pc, r in zip(ids, p, rng):
+        for mid, b, r in zip(ids, bearings, rng):
             if r <= 1e-6:
                 continue
             size = 2.0 * math.atan(self.map[mid].size / (2.0 * r))
-            out.append(MarkerPrediction(mid, pc / r, size, float(r)))
+            out.append(MarkerPrediction(mid, b, size, float(r)))
         return sorted(out, key=lambda m: m.range)
 
     def process(self, image: np.ndarray, map_T_camera=None, what: str = "image") -> TrackingResult:

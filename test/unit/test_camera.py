@@ -240,7 +240,7 @@ def test_the_blend_band_ghosts_both_images_and_is_continuous():
 
 
 def test_lens_model_rejects_bad_parameters():
-    for kwargs in ({"lens_offset": -0.01}, {"lens_offset": math.nan}, {"stitch_distance": 0.1},
+    for kwargs in ({"lens_offset": -0.3}, {"lens_offset": math.nan}, {"stitch_distance": 0.1},
                    {"lens_rotation": [0.0, 0.0]}, {"blend_band": 0.0}, {"lens_rotation": [1.0, 0.0, 0.0]}):
         with pytest.raises(CameraModelError, match=list(kwargs)[0]):
             DualFisheye(**kwargs)

@@ -2,9 +2,10 @@
 
 In: a :class:`~.model.Calibration` with the nominal ``base_T_camera`` and ``base_T_prism`` (4×4, m);
 or the path of a calibration YAML. Out: the YAML text read by ``live.launch``/``postprocess.launch``
-(``xyz`` in metres, ``rpy_deg`` in degrees, R = Rz(yaw)·Ry(pitch)·Rx(roll)), ``static_transform_publisher``
-lines (tf2 argument order, metres and radians), or the transforms read back (:func:`load_calibration`,
-CalibrationError naming the file and the key).
+(``xyz`` in metres, ``rpy_deg`` in degrees, R = Rz(yaw)·Ry(pitch)·Rx(roll); the rolling shutter's readout
+and the camera's two lenses when they are known), ``static_transform_publisher`` lines (tf2 argument order,
+metres and radians), or all of it read back (:func:`load_calibration`, CalibrationError naming the file
+and the key).
 """
 
 from __future__ import annotations
@@ -14,11 +15,13 @@ from typing import Dict, Tuple
 
 import numpy as np
 
+from ..camera import DualFisheye
+from ..errors import ConfigurationError
 from ..transforms import make_T, matrix_to_rpy, rpy_to_matrix
 from ..tum import atomic_write_text, read_yaml
 from .model import Calibration, CalibrationError
 
-__all__ = ["CALIBRATION_KEYS", "READOUT_KEY", "static_tf_yaml", "write_static_tf_yaml", "launch_snippet",
+__all__ = ["CALIBRATION_KEYS", "READOUT_KEY", "LENSES_KEY", "static_tf_yaml", "write_static_tf_yaml", "launch_snippet",
            "load_calibration"]
 
 
@@ -52,6 +55,17 @@ def static_tf_yaml(calib: Calibration, base_T_camera_nominal, base_T_prism) -> s
         lines.insert(-1, f"# rolling shutter: row v of H is captured at the image stamp + (v/H - 1/2) * readout; "
                          f"readout {1e3 * calib.readout:.3f}{sigma} ms")
         lines.append(f"{READOUT_KEY}: {1e3 * max(calib.readout, 0.0):.4f}")   # a readout cannot be negative
+    lenses = calib.lenses
+    if calib.lenses_estimated or not lenses.single_centre:
+        sigma = (f" ± {1e3 * calib.lens_offset_sigma:.3f} mm, rotation σ "
+                 f"{vec(np.degrees(calib.lens_rotation_sigma), 4)} deg" if calib.lenses_estimated else "")
+        lines.insert(-1, f"# two lenses: each centre {1e3 * lenses.lens_offset:.3f}{sigma}; stitched at "
+                         f"{lenses.stitch_distance:g} m")
+        stitch = ".inf" if math.isinf(lenses.stitch_distance) else f"{lenses.stitch_distance:g}"
+        lines.append(f"{LENSES_KEY}: {{lens_offset_mm: {1e3 * lenses.lens_offset:.4f}, back_lens_rotation_deg: "
+                     f"{vec(np.degrees(lenses.lens_rotation), 5)}, stitch_distance_m: {stitch}, "
+                     f"blend_band_deg: {math.degrees(lenses.blend_band):g}, "
+                     f"axis_azimuth_deg: {math.degrees(lenses.axis_azimuth):g}}}")
     if np.any(np.abs(rpy_p) > 0):
         lines.append(f"base_link_to_prism: {{xyz: {vec(Tp[:3, 3], 5)}, rpy_deg: {vec(np.degrees(rpy_p), 5)}}}")
     else:
@@ -83,6 +97,9 @@ def launch_snippet(calib: Calibration, base_T_camera_nominal, base_T_prism, base
 CALIBRATION_KEYS = {"base_link_to_camera": "camera", "base_link_to_prism": "prism"}
 #: key of the camera's rolling-shutter readout time (milliseconds; optional, 0 = global shutter)
 READOUT_KEY = "camera_readout_ms"
+#: key of the camera's two lenses (optional; ``camera.DualFisheye``: lens_offset_mm, back_lens_rotation_deg,
+#: stitch_distance_m (.inf: at infinity), blend_band_deg, axis_azimuth_deg)
+LENSES_KEY = "camera_lenses"
 
 
 def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
@@ -93,9 +110,10 @@ def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
     return np.array(value, dtype=float)
 
 
-def load_calibration(path: str) -> Dict[str, np.ndarray]:
-    """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres) and
-    ``"readout"``: the camera's rolling-shutter readout time (s, a 0-d array; 0 without ``camera_readout_ms``).
+def load_calibration(path: str) -> Dict[str, object]:
+    """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres),
+    ``"readout"``: the camera's rolling-shutter readout time (s, a 0-d array; 0 without ``camera_readout_ms``)
+    and, with ``camera_lenses``, ``"lenses"``: the camera's two lenses (``camera.DualFisheye``).
     Raises CalibrationError naming the file and the key."""
     data = read_yaml(path, CalibrationError)
     if not isinstance(data, dict):
@@ -114,4 +132,30 @@ def load_calibration(path: str) -> Dict[str, np.ndarray]:
             or not 0.0 <= readout < 1000.0):
         raise CalibrationError(f"{path}: {READOUT_KEY}: expected milliseconds in [0, 1000), got {readout!r}")
     out["readout"] = np.array(1e-3 * float(readout))
+    if LENSES_KEY in data:
+        out["lenses"] = _lenses(data[LENSES_KEY], f"{path}: {LENSES_KEY}")
     return out
+
+
+def _lenses(entry, where: str) -> DualFisheye:
+    """The ``camera_lenses`` entry as a ``DualFisheye`` (CalibrationError naming ``where`` and the key)."""
+    if not isinstance(entry, dict):
+        raise CalibrationError(f"{where}: expected {{lens_offset_mm: o, back_lens_rotation_deg: [r, p, y], "
+                               "stitch_distance_m: d or .inf, blend_band_deg: b}")
+    unknown = set(entry) - {"lens_offset_mm", "back_lens_rotation_deg", "stitch_distance_m", "blend_band_deg",
+                            "axis_azimuth_deg"}
+    if unknown:
+        raise CalibrationError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    values = {}
+    for key, default in (("lens_offset_mm", 0.0), ("stitch_distance_m", math.inf), ("blend_band_deg", 2.0),
+                         ("axis_azimuth_deg", 0.0)):
+        v = entry.get(key, default)
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or math.isnan(v):
+            raise CalibrationError(f"{where}.{key}: expected a number, got {v!r}")
+        values[key] = float(v)
+    rotation = np.radians(_vector(entry, "back_lens_rotation_deg", where, default=[0.0, 0.0, 0.0]))
+    try:
+        return DualFisheye(1e-3 * values["lens_offset_mm"], rotation, values["stitch_distance_m"],
+                           math.radians(values["blend_band_deg"]), math.radians(values["axis_azimuth_deg"]))
+    except ConfigurationError as e:
+        raise CalibrationError(f"{where}: {e}") from None

@@ -2,9 +2,10 @@
 
 In: nothing (types only). Out: :class:`CalibrationError`, :class:`CalibrationParams` (the knobs of
 :func:`~aruco_abs_orient.calibration.calibrate`), :class:`Recording` (the observations, odometry,
-prism track, marker map and nominal lever arms of one recording, on one clock), :class:`Unknowns`
-(which parameters beside the boresight are estimated) and :class:`Calibration` (the estimate with
-its σ, residuals and counts; degrees and millimetres in :meth:`Calibration.report_dict`).
+prism track, marker map, nominal lever arms and nominal camera lenses of one recording, on one clock),
+:class:`Unknowns` (which parameters beside the boresight are estimated) and :class:`Calibration` (the
+estimate with its σ, residuals, the platform model it chose and counts; degrees and millimetres in
+:meth:`Calibration.report_dict`).
 
 Units: metres, radians, seconds.
 """
@@ -13,21 +14,28 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, NamedTuple, Optional, Tuple
+from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from ..camera import SINGLE_CENTRE, DualFisheye
 from ..errors import GeometryError
 from ..markers import MarkerMap
 from ..pipeline import PipelineParams
 from ..transforms import make_T, rpy_to_matrix
 from ..tum import Trajectory
 
-__all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", "Unknowns", "N_GLOBALS"]
+__all__ = ["CalibrationError", "CalibrationParams", "Calibration", "Recording", "Unknowns", "N_GLOBALS",
+           "HEADING_MODELS"]
 
-#: length of the vector of named global unknowns x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ); the
-#: odometry's tilt error at the tilt knots follows them in x (``problem.Problem.n_x``)
-N_GLOBALS = 8
+#: length of the vector of named global unknowns x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ, Δo, ε_x, ε_y,
+#: ε_z): boresight (rad), lever arm (m), time offset (s), readout (s), lens offset (m), the back lens's rotation
+#: relative to the front one (rad, a rotation vector)
+N_GLOBALS = 12
+
+#: how the track heading measures the map→odom yaw: "auto" (chosen by the data, see ``solve``), "vo_yaw" (against
+#: the VO's yaw: base_link x is the direction of travel) or "vo_track" (against the VO's own direction of travel)
+HEADING_MODELS = ("auto", "vo_yaw", "vo_track")
 
 
 class CalibrationError(GeometryError, ValueError):
@@ -56,19 +64,25 @@ class CalibrationParams:
       (degrees) / lever-arm axis (m) / time offset (s) with a larger 1-σ is not determined:
       :class:`CalibrationError`.
     - ``max_readout_sigma``: a rolling-shutter readout time (s) with a larger 1-σ is not determined.
+    - ``lens_offset_prior`` (m), ``lens_rotation_prior_deg``: 1-σ of the lens offset and of each component of the
+      lenses' relative rotation around the nominal ones (what a camera of the kind may differ from its table
+      value), so that a recording that says little about the lenses keeps them near the nominal with that σ in
+      the boresight's; ``max_lens_offset_sigma`` (m), ``max_lens_rotation_sigma_deg``: above these the lenses
+      are reported as loosely determined (a warning saying what to drive), not refused.
     - ``max_iterations``: Gauss-Newton iterations per stage.
-    - ``vo_tilt``: also estimate the odometry's tilt error (a VO drifting in roll/pitch: its odom frame
-      tilts against gravity) as a piecewise-linear rotation about map's x and y axes with knots every
-      ``tilt_knot_spacing`` s, each knot tied to 0 by ``tilt_sigma_deg`` and to its neighbour by
-      ``tilt_drift_sigma_deg`` (1-σ, degrees). Without it a VO tilt drift of 0.5°/min biases the boresight
-      by tenths of a degree and leaves the time offset and readout undetermined (issue 17).
-    - ``vo_track_heading``: measure δ(t) by the prism track's direction against the VO's own direction
-      of travel (the prism track its positions and attitude predict, smoothed alike) instead of
-      against the VO's yaw (base_link x taken as the direction of travel). The default: a real platform
-      wanders sideways and crabs, and against the VO's yaw that wander went into the boresight yaw with a
-      σ too small for it (realistic world, 20 s, 10 seeds: error RMS 0.048°, within 2.5 σ in 90 %;
-      with this 0.026°, 100 %). Needs the VO's translation; ``false`` for a smooth drive of a platform
-      that never crabs (easy world, 60 s, 12 seeds: error RMS 0.008° against this 0.013°).
+    - ``vo_tilt``: the odometry's tilt error (its odom frame tilted against gravity: a VO without gravity
+      starts at the platform's tilt, and drifts) drifts too: a piecewise-linear rotation about map's x and
+      y axes with knots every ``tilt_knot_spacing`` s, each knot tied to 0 by ``tilt_sigma_deg`` and to its
+      neighbour by ``tilt_drift_sigma_deg`` (1-σ, degrees); without it one constant tilt error.
+    - ``odom_levelled``: the odometry's tilt is gravity's at the start (wheel odometry with an IMU), so the
+      tilt error starts at 0; otherwise it is estimated, told apart from the camera's roll and pitch by
+      the platform's turns.
+    - ``heading_model``: how the prism track's heading measures the map→odom yaw (``HEADING_MODELS``):
+      against the VO's yaw (precise, but a platform that crabs biases it), against the VO's own direction
+      of travel (right for any platform, noisy when the VO's translation is), or ``auto``: both are
+      fitted and the VO's yaw kept unless the two boresight yaws differ by more than their difference's
+      σ allows (a Hausman test at ``crab_test_chi2``, χ² of 1 degree of freedom), or the direction of
+      travel is the more precise.
     """
 
     knot_spacing: float = 1.0
@@ -89,16 +103,25 @@ class CalibrationParams:
     max_lever_sigma: float = 0.02
     max_time_offset_sigma: float = 0.005
     max_readout_sigma: float = 0.005
+    lens_offset_prior: float = 0.01
+    lens_rotation_prior_deg: float = 0.2
+    max_lens_offset_sigma: float = 0.002
+    max_lens_rotation_sigma_deg: float = 0.05
     max_iterations: int = 30
-    vo_track_heading: bool = True
+    heading_model: str = "auto"
+    crab_test_chi2: float = 6.63
+    odom_levelled: bool = False
     vo_tilt: bool = True
     tilt_knot_spacing: float = 10.0
     tilt_sigma_deg: float = 2.0
     tilt_drift_sigma_deg: float = 0.3
 
     def validate(self) -> None:
+        if self.heading_model not in HEADING_MODELS:
+            raise CalibrationError(f"CalibrationParams.heading_model: expected one of {', '.join(HEADING_MODELS)}, "
+                                   f"got {self.heading_model!r}")
         for name, value in self.__dict__.items():
-            if isinstance(value, bool):
+            if isinstance(value, (bool, str)):
                 continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise CalibrationError(f"CalibrationParams.{name}: expected a positive number, got {value!r}")
@@ -130,6 +153,17 @@ class Calibration:
     - ``readout`` (s): the rolling-shutter readout time used (estimated, or the one given; 0 = global
       shutter): row v of an H-row image is captured at the frame stamp + (v/H − ½)·readout;
       ``readout_sigma`` (s, NaN when not estimated); ``readout_estimated``.
+    - ``lenses``: the camera's two lenses (``camera.DualFisheye``), the nominal ones with the estimated lens
+      offset and relative rotation when ``lenses_estimated``; ``lens_offset_sigma`` (m) and
+      ``lens_rotation_sigma`` (3,) rad (NaN when not estimated).
+    - ``odom_tilt`` (2,) rad and ``odom_tilt_sigma`` (2,): the odometry's tilt error at the first observation
+      (about map x, y: the odom frame's tilt against gravity; 0 with ``odom_levelled``).
+    - ``heading_model`` ("vo_yaw" or "vo_track") and ``heading_model_reason``: the platform model the track
+      headings were taken with and why (``CalibrationParams.heading_model``).
+    - ``marker_offsets``: id → (offset (3,) m, its 1-σ (3,) m): where the observations put each marker
+      against its surveyed position (the survey's error, fitted as a random effect of σ ``marker.sigma``
+      scaled by the variance factor 'marker_positions').
+    - ``warnings``: what the recording determined only loosely (one line each, with what to record).
     """
 
     boresight_rpy: np.ndarray
@@ -160,6 +194,16 @@ class Calibration:
     readout: float = 0.0
     readout_sigma: float = float("nan")
     readout_estimated: bool = False
+    lenses: DualFisheye = SINGLE_CENTRE
+    lens_offset_sigma: float = float("nan")
+    lens_rotation_sigma: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    lenses_estimated: bool = False
+    odom_tilt: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    odom_tilt_sigma: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    heading_model: str = "vo_yaw"
+    heading_model_reason: str = ""
+    marker_offsets: Dict[int, Tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    warnings: List[str] = field(default_factory=list)
 
     @property
     def boresight_matrix(self) -> np.ndarray:
@@ -191,7 +235,18 @@ class Calibration:
             "moving_time_s": self.moving_time,
             "iterations": self.iterations,
             "skipped": dict(self.skipped),
+            "heading_model": self.heading_model,
+            "heading_model_reason": self.heading_model_reason,
+            "odom_tilt_deg": [round(math.degrees(float(x)), 5) for x in self.odom_tilt],
+            "odom_tilt_sigma_deg": [round(math.degrees(float(x)), 5) for x in self.odom_tilt_sigma],
+            "marker_offsets_mm": {int(k): [round(1e3 * float(x), 2) for x in v[0]]
+                                  for k, v in sorted(self.marker_offsets.items())},
         }
+        if self.lenses_estimated:
+            out["lens_offset_mm"] = round(1e3 * self.lenses.lens_offset, 3)
+            out["lens_offset_sigma_mm"] = round(1e3 * self.lens_offset_sigma, 3)
+            out["lens_rotation_deg"] = [round(math.degrees(float(x)), 5) for x in self.lenses.lens_rotation]
+            out["lens_rotation_sigma_deg"] = [round(math.degrees(float(x)), 5) for x in self.lens_rotation_sigma]
         if self.time_offset_estimated:
             out["time_offset_delta_ms"] = round(1e3 * self.time_offset_delta, 3)
             out["time_offset_sigma_ms"] = round(1e3 * self.time_offset_sigma, 3)
@@ -218,6 +273,8 @@ class Recording:
     - ``obs_rows`` (N,): (v/H − ½) of each observation's image row (``pipeline.row_fraction``; None:
       all 0, the middle row); with a rolling-shutter readout ρ an observation is captured at
       ``obs_times + obs_rows · ρ``.
+    - ``lenses``: the camera's lenses as known before (``camera.DualFisheye``; the single centre by default):
+      the start of their estimate, or fixed.
     """
 
     obs_times: np.ndarray
@@ -231,16 +288,19 @@ class Recording:
     base_T_camera: np.ndarray
     base_T_prism: np.ndarray
     obs_rows: Optional[np.ndarray] = None
+    lenses: DualFisheye = SINGLE_CENTRE
 
 
 class Unknowns(NamedTuple):
-    """Which parameters beside the boresight (roll, pitch, yaw) are estimated."""
+    """Which parameters beside the boresight (roll, pitch, yaw) are estimated: the camera's lever arm, the
+    residual time offset, the rolling-shutter readout, the two lenses' offset and relative rotation."""
 
     lever_arm: bool = False
     time_offset: bool = False
     readout: bool = False
+    lenses: bool = False
 
     def free(self) -> Tuple[int, ...]:
-        """Indices of the free globals in x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ)."""
+        """Indices of the free globals in x (``N_GLOBALS``)."""
         return ((0, 1, 2) + ((3, 4, 5) if self.lever_arm else ()) + ((6,) if self.time_offset else ())
-                + ((7,) if self.readout else ()))
+                + ((7,) if self.readout else ()) + ((8, 9, 10, 11) if self.lenses else ()))

@@ -2,65 +2,33 @@
 
 In: a :class:`~.model.Recording`, :class:`~.model.CalibrationParams` and the prism clock shift of this
 pass. Out: a :class:`Setup` (the usable observations with everything interpolated to their times, the
-track-heading constraints, the knots of δ(t), and what was skipped and why) that ``solve`` fits;
-:class:`CalibrationError` when the recording lacks what a parameter needs.
+track-heading constraints, the knots of δ(t) and of the odometry's tilt, the markers, and what was
+skipped and why) that ``solve`` fits; :class:`CalibrationError` when the recording lacks what it needs.
 
-The static transform ``base_T_camera`` (rotation ``R_bc``, camera origin ``t_cam`` in base_link) is
-refined from ALL marker observations of a recording by robust weighted least squares:
+A marker bearing u (camera frame) at time t is predicted from the prism P(t), the odometry attitude
+``odom_R_base(t)``, the map→odom yaw δ(t) and the odometry's tilt error θ(t) (its odom frame tilted
+against gravity: a VO without gravity starts at the platform's tilt and drifts)::
 
-* boresight: a rotation ``B = rpy_to_matrix(roll, pitch, yaw)`` in base_link applied on top of the
-  nominal mounting, ``R_bc = B · R_bc_nominal`` (three small angles, radians);
-* lever arm (optional): ``t_cam = t_cam_nominal + Δl`` (base_link, metres);
-* time offset (optional): a residual ``Δτ`` (s) of the camera ↔ total-station offset given, so that the
-  prism at camera time t is ``P(t − Δτ) ≈ P(t) − V(t)·Δτ`` (V the prism velocity from the track).
+    map_R_base = Rz(δ(t)) · exp([θ(t)]×) · odom_R_base(t)
+    q          = (B R_bc)ᵀ (map_R_baseᵀ (M + ΔM − P) − (t_cam + Δl − t_prism))
+    u_pred     = lenses.project(q)          (camera.DualFisheye: each lens's centre and rotation)
 
-Observation model of one marker bearing ``u`` (camera frame) at time t, as in ``solver``: with the
-prism P(t) (map), the odometry attitude ``odom_R_base(t)`` (tilt and relative yaw from VO) and the
-map→odom yaw offset δ(t)::
+B the boresight, Δl the lever arm's correction, ΔM the marker's offset from its survey (a random effect
+of the survey's σ), and the lenses' offset and relative rotation; Δτ moves P along the track by V·Δτ, a
+rolling-shutter readout Δρ moves each observation in time by its row. The residual is ``u × u_pred``
+with σ ``sqrt(σ_u² + σ_P² / range²)`` per axis. δ(t) is piecewise linear (knots every ``knot_spacing``
+s, a random-walk prior); θ(t) likewise (``tilt_knot_spacing``, or one constant), each knot tied to 0 by
+``tilt_sigma_deg`` (the first fixed at 0 with ``odom_levelled``): the platform's turns tell θ, fixed in
+map, from the boresight roll and pitch, fixed in base_link.
 
-    map_R_base = Rz(δ(t)) · odom_R_base(t)
-    camera C   = P + map_R_base · (t_cam − t_prism)
-    u_pred     = (B R_bc)ᵀ map_R_baseᵀ (M − C) / |·|
+The boresight yaw is told from δ by the prism track's direction of travel while driving: against the
+VO's yaw (``heading_model`` "vo_yaw": base_link x is the direction of travel; the lever arm's swing with
+the VO's rates removed) or against the VO's own direction of travel ("vo_track"), each weighted by speed
+(σ = noise / speed), left out at standstill and in fast turns. Markers at several ranges and directions
+separate the lever arm, Δτ (|V|Δτ/r, different per marker), the lenses (their parallax changes sign
+between the hemispheres and with 1/r) and the boresight (the same for all).
 
-The residual is ``u_obs × u_pred`` (its norm is the sine of the angle between the bearings), with
-the 1-σ ``sqrt(σ_u² + (σ_M² + σ_P²) / range²)`` per axis (detection, survey, prism). δ(t) is a
-nuisance: the VO drifts, so it is piecewise-linear in time with knots every ``knot_spacing`` seconds,
-tied by a weak random-walk prior so that knots without data stay determined. The VO drifts in tilt
-too (its odom frame tilts against gravity, fixed in odom while the platform turns under it): with
-``vo_tilt`` (default) ``map_R_base = Rz(δ(t)) · exp([θ(t)]×) · odom_R_base(t)``, θ about map's x and y,
-the drift since the first observation: piecewise linear over knots every ``tilt_knot_spacing`` s
-(x[N_GLOBALS:]), the first 0, the others tied to 0 by ``tilt_sigma_deg`` and to their neighbour by
-``tilt_drift_sigma_deg``. The platform's turning separates θ (fixed in map) from the boresight roll and
-pitch (fixed in base_link). Without θ the realistic demo's
-0.5°/min tilt drift made the boresight roll 0.21° and yaw 0.35° wrong (σ 0.09°) and the time offset
-(σ 8 ms) and readout (σ 156 ms) undetermined; with it 0.002°, 0.020° (σ 0.019°), 0.6 ± 0.2 ms, 33 ± 2 ms.
-
-Observability: ``δ(t)`` and the boresight YAW both turn the camera about the vertical, so markers alone
-determine only their sum. What separates them is the prism track: for a non-holonomic platform
-base_link x is the direction of travel, so while the platform drives, the heading of the velocity of
-the base_link origin (prism velocity minus ω × lever arm, ``timesync.heading_from_track``) measures
-``δ(t) + yaw(odom_R_base(t))`` directly. These heading constraints are weighted by speed (σ = noise /
-speed), left out at standstill (speed < ``min_speed``) and in fast turns/turns in place (|yaw rate| >
-``max_turn_rate_deg``). The boresight roll and pitch are observable from the markers with the VO tilt
-(map→odom has no tilt); the lever arm from markers in different directions and at different ranges.
-Δτ moves the camera along its direction of travel by V·Δτ: the bearing of a marker at range r turns
-by up to |V|Δτ/r, differently for each marker, while a boresight turns all of them alike — markers at
-several ranges and in several directions separate the two, and a camera lever arm along x is told apart
-from Δτ by the standstill and the speed changes (|V|Δτ scales with speed, a lever arm does not). The
-heading constraints carry Δτ too (the track heading at t − Δτ: ∂/∂Δτ = −turn rate). A 5 ms offset at
-0.8 m/s is 4 mm: over a recording's thousands of bearings to markers 2–12 m away it is determined to
-a fraction of a millisecond, where the heading alone (``timesync``) is limited by the VO drift.
-
-A recording that lacks what a parameter needs (no motion, no markers, too few) raises
-:class:`CalibrationError` saying so; a parameter whose σ exceeds its limit is reported as not
-determined, never as a number.
-
-Weights: after a robust stage (Cauchy IRLS with an annealed scale) markers beyond ``outlier_gate`` σ and
-heading samples beyond it are dropped, the rest solved by least squares and the two groups' variance
-factors estimated (variance component estimation) so the reported σ reflect the actual scatter.
-
-Units: metres, radians (degrees only in ``report_dict`` and in the YAML, as documented). numpy only,
-Python 3.8 compatible.
+Units: metres, radians, seconds. numpy only, Python 3.8.
 """
 
 from __future__ import annotations
@@ -70,12 +38,15 @@ from typing import Dict, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from ..camera import DualFisheye
 from ..timesync import TimeSyncError, heading_from_track
-from ..transforms import quat_to_matrix, rot_z, rpy_to_matrix, wrap_angle, yaw_of
+from ..transforms import quat_to_matrix, rot_z, rotvec_to_matrix, rpy_to_matrix, wrap_angle, yaw_of
 from ..tum import Trajectory
 from .model import N_GLOBALS, CalibrationError, CalibrationParams, Recording
 
 __all__ = ["Problem", "Setup", "setup_problem"]
+
+_ALL_GLOBALS = tuple(range(N_GLOBALS))
 
 
 class _Observed(NamedTuple):
@@ -103,6 +74,15 @@ class _Mounting(NamedTuple):
     t_prism: np.ndarray
 
 
+class _Markers(NamedTuple):
+    """The markers of the usable observations: ``ids`` (Nm,), their survey 1-σ ``sigma`` (Nm,) m, and each
+    observation's ``index`` (N,) into them."""
+
+    ids: np.ndarray
+    sigma: np.ndarray
+    index: np.ndarray
+
+
 class _Track(NamedTuple):
     """The odometry and the sorted, shifted prism track the heading constraints come from."""
 
@@ -114,31 +94,35 @@ class _Track(NamedTuple):
 class Problem:
     """Marker observations and heading constraints with everything interpolated to their times.
 
-    The global unknowns are the vector x = (roll, pitch, yaw, Δl_x, Δl_y, Δl_z, Δτ, Δρ) (rad, m, s, s),
-    of which ``_solve`` frees a subset; the knot values d of δ(t) are always free. Δρ changes the
-    rolling-shutter readout the observations were interpolated with: an observation on row fraction f
-    moves in time by f·Δρ (its odometry rotation by ω f Δρ, its prism by V f Δρ)."""
+    The unknowns: the named globals x (``N_GLOBALS``: boresight, lever arm, Δτ, Δρ, lens offset, lens rotation;
+    rad, m, s, s, m, rad), of which ``solve`` frees a subset; the knot values d (K,) of δ(t); the odometry's
+    tilt error θ at the tilt knots (Kt, 2) rad about map x, y (one knot, a constant, without ``vo_tilt``); and
+    each marker's offset from its surveyed position (Nm, 3) m. Δρ changes the rolling-shutter readout the
+    observations were interpolated with: an observation on row fraction f moves in time by f·Δρ (its
+    odometry rotation by ω f Δρ, its prism by V f Δρ). Per observation the local unknowns are δ, θ and its
+    marker's offset (:meth:`local`); :meth:`residuals` takes them at the observations."""
 
     def __init__(self, obs: _Observed, mounting: _Mounting, track: _Track, heading, knots: np.ndarray,
-                 params: CalibrationParams):
+                 params: CalibrationParams, markers: _Markers, lenses: DualFisheye):
         self.u, self.M, self.P, self.V, self.R_odom, self.sigma = obs.u, obs.M, obs.P, obs.V, obs.R_odom, obs.sigma
         self.rows, self.omega, self.t = obs.rows, obs.omega, obs.t
         self.R_bc, self.t_cam, self.t_prism = mounting
         self.track, self.params = track, params
         self.knots = knots
         self.i_obs, self.a_obs = _knot_weights(knots, obs.t)
-        # the odometry's tilt error θ(t) (rad about map x, y), piecewise linear over the tilt knots; its knot
-        # values follow the named globals in x (x[N_GLOBALS:] = θx, θy of knot 0, knot 1, ...)
+        # the odometry's tilt error θ(t) (rad about map x, y), piecewise linear over the tilt knots
         if params.vo_tilt:
             span = max(float(obs.t.max() - obs.t.min()), 1e-3)
             kt = max(2, int(math.ceil(span / params.tilt_knot_spacing)) + 1)
             self.tilt_knots = float(obs.t.min()) + np.linspace(0.0, span, kt)
             self.i_tilt, self.a_tilt = _knot_weights(self.tilt_knots, obs.t)
-        else:
-            self.tilt_knots = np.zeros(0)
-        self.n_x = N_GLOBALS + 2 * len(self.tilt_knots)
+        else:                                    # one constant tilt error: both slots on knot 0
+            self.tilt_knots = np.array([float(obs.t.min())])
+            self.i_tilt, self.a_tilt = np.zeros(len(obs.t), dtype=int), np.zeros(len(obs.t))
         self.tilt_sigma = math.radians(params.tilt_sigma_deg)               # rad, prior of each knot
         self.tilt_drift_sigma = math.radians(params.tilt_drift_sigma_deg)   # rad per tilt-knot interval
+        self.markers = markers
+        self.lenses = lenses
         self.set_heading(*heading)
         self.drift_sigma = math.radians(params.drift_sigma_deg)      # rad per knot interval
 
@@ -163,58 +147,109 @@ class Problem:
     def delta_at(self, d: np.ndarray, i: np.ndarray, a: np.ndarray) -> np.ndarray:
         return (1.0 - a) * d[i] + a * d[i + 1]
 
-    def camera_to_marker(self, x, delta) -> np.ndarray:
-        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M − P + V Δτ − V f Δρ) − (t_cam +
-        Δl − t_prism), map_R_base = Rz(δ) odom_R_base exp([ω f Δρ]×)."""
-        Rz = rot_z(delta)
-        if len(self.tilt_knots):                                         # map_R_base (N, 3, 3)
-            R = Rz @ _rotations(self.tilt_at(x)) @ self.R_odom
-        else:
-            R = Rz @ self.R_odom
-        g = self.M - self.P + self.V * x[6]
+    def local(self, d: np.ndarray, theta: np.ndarray, offsets: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """δ (N,), θ (N, 2) and the marker offset (N, 3) at the observations from the knot values ``d`` (K,),
+        the tilt knots ``theta`` (Kt, 2) and the markers' offsets (Nm, 3)."""
+        i, a = self.i_tilt, self.a_tilt[:, None]
+        j = np.minimum(i + 1, len(self.tilt_knots) - 1)
+        return (self.delta_at(d, self.i_obs, self.a_obs), (1.0 - a) * theta[i] + a * theta[j],
+                offsets[self.markers.index])
+
+    def lenses_at(self, x) -> DualFisheye:
+        """The camera's lenses with the lens offset and rotation changed by x[8], x[9:12]."""
+        if x[8] == 0.0 and not np.any(x[9:12]):
+            return self.lenses
+        return self.lenses.replace(lens_offset=self.lenses.lens_offset + float(x[8]),
+                                   lens_rotation=self.lenses.lens_rotation + x[9:12])
+
+    def camera_to_marker(self, x, delta, theta, offsets) -> np.ndarray:
+        """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M + ΔM − P + V Δτ − V f Δρ) −
+        (t_cam + Δl − t_prism), map_R_base = Rz(δ) exp([θ]×) odom_R_base exp([ω f Δρ]×)."""
+        w = np.zeros((len(delta), 3))
+        w[:, :2] = theta
+        R = rot_z(delta) @ rotvec_to_matrix(w) @ self.R_odom                  # map_R_base (N, 3, 3)
+        g = self.M + offsets - self.P + self.V * x[6]
         if x[7] != 0.0:
-            R = R @ _rotations(self.omega * (self.rows * x[7])[:, None])
+            R = R @ rotvec_to_matrix(self.omega * (self.rows * x[7])[:, None])
             g = g - self.V * (self.rows * x[7])[:, None]
         return np.einsum("nji,nj->ni", R, g) - (self.t_cam + x[3:6] - self.t_prism)
 
-    def tilt_at(self, x) -> np.ndarray:
-        """The odometry's tilt error θ (N, 3) rad at the observations, a rotation vector about map x, y:
-        map_R_base = Rz(δ) · exp([θ]×) · odom_R_base."""
-        th = x[N_GLOBALS:].reshape(-1, 2)
-        a = self.a_tilt[:, None]
-        w = np.zeros((len(self.t), 3))
-        w[:, :2] = (1.0 - a) * th[self.i_tilt] + a * th[self.i_tilt + 1]
-        return w
+    def predict(self, x, delta, theta, offsets) -> np.ndarray:
+        """Predicted unit bearings (N, 3) in the camera frame: where the camera's stitched image shows the
+        markers."""
+        q = self.camera_to_marker(x, delta, theta, offsets) @ (rpy_to_matrix(*x[:3]) @ self.R_bc)   # (B R_bc)ᵀ g
+        return self.lenses_at(x).project(q)
 
-    def tilt_indices(self) -> Tuple[int, ...]:
-        """Indices in x of the free tilt knots' values (() without ``vo_tilt``): all but the first, which stays
-        0 (θ is the drift since the recording's first observation; a constant tilt of odom is what the
-        boresight roll and pitch took before, and without turns nothing tells them apart)."""
-        return tuple(range(N_GLOBALS + 2, self.n_x))
+    def residuals(self, x, delta, theta, offsets) -> np.ndarray:
+        return np.cross(self.u, self.predict(x, delta, theta, offsets))
 
-    def predict(self, x, delta) -> np.ndarray:
-        """Predicted unit bearings (N, 3) in the camera frame."""
-        q = self.camera_to_marker(x, delta) @ (rpy_to_matrix(*x[:3]) @ self.R_bc)   # (B R_bc)ᵀ g
-        return q / np.linalg.norm(q, axis=1, keepdims=True)
+    def linearise(self, x, delta, theta, offsets, free=_ALL_GLOBALS, h: float = 1e-6):
+        """The residuals (N, 3) and their derivatives: by the named globals ``free`` (N, 3, N_GLOBALS; the others
+        0), by δ (N, 3), by θ about map x and y (N, 3, 2) and by the marker's offset (N, 3, 3) — analytic through
+        the rotation chain, by central differences (step ``h``) through the boresight angles and the lenses."""
+        n = len(delta)
+        w3 = np.zeros((n, 3))
+        w3[:, :2] = theta
+        Rz = rot_z(delta)
+        A = Rz @ rotvec_to_matrix(w3) @ self.R_odom                          # map_R_base (N, 3, 3)
+        G = self.M + offsets - self.P + self.V * x[6]
+        fV = self.V * self.rows[:, None]
+        if x[7] != 0.0:
+            A = A @ rotvec_to_matrix(self.omega * (self.rows * x[7])[:, None])
+            G = G - fV * x[7]
+        At = np.swapaxes(A, 1, 2)
+        AtG = np.einsum("nij,nj->ni", At, G)
+        w = AtG - (self.t_cam + x[3:6] - self.t_prism)                        # camera → marker, base_link
+        Cb = rpy_to_matrix(*x[:3]) @ self.R_bc
+        q = w @ Cb                                                            # in the camera frame
+        lenses = self.lenses_at(x)
+        d = lenses.project(q)
+        r = np.cross(self.u, d)
+        # ∂d/∂q (N, 3, 3)
+        if lenses.single_centre:
+            Dq = (np.eye(3) - d[:, :, None] * d[:, None, :]) / np.linalg.norm(q, axis=1)[:, None, None]
+        else:
+            Dq = np.empty((n, 3, 3))
+            step = h * np.maximum(np.linalg.norm(q, axis=1), 1e-3)[:, None]
+            for k in range(3):
+                e = np.zeros(3)
+                e[k] = 1.0
+                Dq[:, :, k] = (lenses.project(q + step * e) - lenses.project(q - step * e)) / (2 * step)
 
-    def residuals(self, x, delta) -> np.ndarray:
-        return np.cross(self.u, self.predict(x, delta))
+        def through(dw):      # ∂r for a change dw (N, 3) of the base_link vector w
+            return np.cross(self.u, np.einsum("nij,nj->ni", Dq, dw @ Cb))
+
+        Jg = np.zeros((n, 3, len(x)))
+        for k in (k for k in range(3) if k in free):    # the boresight: q = (B R_bc)ᵀ w
+            e = np.zeros(len(x))
+            e[k] = h
+            dq = (w @ (rpy_to_matrix(*(x[:3] + e[:3])) @ self.R_bc) - w @ (rpy_to_matrix(*(x[:3] - e[:3])) @ self.R_bc))
+            Jg[:, :, k] = np.cross(self.u, np.einsum("nij,nj->ni", Dq, dq / (2 * h)))
+        for k in range(3):    # the lever arm: w − Δl
+            dw = np.zeros((n, 3))
+            dw[:, k] = -1.0
+            Jg[:, :, 3 + k] = through(dw)
+        Jg[:, :, 6] = through(np.einsum("nij,nj->ni", At, self.V))                          # Δτ: G + V Δτ
+        Jg[:, :, 7] = through(-np.cross(self.omega * self.rows[:, None], AtG)
+                              - np.einsum("nij,nj->ni", At, fV))                               # Δρ
+        for k in (k for k in range(4) if 8 + k in free):    # the lenses: offset, rotation
+            e = np.zeros(len(x))
+            e[8 + k] = h
+            Jg[:, :, 8 + k] = np.cross(self.u, self.lenses_at(x + e).project(q) - self.lenses_at(x - e).project(q)) \
+                / (2 * h)
+        c_delta = through(-np.einsum("nij,nj->ni", At, np.cross(np.array([0.0, 0.0, 1.0]), G)))
+        c_theta = np.empty((n, 3, 2))
+        for k in range(2):    # θ about map x, y: map_R_base ≈ (I + [Rz(δ) e_k]×) map_R_base
+            axis = Rz[:, :, k]
+            c_theta[:, :, k] = through(-np.einsum("nij,nj->ni", At, np.cross(axis, G)))
+        c_M = np.empty((n, 3, 3))
+        for k in range(3):    # the marker's offset: G + ΔM
+            c_M[:, :, k] = through(At[:, :, k])
+        return r, Jg, c_delta, c_theta, c_M
 
     def heading_residuals(self, x, d) -> np.ndarray:
         """δ(t) − (travel heading at t − Δτ − odometry yaw), linearised in Δτ (rad)."""
         return wrap_angle(self.delta_at(d, self.i_head, self.a_head) - self.yaw_head + self.rate_head * x[6])
-
-
-def _rotations(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) of rotation vectors ``w`` (N, 3) rad (Rodrigues)."""
-    theta = np.linalg.norm(w, axis=1)
-    small = theta < 1e-12
-    k = w / np.where(small, 1.0, theta)[:, None]
-    K = np.zeros((len(w), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    s, c = np.sin(theta)[:, None, None], (1.0 - np.cos(theta))[:, None, None]
-    return np.eye(3) + s * K + c * (K @ K)
 
 
 def _body_rates(odom: Trajectory, t: np.ndarray, h: float = 0.02) -> np.ndarray:
@@ -285,7 +320,7 @@ def _heading_constraints(odom: Trajectory, t_prism, p_prism, t_prism_lever, para
     tq = np.arange(t0, t1, params.heading_step)
     if len(tq) == 0:
         return tq, tq.copy(), tq.copy(), tq.copy()
-    if params.vo_track_heading:
+    if params.heading_model == "vo_track":
         return _heading_against_vo_track(odom, t_prism, p_prism, t_prism_lever, params, tq)
     dt = 0.2
     try:
@@ -436,7 +471,8 @@ def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float, 
         raise CalibrationError("; ".join(problems))
 
     M = np.array([rec.marker_map[int(i)].position for i in ids[idx]])
-    sM = np.array([rec.marker_map[int(i)].sigma for i in ids[idx]])
+    marker_ids, marker_index = np.unique(ids[idx].astype(int), return_inverse=True)
+    markers = _Markers(marker_ids, np.array([rec.marker_map[int(i)].sigma for i in marker_ids]), marker_index)
     t_all = np.concatenate([t[idx], th])
     k0, k1 = float(t_all.min()), float(t_all.max())
     K = max(2, int(math.ceil((k1 - k0) / params.knot_spacing)) + 1)
@@ -451,7 +487,9 @@ def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float, 
     omega = _body_rates(rec.odom, t[idx]) if np.any(rows[idx]) else np.zeros((len(idx), 3))
     obs = _Observed(u[idx] / norm[idx, None], M, P[idx], V, quat_to_matrix(q_odom[idx]), sig[idx], t[idx],
                     rows[idx], omega)
-    pb = Problem(obs, mounting, track, heading, knots, params)
-    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(pb.n_x), np.zeros(len(idx))), axis=1), 1e-3)
-    pb.sigma = np.sqrt(pb.sigma ** 2 + (sM ** 2 + params.prism_sigma ** 2) / rng ** 2)
+    pb = Problem(obs, mounting, track, heading, knots, params, markers, rec.lenses)
+    zero = np.zeros(len(idx))
+    rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(N_GLOBALS), zero, np.zeros((len(idx), 2)),
+                                                        np.zeros((len(idx), 3))), axis=1), 1e-3)
+    pb.sigma = np.sqrt(pb.sigma ** 2 + params.prism_sigma ** 2 / rng ** 2)   # the survey's error: the offsets
     return Setup(pb, idx, keep, ids, skipped)

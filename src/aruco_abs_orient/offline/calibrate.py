@@ -25,6 +25,7 @@ from typing import List, Optional
 import numpy as np
 
 from ..calibration import (
+    HEADING_MODELS,
     Calibration,
     CalibrationError,
     CalibrationParams,
@@ -34,6 +35,7 @@ from ..calibration import (
     launch_snippet,
     static_tf_yaml,
 )
+from ..camera import SINGLE_CENTRE, DualFisheye
 from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..errors import AbsOrientError
 from ..markers import MarkerMap
@@ -148,7 +150,7 @@ def _until_broken(images, skipped: dict):
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
                   progress: bool = True, unknowns: Optional[Unknowns] = None,
                   params: Optional[CalibrationParams] = None,
-                  observations: Optional[CalibrateResult] = None) -> Calibration:
+                  observations: Optional[CalibrateResult] = None, lenses: DualFisheye = SINGLE_CENTRE) -> Calibration:
     """Calibrate the camera of ``bag`` against ``marker_map``.
 
     ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign);
@@ -157,6 +159,7 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
     camera's origin; ``readout`` the camera's rolling-shutter readout time (the images' stamps are their
     middle rows' capture times; row v of H is captured at stamp + (v/H − ½)·readout).
     ``observations``: a :func:`collect_observations` result to reuse (detection is the slow part).
+    ``lenses``: the camera's two lenses as known (``camera.DualFisheye``): fixed, or the start of their estimate.
     Raises BagError (unusable bag) or CalibrationError (the recording cannot determine it: why).
     """
     obs = observations or collect_observations(bag, marker_map, topics, progress)
@@ -165,7 +168,7 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
         raise CalibrationError(f"{bag_name(bag)}: no prism track: the calibration needs the total station's "
                                "prism positions")
     rec = Recording(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
-                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism, obs.rows)
+                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism, obs.rows, lenses)
     cal = calibrate(rec, unknowns, params)
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
@@ -201,14 +204,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "is the middle row's capture time, row v of H at stamp + (v/H - 1/2)*readout); written "
                         "to the calibration YAML (camera_readout_ms), which process and the node read. Needs "
                         "turns with markers above and below the horizon")
-    heading = p.add_mutually_exclusive_group()
-    heading.add_argument("--vo-track-heading", dest="vo_track_heading", action="store_const", const=True,
-                         help="separate the boresight yaw with the VO's own direction of travel, not its yaw: "
-                              "right for a platform that wanders sideways or crabs; needs the VO's translation "
-                              "(the default, from the calibration section's vo_track_heading)")
-    heading.add_argument("--no-vo-track-heading", dest="vo_track_heading", action="store_const", const=False,
-                         help="separate it with the VO's yaw (base_link x taken as the direction of travel): for "
-                              "a smooth drive of a platform that never crabs, about 1.6x less scatter there")
+    p.add_argument("--heading-model", choices=HEADING_MODELS, default=None,
+                   help="how the prism track's direction separates the boresight yaw from the map->odom yaw: "
+                        "against the VO's yaw (vo_yaw: the platform drives where base_link x points), against the "
+                        "VO's own direction of travel (vo_track: a platform that crabs), or auto: both fitted, the "
+                        "VO's yaw kept unless the two disagree beyond their σ (the platform crabs) or the direction "
+                        "of travel is the more precise; the choice and why are printed (default: the calibration "
+                        "section's heading_model, auto)")
+    p.add_argument("--no-lenses", dest="lenses", action="store_false",
+                   help="keep the camera's two lenses as the pipeline section gives them (lens_offset, "
+                        "stitch_distance) instead of estimating their offset and relative rotation (by default "
+                        "they are estimated, and written to the calibration YAML)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -259,10 +265,11 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(e))
     try:
         params = tunables.calibration
-        if args.vo_track_heading is not None:
-            params = dataclasses.replace(params, vo_track_heading=args.vo_track_heading)
+        if args.heading_model is not None:
+            params = dataclasses.replace(params, heading_model=args.heading_model)
         cal = calibrate_bag(recording, marker_map, args.time_offset, topics, observations=obs, params=params,
-                            unknowns=Unknowns(args.lever_arm, args.refine_time_offset, args.readout))
+                            unknowns=Unknowns(args.lever_arm, args.refine_time_offset, args.readout, args.lenses),
+                            lenses=tunables.pipeline.lenses())
     except CalibrationError as e:
         return _fail(f"{bag_name(recording)}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
@@ -272,6 +279,9 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(args.out, text)
     atomic_write_text(launch, f"<launch>\n{snippet}</launch>\n")
     print(json.dumps(cal.report_dict(), default=float))
+    print(f"platform model: {cal.heading_model_reason}")
+    for warning in cal.warnings:
+        print(f"note: {warning}")
     print(f"wrote {args.out}\n      {launch}  (the static tfs: roslaunch it, or "
           f"<include file=\"{os.path.abspath(launch)}\"/>)")
     if cal.readout_estimated:

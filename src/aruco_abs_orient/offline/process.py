@@ -146,8 +146,9 @@ class RunSetup(NamedTuple):
     ``time_offset`` (s): camera/VO stamps = total-station time + ``time_offset`` (the value the timesync tool
     estimates). ``topics``: the bag's topics and frames (None: :class:`.bagio.BagTopics`' defaults).
     ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}`` (``calibration.load_calibration``)
-    used instead of the bag's /tf_static lever arms, with its rolling-shutter ``"readout"`` (s) when it has
-    one. ``full_coordinates``: also write ``trajectory.csv``. ``progress``: show a progress bar.
+    used instead of the bag's /tf_static lever arms, with its camera ``"lenses"`` and its rolling-shutter
+    ``"readout"`` (s) when it has them. ``full_coordinates``: also write ``trajectory.csv``. ``progress``: show
+    a progress bar.
     """
 
     time_offset: float = 0.0
@@ -216,7 +217,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
         readout = float(calibration.get("readout", 0.0))
     pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout,
-                             calibrated=calibration is not None, **tunables.pipeline_kwargs())
+                             calibrated=calibration is not None, **tunables.pipeline_kwargs(),
+                             lenses=None if calibration is None else calibration.get("lenses"))
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
     next_imu = 0
 
