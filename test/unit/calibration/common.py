@@ -14,7 +14,9 @@ import math
 import numpy as np
 
 from aruco_abs_orient.calibration import Recording, calibrate
+from aruco_abs_orient.camera import DualFisheye
 from aruco_abs_orient.markers import Marker, MarkerMap
+from aruco_abs_orient.synthetic.feed import marker_observations
 from aruco_abs_orient.transforms import make_T, rot_z, rpy_to_matrix
 from aruco_abs_orient.tum import Trajectory
 
@@ -97,3 +99,24 @@ def simulate(boresight_rpy=(0.0, 0.0, 0.0), lever_delta=(0.0, 0.0, 0.0), duratio
 def run(rec, unknowns=None, params=None):
     """calibrate() of a simulated recording (NOMINAL_CAMERA, PRISM)."""
     return calibrate(Recording(*rec, NOMINAL_CAMERA, PRISM), unknowns, params)
+
+
+def feed_recording(sc, every: int, noise: float, readout=None, prism_shift: float = 0.0, survey_sigma=None,
+                   stitch_distance: float = math.inf):
+    """A Recording of ``sc``'s exact bearings (``synthetic.feed``, at their rows' capture times with the
+    ``readout`` given, default the scenario's, + ``noise`` rad) in every ``every``-th frame, the VO as the
+    generator makes it, the prism track with its stamps moved by ``prism_shift`` s, and the scenario's survey
+    of the markers (with its σ, or ``survey_sigma`` m: an exact map surveyed that well); the lenses unknown but
+    for the ``stitch_distance`` (m), as the camera's maker states it."""
+    readout = sc.config.rolling_shutter_readout if readout is None else readout
+    off = sc.config.camera_time_offset
+    frames = sc.frame_times[::every]
+    ob = marker_observations(sc, frames, noise=noise, rng=np.random.default_rng(sc.config.seed), readout=readout)
+    grid = np.arange(sc.frame_times[0], sc.frame_times[-1], 1 / 30)
+    survey = sc.surveyed_markers
+    if survey_sigma is not None:
+        survey = MarkerMap([Marker(m.id, m.position, m.size, survey_sigma) for m in survey], survey.dictionary)
+    return Recording(frames[ob.frame] + off, ob.ids, ob.bearings, np.full(len(ob.ids), noise),
+                     Trajectory.from_transforms(grid + off, sc.odom_T_base(grid)), sc.prism.stamps + off + prism_shift,
+                     sc.prism.positions, survey, sc.base_T_camera_nominal, sc.base_T_prism, ob.rows,
+                     DualFisheye(stitch_distance=stitch_distance))
