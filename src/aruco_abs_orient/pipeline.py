@@ -149,6 +149,9 @@ class PipelineParams:
             raise PipelineError(f"PipelineParams: {e}") from None
 
 
+#: the pipeline's knobs of the camera itself: read when the pipeline is made, never changed live
+CAMERA_FIELDS = ("lens_offset", "stitch_distance", "blend_band_deg")
+
 #: (group, params class) of every tunable the pipeline takes: cfg/params.yaml's sections, in its order
 PARAM_GROUPS = (("pipeline", PipelineParams), ("detection", DetectorParams), ("tracking", TrackingParams),
                 ("filter", FilterParams))
@@ -257,14 +260,15 @@ class AbsOrientPipeline:
     docstring); ``calibrated``: ``base_T_camera`` comes from ``calibrate`` (its roll and pitch were
     measured), so the markers' roll and pitch correct the odometry's tilt as with ``tilt_from_markers``;
     ``lenses``: the camera's two lenses (the calibration file's; default the params' ``lenses()``): each
-    marker's yaw is solved along the ray of the lens that saw it.
+    marker's yaw is solved along the ray of the lens that saw it; ``lens_yaw_sigma`` (front, back) rad: how well
+    the calibration knew each lens's yaw: the markers of the lens known worse count for that much less.
     """
 
     def __init__(self, marker_map: MarkerMap, base_T_camera, base_T_prism,
                  params: Optional[PipelineParams] = None, detector_params: Optional[DetectorParams] = None,
                  filter_params: Optional[FilterParams] = None, readout: float = 0.0,
                  tracking_params: Optional[TrackingParams] = None, calibrated: bool = False,
-                 lenses: Optional[DualFisheye] = None):
+                 lenses: Optional[DualFisheye] = None, lens_yaw_sigma=None):
         for name, T in (("base_T_camera", base_T_camera), ("base_T_prism", base_T_prism)):
             T = np.asarray(T, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -282,6 +286,8 @@ class AbsOrientPipeline:
         self.tracking_params = tracking_params or TrackingParams()
         self.filter_params = filter_params or FilterParams()
         self.lenses = lenses if lenses is not None else self.params.lenses()
+        known = np.zeros(2) if lens_yaw_sigma is None else np.asarray(lens_yaw_sigma, dtype=float).reshape(2)
+        self._lens_excess = np.sqrt(np.maximum(known ** 2 - np.min(known) ** 2, 0.0))   # rad, front and back
         self.prism = PrismBuffer()
         self.stats: Dict[str, int] = {}
         self._build()
@@ -306,11 +312,14 @@ class AbsOrientPipeline:
 
     def _rays(self, observations, from_point=None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The observations' rays in the camera frame (origins (N, 3) m, unit directions (N, 3): each from the
-        lens that saw it) and their σ (N,) rad, widened in the lenses' blend band by the ray's possible error
-        there for markers at their range from ``from_point`` (map, m; None: not widened)."""
+        lens that saw it) and their σ (N,) rad, widened for the lens whose yaw the calibration knew less well, and
+        in the lenses' blend band by the ray's possible error there for markers at their range from
+        ``from_point`` (map, m; None: not widened)."""
         bearings = np.array([o.centre for o in observations]).reshape(-1, 3)
         origins, directions = self.lenses.rays(bearings)
         sigma = np.array([o.sigma for o in observations], dtype=float)
+        if np.any(self._lens_excess) and len(observations):
+            sigma = np.hypot(sigma, np.where(self.lenses.front_weight(bearings) >= 0.5, *self._lens_excess))
         if from_point is not None and len(observations):
             ranges = np.linalg.norm(np.array([self.marker_map[o.id].position for o in observations]) - from_point,
                                     axis=1)

@@ -62,10 +62,12 @@ def static_tf_yaml(calib: Calibration, base_T_camera_nominal, base_T_prism) -> s
         lines.insert(-1, f"# two lenses: each centre {1e3 * lenses.lens_offset:.3f}{sigma}; stitched at "
                          f"{lenses.stitch_distance:g} m")
         stitch = ".inf" if math.isinf(lenses.stitch_distance) else f"{lenses.stitch_distance:g}"
+        yaw_sigma = (f", yaw_sigma_deg: {vec(np.degrees(calib.lens_yaw_sigma), 5)}"
+                     if np.all(np.isfinite(calib.lens_yaw_sigma)) else "")
         lines.append(f"{LENSES_KEY}: {{lens_offset_mm: {1e3 * lenses.lens_offset:.4f}, back_lens_rotation_deg: "
                      f"{vec(np.degrees(lenses.lens_rotation), 5)}, stitch_distance_m: {stitch}, "
                      f"blend_band_deg: {math.degrees(lenses.blend_band):g}, "
-                     f"axis_azimuth_deg: {math.degrees(lenses.axis_azimuth):g}}}")
+                     f"axis_azimuth_deg: {math.degrees(lenses.axis_azimuth):g}{yaw_sigma}}}")
     if np.any(np.abs(rpy_p) > 0):
         lines.append(f"base_link_to_prism: {{xyz: {vec(Tp[:3, 3], 5)}, rpy_deg: {vec(np.degrees(rpy_p), 5)}}}")
     else:
@@ -98,7 +100,8 @@ CALIBRATION_KEYS = {"base_link_to_camera": "camera", "base_link_to_prism": "pris
 #: key of the camera's rolling-shutter readout time (milliseconds; optional, 0 = global shutter)
 READOUT_KEY = "camera_readout_ms"
 #: key of the camera's two lenses (optional; ``camera.DualFisheye``: lens_offset_mm, back_lens_rotation_deg,
-#: stitch_distance_m (.inf: at infinity), blend_band_deg, axis_azimuth_deg)
+#: stitch_distance_m (.inf: at infinity), blend_band_deg, axis_azimuth_deg; and yaw_sigma_deg, each lens's yaw
+#: 1-σ from the calibration: front, back)
 LENSES_KEY = "camera_lenses"
 
 
@@ -113,7 +116,8 @@ def _vector(entry: dict, key: str, where: str, default=None) -> np.ndarray:
 def load_calibration(path: str) -> Dict[str, object]:
     """Read a calibration YAML → ``{"camera": base_T_camera, "prism": base_T_prism}`` (4×4, metres),
     ``"readout"``: the camera's rolling-shutter readout time (s, a 0-d array; 0 without ``camera_readout_ms``)
-    and, with ``camera_lenses``, ``"lenses"``: the camera's two lenses (``camera.DualFisheye``).
+    and, with ``camera_lenses``, ``"lenses"``: the camera's two lenses (``camera.DualFisheye``), and
+    ``"lens_yaw_sigma"`` (2,) rad when it gives each lens's yaw σ.
     Raises CalibrationError naming the file and the key."""
     data = read_yaml(path, CalibrationError)
     if not isinstance(data, dict):
@@ -134,6 +138,14 @@ def load_calibration(path: str) -> Dict[str, object]:
     out["readout"] = np.array(1e-3 * float(readout))
     if LENSES_KEY in data:
         out["lenses"] = _lenses(data[LENSES_KEY], f"{path}: {LENSES_KEY}")
+        if "yaw_sigma_deg" in data[LENSES_KEY]:
+            sigma = data[LENSES_KEY]["yaw_sigma_deg"]
+            if (not isinstance(sigma, list) or len(sigma) != 2 or not all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
+                    for x in sigma)):
+                raise CalibrationError(f"{path}: {LENSES_KEY}.yaw_sigma_deg: expected [front, back] of non-negative "
+                                       f"degrees, got {sigma!r}")
+            out["lens_yaw_sigma"] = np.radians(np.array(sigma, dtype=float))
     return out
 
 
@@ -143,7 +155,7 @@ def _lenses(entry, where: str) -> DualFisheye:
         raise CalibrationError(f"{where}: expected {{lens_offset_mm: o, back_lens_rotation_deg: [r, p, y], "
                                "stitch_distance_m: d or .inf, blend_band_deg: b}")
     unknown = set(entry) - {"lens_offset_mm", "back_lens_rotation_deg", "stitch_distance_m", "blend_band_deg",
-                            "axis_azimuth_deg"}
+                            "axis_azimuth_deg", "yaw_sigma_deg"}
     if unknown:
         raise CalibrationError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
     values = {}

@@ -156,6 +156,10 @@ class Calibration:
     - ``lenses``: the camera's two lenses (``camera.DualFisheye``), the nominal ones with the estimated lens
       offset and relative rotation when ``lenses_estimated``; ``lens_offset_sigma`` (m) and
       ``lens_rotation_sigma`` (3,) rad (NaN when not estimated).
+    - ``lens_yaw_sigma`` (2,) rad: the 1-σ of each lens's own yaw (front, back: the boresight yaw ∓ half the
+      relative rotation about z), what a marker's heading through that lens rests on; ``lens_observations``
+      (2,): the observations kept that each lens saw. A lens that saw few markers is known only as well as
+      the lenses' prior allows.
     - ``odom_tilt`` (2,) rad and ``odom_tilt_sigma`` (2,): the odometry's tilt error at the first observation
       (about map x, y: the odom frame's tilt against gravity; 0 with ``odom_levelled``).
     - ``heading_model`` ("vo_yaw" or "vo_track") and ``heading_model_reason``: the platform model the track
@@ -198,6 +202,8 @@ class Calibration:
     lens_offset_sigma: float = float("nan")
     lens_rotation_sigma: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     lenses_estimated: bool = False
+    lens_yaw_sigma: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    lens_observations: np.ndarray = field(default_factory=lambda: np.zeros(2, dtype=int))
     odom_tilt: np.ndarray = field(default_factory=lambda: np.zeros(2))
     odom_tilt_sigma: np.ndarray = field(default_factory=lambda: np.zeros(2))
     heading_model: str = "vo_yaw"
@@ -247,6 +253,8 @@ class Calibration:
             out["lens_offset_sigma_mm"] = round(1e3 * self.lens_offset_sigma, 3)
             out["lens_rotation_deg"] = [round(math.degrees(float(x)), 5) for x in self.lenses.lens_rotation]
             out["lens_rotation_sigma_deg"] = [round(math.degrees(float(x)), 5) for x in self.lens_rotation_sigma]
+        out["lens_yaw_sigma_deg"] = [round(math.degrees(float(x)), 5) for x in self.lens_yaw_sigma]
+        out["lens_observations"] = [int(x) for x in self.lens_observations]
         if self.time_offset_estimated:
             out["time_offset_delta_ms"] = round(1e3 * self.time_offset_delta, 3)
             out["time_offset_sigma_ms"] = round(1e3 * self.time_offset_sigma, 3)

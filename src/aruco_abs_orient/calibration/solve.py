@@ -33,6 +33,7 @@ __all__ = ["calibrate", "correlation_factor"]
 _H = 1e-6            # step of the central differences (rad, m, s)
 _CHUNK = 4000        # observations per block of the normal equations (memory)
 _ROBUST_ITERATIONS = 8   # Gauss-Newton steps of the robust (Cauchy) stage
+_LENS_SHARE = 0.2        # a lens that saw at least this share of the observations must determine its yaw
 
 
 def _cauchy(e: np.ndarray, k: float) -> np.ndarray:
@@ -368,8 +369,8 @@ def _choose_heading_model(rec: Recording, unknowns: Unknowns, params: Calibratio
         by_track = _calibrate_once(rec, unknowns, replace(params, heading_model="vo_track"), 0.0, readout)
     except CalibrationError as e:
         return by_yaw, "vo_yaw", f"the VO's yaw (its direction of travel is unusable: {e})"
-    ya, sa = float(by_yaw.boresight_rpy[2]), float(by_yaw.boresight_sigma[2])
-    yb, sb = float(by_track.boresight_rpy[2]), float(by_track.boresight_sigma[2])
+    ya, sa = _main_lens_yaw(by_yaw)
+    yb, sb = _main_lens_yaw(by_track)
     diff = math.degrees(yb - ya)
     if not sb > sa:
         return by_track, "vo_track", (f"the VO's direction of travel: it determines the boresight yaw better than the "
@@ -385,6 +386,13 @@ def _choose_heading_model(rec: Recording, unknowns: Unknowns, params: Calibratio
         f"the VO's yaw: no crab shows (the boresight yaw against its direction of travel differs by {diff:+.3f}° ± "
         f"{math.degrees(spread):.3f}°, χ² {stat:.1f} ≤ {params.crab_test_chi2:g}), and its σ is "
         f"{math.degrees(sa):.3f}° against {math.degrees(sb):.3f}°")
+
+
+def _main_lens_yaw(cal: Calibration) -> Tuple[float, float]:
+    """The yaw (rad) of the lens that saw the most markers (the boresight yaw ∓ half the lenses' relative rotation
+    about z) and its σ: what the headings of the recording rest on."""
+    k = int(np.argmax(cal.lens_observations))
+    return float(cal.boresight_rpy[2] + (k - 0.5) * cal.lenses.lens_rotation[2]), float(cal.lens_yaw_sigma[k])
 
 
 def _check_determined(cal: Calibration, unknowns: Unknowns, params: CalibrationParams) -> List[str]:
@@ -403,7 +411,18 @@ def _check_determined(cal: Calibration, unknowns: Unknowns, params: CalibrationP
             "platform's tilt while processing, so the heading does not rest on them. To separate them, drive a "
             "loop or turns with markers in view (or, when the odometry is levelled by an IMU, set calibration "
             "odom_levelled: true)")
-    bad = ["yaw"] if not sd[2] <= limit else []
+    # the yaw a marker's heading rests on is that of the lens that saw it: each lens that saw a fair share of the
+    # markers must be determined; a lens that saw few is known as well as the lenses' prior allows (a warning)
+    share = cal.lens_observations / max(int(cal.lens_observations.sum()), 1)
+    seen = share >= _LENS_SHARE
+    bad = ["yaw"] if not np.all(cal.lens_yaw_sigma[seen] <= limit) else []
+    for name, k in (("front", 0), ("back", 1)):
+        if not seen[k] and not cal.lens_yaw_sigma[k] <= limit:
+            warnings.append(
+                f"the {name} lens saw {int(cal.lens_observations[k])} of the {int(cal.lens_observations.sum())} "
+                f"marker observations: its yaw is known to ± {math.degrees(cal.lens_yaw_sigma[k]):.3f}° only (the "
+                f"other lens's to ± {math.degrees(cal.lens_yaw_sigma[1 - k]):.3f}°); markers it sees count for that "
+                "much less while processing. To determine it, drive so that markers pass on both sides of the camera")
     advice = []
     if "yaw" in bad:
         other = "vo_track" if cal.heading_model == "vo_yaw" else "vo_yaw"
@@ -492,6 +511,13 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
         skipped["outlier (beyond the gate)"] = skipped.get("outlier (beyond the gate)", 0) + outliers
     mask_o, mask_h = fit.mask_o, fit.mask_h
     rh = pb.heading_residuals(x, d)[mask_h]
+    # each lens's yaw: the boresight yaw ∓ half the relative rotation about z (front, back), and who saw what
+    lens_yaw_sigma = np.full(2, sd[2])
+    if 2 in free and 11 in free:
+        i, j = free.index(2), free.index(11)
+        C = fit.cov
+        lens_yaw_sigma = np.sqrt(np.maximum([C[i, i] + C[j, j] / 4 + s * C[i, j] for s in (-1.0, 1.0)], 0.0))
+    front = pb.lenses_at(x).front_weight(pb.u[mask_o]) >= 0.5
     return Calibration(
         boresight_rpy=x[:3].copy(),
         boresight_sigma=sd[:3].copy(),
@@ -525,6 +551,8 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
         lens_offset_sigma=float(sd[8]),
         lens_rotation_sigma=sd[9:12].copy(),
         lenses_estimated=bool(unknowns.lenses),
+        lens_yaw_sigma=lens_yaw_sigma,
+        lens_observations=np.array([int(front.sum()), int((~front).sum())]),
         odom_tilt=th[0].copy(),
         odom_tilt_sigma=tilt_sd.copy(),
         heading_model=params.heading_model,

@@ -218,7 +218,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         readout = float(calibration.get("readout", 0.0))
     pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout,
                              calibrated=calibration is not None, **tunables.pipeline_kwargs(),
-                             lenses=None if calibration is None else calibration.get("lenses"))
+                             lenses=None if calibration is None else calibration.get("lenses"),
+                             lens_yaw_sigma=None if calibration is None else calibration.get("lens_yaw_sigma"))
     next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
     next_imu = 0
 

@@ -556,7 +556,9 @@ class AbsOrientNode:
                 kwargs["params"] = replace(kwargs["params"], markers_only=True)
             self.pipeline = AbsOrientPipeline(self.marker_map, arms[c.camera_frame], arms[c.prism_frame],
                                               readout=readout, calibrated=calibrated is not None, **kwargs,
-                                              lenses=None if calibrated is None else calibrated.get("lenses"))
+                                              lenses=None if calibrated is None else calibrated.get("lenses"),
+                                              lens_yaw_sigma=None if calibrated is None
+                                              else calibrated.get("lens_yaw_sigma"))
             with self._selfcheck_lock:  # empty until now: started again with the pipeline's prism lever arm
                 self.selfcheck = self._new_selfcheck()
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
