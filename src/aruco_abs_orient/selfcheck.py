@@ -18,6 +18,10 @@ Without any reference, the marker yaws of a run tell on its set-up:
 - **boresight yaw**: on straight stretches the heading of base_link must be the direction the prism
   track runs in (x forward); a constant difference is the camera's mounting yaw (or a platform that
   crabs).
+- **the calibration's own model** (:class:`ModelContext` given, as ``process`` and the node do): the time
+  offset, tilt and boresight-yaw findings come instead from ``calibration.calibrate`` run on the run's own
+  marker bearings with the mounting, lenses and offset in use as the nominal: what it would still correct,
+  with its σ. After a good calibration it finds nothing; a finding is what calibrate would change.
 - **a moved or wrongly surveyed marker**: its yaws stay off the others' (median residual).
 - **rates and σ**: the share of marker yaws accepted, the rejections per frame (the pipeline's
   counters) and the RMS of residual/σ (about 1 when the σ are honest).
@@ -32,15 +36,19 @@ from __future__ import annotations
 
 import collections
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Deque, Dict, List, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .calibration import CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
+from .camera import SINGLE_CENTRE, DualFisheye, azel_to_bearing
+from .markers import MarkerMap
 from .transforms import wrap_angle
+from .tum import Trajectory
 
-__all__ = ["SelfCheckParams", "Finding", "YawObservation", "RunContext", "bearing_rate", "observation_columns",
-           "check_run", "RollingSelfCheck"]
+__all__ = ["SelfCheckParams", "Finding", "YawObservation", "RunContext", "ModelContext", "bearing_rate",
+           "observation_columns", "check_run", "RollingSelfCheck"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +68,8 @@ class SelfCheckParams:
     straight_speed: float = 0.2        # m/s, slower is not "driving straight"
     straight_turn_rate: float = math.radians(2.0)  # rad/s, faster is turning
     min_samples: int = 30
+    model_observations: int = 1500     # the calibration model's check takes at most this many (whole frames)
+    model_interval: float = 60.0       # s of wall time between a live node's model checks (a few s of CPU each)
 
 
 @dataclass
@@ -133,7 +143,7 @@ class YawObservation(NamedTuple):
     """One marker yaw for the self-checks: ``time`` (s, total-station clock), ``id``, ``azimuth``, ``elevation``
     (rad, camera frame), ``yaw_sigma``, ``residual`` (rad; NaN before the filter started), ``accepted`` (the
     filter took it), and when known ``yaw`` and ``odom_yaw`` (rad: the marker's yaw of base_link and the
-    odometry's at that time)."""
+    odometry's at that time) and ``bearing_sigma`` (rad: the detection's, for the calibration model's check)."""
 
     time: float
     id: int
@@ -144,6 +154,7 @@ class YawObservation(NamedTuple):
     accepted: bool
     yaw: float = math.nan
     odom_yaw: float = math.nan
+    bearing_sigma: float = math.nan
 
 
 def observation_columns(rows: Sequence[Sequence]) -> Dict[str, np.ndarray]:
@@ -164,6 +175,74 @@ class RunContext(NamedTuple):
     time_offset: float = 0.0
     commands: Optional[Mapping[str, str]] = None
     prism_lever: Optional[Sequence[float]] = None
+    model: Optional[ModelContext] = None
+
+
+class ModelContext(NamedTuple):
+    """What ``calibrate``'s model needs beside the observations, as the run used it: the ``marker_map``, the
+    ``odometry`` (odom_T_base_link on the observations' clock: the total station's), the mounting in use
+    (``base_T_camera``, ``base_T_prism``, 4×4), the camera's ``lenses``, its rolling-shutter ``readout`` (s) and
+    calibrate's ``params`` (its heading model)."""
+
+    marker_map: MarkerMap
+    odometry: Trajectory
+    base_T_camera: np.ndarray
+    base_T_prism: np.ndarray
+    lenses: DualFisheye = SINGLE_CENTRE
+    readout: float = 0.0
+    params: Optional[CalibrationParams] = None
+
+
+def model_check(obs: Mapping[str, np.ndarray], prism, model: ModelContext, time_offset: float,
+                commands: Mapping[str, str], p: SelfCheckParams) -> Tuple[Dict[str, object], List[Finding]]:
+    """The calibration's model on the run's own marker bearings (``obs``: :func:`check_run`'s, with
+    ``bearing_sigma``), the mounting, lenses and time offset in use as the nominal: what ``calibrate`` would still
+    change (boresight, time offset) with its σ, and a finding for each change beyond its significance and size.
+    Returns (the estimates, in degrees and seconds; the findings)."""
+    t = np.asarray(obs.get("time", ()), dtype=float)
+    sig = np.asarray(obs.get("bearing_sigma", np.full(len(t), np.nan)), dtype=float)
+    az, el = np.asarray(obs.get("azimuth", ()), dtype=float), np.asarray(obs.get("elevation", ()), dtype=float)
+    ok = np.isfinite(t) & np.isfinite(sig) & (sig > 0) & np.isfinite(az) & np.isfinite(el)
+    frames = np.unique(t[ok])
+    if len(frames) and ok.sum() > p.model_observations:   # whole frames, evenly: at most model_observations
+        keep = frames[::int(math.ceil(ok.sum() / p.model_observations))]
+        ok &= np.isin(t, keep)
+    ids = np.asarray(obs.get("id", ()), dtype=int)
+    params = replace(model.params or CalibrationParams(), max_boresight_sigma_deg=1e9,
+                     max_time_offset_sigma=1e9)   # the check judges by significance, it refuses nothing
+    rec = Recording(t[ok], ids[ok], azel_to_bearing(az[ok], el[ok]), sig[ok], model.odometry,
+                    np.asarray(prism[0], dtype=float), np.asarray(prism[1], dtype=float).reshape(-1, 3),
+                    model.marker_map, model.base_T_camera, model.base_T_prism, -el[ok] / math.pi, model.lenses)
+    try:
+        cal = calibrate(rec, Unknowns(time_offset=True), params, readout=model.readout)
+    except CalibrationError as e:
+        return {"model": f"not possible: {e}"}, []
+    rpy, sd = cal.boresight_rpy, cal.boresight_sigma
+    eps, eps_sigma = float(cal.time_offset_delta), float(cal.time_offset_sigma)
+    out: Dict[str, object] = {
+        "model": f"calibrate on {cal.n_used} bearings ({cal.heading_model})",
+        "boresight_correction_deg": [math.degrees(float(a)) for a in rpy],
+        "boresight_sigma_deg": [math.degrees(float(a)) for a in sd],
+        "time_offset": {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
+                        "suggested_s": time_offset + eps, "samples": int(cal.n_used)}}
+    fix = commands.get("calibrate", "aruco-abs-orient calibrate")
+    findings: List[Finding] = []
+    if _offset_error_significant(eps, eps_sigma, p):
+        findings.append(Finding("time_offset", f"the marker bearings fit a time offset of {time_offset + eps:+.4f} s "
+                                f"(in use {time_offset:+.4f} s: {1e3 * eps:+.1f} ± {1e3 * eps_sigma:.1f} ms); run "
+                                f"`{fix}` (or `{commands.get('timesync', 'aruco-abs-orient timesync')}`)",
+                                "time-offset", time_offset + eps))
+    tilted = [abs(a) > max(p.tilt_significance * s, p.min_tilt) for a, s in zip(rpy[:2], sd[:2])]
+    if any(tilted):
+        findings.append(Finding("camera_tilt", f"the marker bearings fit a camera turned by roll {_deg(rpy[0])} ± "
+                                f"{math.degrees(sd[0]):.2f}°, pitch {_deg(rpy[1])} ± {math.degrees(sd[1]):.2f}° from "
+                                f"its calibration; calibrate the boresight: run `{fix}`", "heading-wrong-by-180",
+                                math.degrees(float(np.hypot(rpy[0], rpy[1])))))
+    if abs(rpy[2]) > max(p.significance * sd[2], p.min_heading_travel):
+        findings.append(Finding("boresight_yaw", f"the marker bearings fit a camera turned by {_deg(rpy[2])} ± "
+                                f"{math.degrees(sd[2]):.2f}° in yaw from its calibration ({cal.heading_model_reason}); "
+                                f"run `{fix}`", "heading-wrong-by-180", math.degrees(float(rpy[2]))))
+    return out, findings
 
 
 def _offset_error_significant(error: float, sigma: float, p: SelfCheckParams) -> bool:
@@ -180,13 +259,13 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
     (:func:`observation_columns`; ``yaw`` and ``odom_yaw`` optional: with them the time offset and tilt are
     fitted to their difference, the map→odom yaw, independent of what the filter accepted); ``prism``: the
     prism track (stamps (M,) s, positions (M, 3) m); the marker map's positions {id: [x, y, z]}; ``poses``:
-    the filtered poses' (stamps, yaws (rad)); ``run``: :class:`RunContext`. Returns a JSON-able dict with the
-    estimates (degrees, seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run
-    agrees with itself).
+    the filtered poses' (stamps, yaws (rad)); ``run``: :class:`RunContext` (with its ``model``, the time offset,
+    tilt and boresight yaw are :func:`model_check`'s). Returns a JSON-able dict with the estimates (degrees,
+    seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
     """
     prism_t, prism_xyz = prism
     pose_t, pose_yaw = poses
-    stats, frames, time_offset, commands, prism_lever = run or RunContext()
+    stats, frames, time_offset, commands, prism_lever, model = run or RunContext()
     commands = dict(commands or {})
     p = params or SelfCheckParams()
     out: Dict[str, object] = {}
@@ -287,7 +366,13 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
                                 f"({n} yaws, {100 * share:.0f} % accepted): moved or wrongly surveyed; "
                                 "re-survey its centre or take it out of the marker map", "jumps-in-the-heading",
                                 math.degrees(med)))
-    if x is not None:
+    if model is not None:   # the time offset, tilt and boresight yaw as calibrate's own model sees them
+        estimates, model_findings = model_check(obs, prism, model, time_offset, commands, p)
+        out["model_check"] = estimates
+        if "time_offset" in estimates:
+            out["time_offset"] = estimates["time_offset"]
+        findings += model_findings
+    elif x is not None:
         eps, eps_sigma = float(x[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
         xt, ct = tilt_fit if tilt_fit is not None else (x, cov)
         tilt = np.array(xt[1:3])
@@ -315,7 +400,7 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
     # boresight yaw: heading vs the direction of travel on straight stretches
     pose_t = np.asarray(pose_t, dtype=float)
     pose_yaw = np.asarray(pose_yaw, dtype=float)
-    if len(pose_t) > 10 and prism_t is not None and len(prism_t) >= 2:
+    if model is None and len(pose_t) > 10 and prism_t is not None and len(prism_t) >= 2:
         pt, pp = np.asarray(prism_t, dtype=float), np.asarray(prism_xyz, dtype=float).reshape(-1, 3)
         h = 0.25
         inside = (pose_t - h >= pt[0]) & (pose_t + h <= pt[-1])
@@ -343,7 +428,7 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
     rms = out["normalised_residual_rms"]
     if rms is not None and rms > p.max_normalised_rms:
         causes = ", ".join(f.kind.replace("_", " ") for f in findings if f.kind in
-                           ("time_offset", "camera_tilt", "marker")) or "none of the checks above"
+                           ("time_offset", "camera_tilt", "boresight_yaw", "marker")) or "none of the checks above"
         findings.append(Finding("sigma", f"the residuals are {rms:.1f} times their predicted σ (1 when honest); "
                                 f"likely cause: {causes}", "time-offset", rms))
     out["findings"] = [f.as_dict() for f in findings]
@@ -355,7 +440,9 @@ class RollingSelfCheck:
     """The self-checks over the last ``window`` s of a live node. Feed it with ``add_observation``,
     ``add_prism`` and ``add_pose`` (total-station clock), call ``diagnostics()`` every few seconds (it
     fits ~a few thousand observations: milliseconds) for ``/diagnostics``: (level ``ok``/``warn``,
-    message, {key: value})."""
+    message, {key: value}). With ``model`` (a :class:`ModelContext` whose odometry is ignored: the window's
+    poses are used) the time offset, tilt and boresight yaw are calibrate's model's on the window, run again
+    after ``model_interval`` s of data (a few s of CPU) and kept in between."""
 
     marker_xyz: Mapping[int, Sequence[float]]
     time_offset: float = 0.0
@@ -363,9 +450,12 @@ class RollingSelfCheck:
     params: Optional[SelfCheckParams] = None
     prism_lever: Optional[Sequence[float]] = None    # m, the prism in base_link (check_run's)
     last_time_offset: Optional[Dict[str, float]] = None  # the last check's time-offset estimate (check_run's)
+    model: Optional[ModelContext] = None
     _obs: Deque[tuple] = field(default_factory=collections.deque)
     _prism: Deque[tuple] = field(default_factory=collections.deque)
     _poses: Deque[tuple] = field(default_factory=collections.deque)
+    _odometry: Deque[tuple] = field(default_factory=collections.deque)
+    _model_report: Optional[Tuple[float, Dict[str, object], List[dict]]] = None   # (data time, estimates, findings)
 
     def _trim(self, q: Deque[tuple], now: float) -> None:
         while q and q[0][0] < now - self.window:
@@ -385,15 +475,44 @@ class RollingSelfCheck:
         self._poses.append((t, yaw))
         self._trim(self._poses, t)
 
+    def add_odometry(self, t: float, odom_T_base) -> None:
+        """The odometry's pose (4×4) at a frame's time (s): the model check's odometry."""
+        self._odometry.append((t, np.asarray(odom_T_base, dtype=float)))
+        self._trim(self._odometry, t)
+
+    def _model_due(self) -> Optional[ModelContext]:
+        """The model context for this check when one is due (``model_interval`` s of data since the last)."""
+        if self.model is None or len(self._odometry) < 2 or not self._obs:
+            return None
+        newest = self._obs[-1][0]
+        if self._model_report is not None and newest - self._model_report[0] < (self.params or SelfCheckParams()
+                                                                                 ).model_interval:
+            return None
+        odometry = sorted(self._odometry, key=lambda p: p[0])
+        traj = Trajectory.from_transforms(np.array([p[0] for p in odometry]), np.array([p[1] for p in odometry]))
+        return self.model._replace(odometry=traj)
+
     def check(self) -> Dict[str, object]:
         obs = observation_columns(self._obs)
         if not np.any(np.isfinite(obs["odom_yaw"].astype(float))):
             del obs["yaw"], obs["odom_yaw"]
         prism = sorted(self._prism)
         poses = sorted(self._poses)
-        return check_run(obs, ([p[0] for p in prism], [p[1] for p in prism]), self.marker_xyz,
-                         ([p[0] for p in poses], [p[1] for p in poses]),
-                         RunContext(time_offset=self.time_offset, prism_lever=self.prism_lever), self.params)
+        model = self._model_due()
+        run = RunContext(time_offset=self.time_offset, prism_lever=self.prism_lever, model=model)
+        out = check_run(obs, ([p[0] for p in prism], [p[1] for p in prism]), self.marker_xyz,
+                        ([p[0] for p in poses], [p[1] for p in poses]), run, self.params)
+        kinds = ("time_offset", "camera_tilt", "boresight_yaw")
+        if model is not None:
+            self._model_report = (self._obs[-1][0], out.get("model_check", {}),
+                                  [f for f in out["findings"] if f["kind"] in kinds])
+        elif self._model_report is not None:   # the last model check's, not the regression's, in between
+            _, estimates, found = self._model_report
+            out["model_check"] = estimates
+            if "time_offset" in estimates:
+                out["time_offset"] = estimates["time_offset"]
+            out["findings"] = found + [f for f in out["findings"] if f["kind"] not in kinds]
+        return out
 
     def supports(self, offset: float) -> bool:
         """Whether the marker yaws of the last :meth:`diagnostics` agree with the time offset ``offset`` (s):

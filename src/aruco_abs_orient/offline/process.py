@@ -31,11 +31,12 @@ from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 
+from ..calibration import CalibrationParams
 from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
 from ..params import Tunables, parse_params
 from ..pipeline import AbsOrientPipeline, FrameResult
-from ..selfcheck import RunContext, check_run, observation_columns
+from ..selfcheck import ModelContext, RunContext, check_run, observation_columns
 from ..transforms import yaw_of
 from ..tum import RESULT_FILE_MODE, Trajectory, atomic_write_text, write_tum
 from .bagio import (
@@ -123,19 +124,24 @@ def _done(value) -> Future:
     return future
 
 
-def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag, prism_lever) -> Dict:
-    """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`) with the commands that fix
-    what they find (``prism_lever``: the prism in base_link the pipeline used, m); each finding is also a
-    warning of the summary."""
+def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag, pipe: AbsOrientPipeline,
+               calibration_params: CalibrationParams) -> Dict:
+    """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`, with calibrate's model on the run's
+    bearings and the mounting, lenses and offset the pipeline used) with the commands that fix what they find;
+    each finding is also a warning of the summary."""
     obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
                 "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
                              f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
+    offset = summary["time_offset_s"]
+    odometry = Trajectory(data.odom.stamps - offset, data.odom.positions, data.odom.quats)   # the TS clock
+    model = ModelContext(marker_map, odometry, pipe.base_T_camera, pipe.base_T_prism, pipe.lenses, pipe.readout,
+                         calibration_params)
     result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
-                       (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"],
-                                                  summary["time_offset_s"], commands, prism_lever))
+                       (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"], offset, commands,
+                                                  pipe.base_T_prism[:3, 3], model))
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
@@ -232,7 +238,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     first_pose = None
     odom_missing = 0
     timing_sum: Dict[str, float] = {}
-    checked: List[tuple] = []  # (t, id, az, el, yaw σ, residual, accepted, yaw, odom yaw) of each marker yaw
+    checked: List[tuple] = []  # selfcheck.YawObservation of each marker yaw
     modes: Dict[str, int] = {}
     tilt_sources: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
@@ -288,7 +294,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                 writer.writerows(_observation_rows(res))
                 odom_yaw = float(yaw_of(T_odom[:3, :3]))
                 checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
-                             r.residual, r.accepted, r.yaw, odom_yaw) for r in res.observations if math.isfinite(r.yaw)]
+                             r.residual, r.accepted, r.yaw, odom_yaw, r.observation.sigma)
+                            for r in res.observations if math.isfinite(r.yaw)]
                 if res.map_T_base is not None:
                     if not with_pose:
                         first_pose = res.stamp
@@ -353,7 +360,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
     }
-    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe.base_T_prism[:3, 3])
+    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe,
+                                      tunables.calibration)
     summary_path = os.path.join(out_dir, "summary.json")
     atomic_write_text(summary_path, json.dumps(summary, indent=2, default=float) + "\n")
     return ProcessResult(traj_path, obs_path, summary_path, summary, extra)

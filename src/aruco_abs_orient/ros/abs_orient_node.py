@@ -79,10 +79,10 @@ from ..nodestate import (
 )
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
-from ..selfcheck import RollingSelfCheck, YawObservation
+from ..selfcheck import ModelContext, RollingSelfCheck, YawObservation
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
-from ..tum import atomic_write_text
+from ..tum import Trajectory, atomic_write_text
 
 __all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
 
@@ -489,9 +489,16 @@ class AbsOrientNode:
             self.rospy.logwarn(f"abs_orient: {text} ({n} so far)")
 
     def _new_selfcheck(self) -> RollingSelfCheck:
-        lever = None if self.pipeline is None else self.pipeline.base_T_prism[:3, 3]
+        """The rolling self-checks; with the pipeline made, calibrate's model on the window (its mounting, lenses
+        and readout)."""
+        pipe, lever, model = self.pipeline, None, None
+        if pipe is not None:
+            lever = pipe.base_T_prism[:3, 3]
+            none = Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))     # the window's, at each check
+            model = ModelContext(self.marker_map, none, pipe.base_T_camera, pipe.base_T_prism, pipe.lenses,
+                                 pipe.readout, self.config.tunables().calibration)
         return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset,
-                                prism_lever=lever)
+                                prism_lever=lever, model=model)
 
     def _feed_selfcheck(self, result: FrameResult, odom_T_base: np.ndarray) -> None:
         """The frame's marker yaws and pose for the rolling self-checks (time offset, tilt, moved marker)."""
@@ -501,7 +508,9 @@ class AbsOrientNode:
                 if math.isfinite(r.yaw):
                     o = r.observation
                     self.selfcheck.add_observation(YawObservation(result.stamp, o.id, o.azimuth, o.elevation,
-                                                                  r.yaw_sigma, r.residual, r.accepted, r.yaw, odom_yaw))
+                                                                  r.yaw_sigma, r.residual, r.accepted, r.yaw, odom_yaw,
+                                                                  o.sigma))
+            self.selfcheck.add_odometry(result.stamp, odom_T_base)
             if result.map_T_base is not None:
                 self.selfcheck.add_pose(result.stamp, float(yaw_of(result.map_T_base[:3, :3])))
 
