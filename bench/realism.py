@@ -42,109 +42,43 @@ Usage: bench/realism.py [--seeds 101 102 103] [--duration 20] [--width 3840] [--
 """
 import argparse
 import dataclasses
-import hashlib
-import json
 import math
 import os
-import re
-import subprocess
 import sys
-import time
 
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "src"))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _workflow import scenario_dir as _scenario_dir  # noqa: E402
+from _workflow import workflow as _workflow  # noqa: E402
 
 from aruco_abs_orient.camera import angle_between  # noqa: E402
 from aruco_abs_orient.detection import DetectorParams, MarkerDetector  # noqa: E402
-from aruco_abs_orient.synthetic.bag import generate  # noqa: E402
 from aruco_abs_orient.synthetic.render import decode_jpeg, encode_jpeg  # noqa: E402
 from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario  # noqa: E402
 from aruco_abs_orient.synthetic.world import render_frame  # noqa: E402
-from aruco_abs_orient.transforms import quat_to_matrix  # noqa: E402
-from aruco_abs_orient.tum import read_tum  # noqa: E402
 
-CLI = [sys.executable, "-m", "aruco_abs_orient.offline.cli"]
 RANGE_BINS = [(0, 3), (3, 5), (5, 7), (7, 9), (9, 11), (11, 14)]
 
 
 def scenario_dir(config) -> str:
-    digest = hashlib.sha1(json.dumps(config.to_dict(), sort_keys=True).encode()).hexdigest()[:10]
-    key = f"{config.world}_s{config.seed}_{config.duration:g}s_rs{config.rolling_shutter_readout * 1e3:g}_{digest}"
-    out = os.path.join(ROOT, ".cache", "bench", "realism", key)
-    if not os.path.exists(os.path.join(out, "scenario.bag")):
-        print(f"rendering {out}", file=sys.stderr, flush=True)
-        generate(config, out, progress=False, force=True, workers=ARGS.workers)
-    return out
-
-
-def cli(*args) -> str:
-    proc = subprocess.run(CLI + [str(a) for a in args], capture_output=True, text=True)
-    if proc.returncode:
-        raise RuntimeError(f"{' '.join(map(str, args[:2]))} failed ({proc.returncode}): {proc.stderr[-2000:]}")
-    return proc.stdout
-
-
-def offset_from(text: str):
-    found = re.findall(r"--time-offset ([-0-9.]+)", text)
-    return float(found[-1]) if found else None
-
-
-def tilt_rmse_deg(run: str, truth_path: str) -> float:
-    """RMS (deg) of the angle between the processed and the true base_link z axes (the tilt error: roll and
-    pitch together), the trajectory on the total-station clock against truth.tum."""
-    est, truth = read_tum(os.path.join(run, "trajectory.tum")), read_tum(truth_path)
-    _, q, ok = truth.interpolate(est.stamps)
-    z_est, z_true = est.rotations[ok][:, 2, :], quat_to_matrix(q[ok])[:, 2, :]   # map z in base_link
-    return math.degrees(math.sqrt(float(np.mean(np.square(angle_between(z_est, z_true))))))
+    return _scenario_dir(config, "realism", ARGS.workers)
 
 
 def workflow(scen: str, run: str, readout: bool = False, calib_scen: str = None) -> dict:
-    """timesync → calibrate → process → evaluate on one scenario, as tools/demo.sh does (``readout``:
-    calibrate estimates the rolling-shutter readout). With ``calib_scen`` timesync and calibrate run on that
-    calibration run instead, and the scenario is processed with its calibration file and time offset (the
-    same camera, mounting and clocks: its seed's boresight and offset)."""
-    import yaml
-
-    os.makedirs(run, exist_ok=True)
-    cal_dir = calib_scen or scen
-    cal_bag, cal_markers = os.path.join(cal_dir, "scenario.bag"), os.path.join(cal_dir, "markers.yaml")
-    with open(os.path.join(scen, "hidden.yaml")) as f:
-        hidden = yaml.safe_load(f)
-    try:
-        offset = offset_from(cli("timesync", cal_bag))
-    except RuntimeError:
-        offset = None
-    offset = hidden["camera_time_offset"] if offset is None else offset
-    cal = os.path.join(run, "calibration.yaml")
-    extra = ["--readout"] if readout else []
-    try:
-        text = cli("calibrate", cal_bag, "--markers", cal_markers, "--time-offset", offset, "--refine-time-offset",
-                   "--every", 3, "--out", cal, *extra)
-    except RuntimeError as e:   # refused: the reason is the figure
-        return {"refused": str(e).strip().splitlines()[-1][-300:]}
-    report = json.loads(next(line for line in text.splitlines() if line.startswith("{")))
-    offset = offset_from(text) or offset
-    bag, markers = os.path.join(scen, "scenario.bag"), os.path.join(scen, "markers.yaml")
-    t0 = time.perf_counter()
-    cli("process", bag, "--markers", markers, "--out", run, "--time-offset", offset, "--calibration", cal, "--quiet")
-    wall = time.perf_counter() - t0
-    cli("evaluate", run, "--reference", os.path.join(scen, "truth.tum"))
-    with open(os.path.join(run, "report.json")) as f:
-        ev = json.load(f)
-    with open(os.path.join(run, "summary.json")) as f:
-        summary = json.load(f)
+    """The CLI workflow (``_workflow.workflow``; ``readout``: calibrate estimates the rolling-shutter readout) and
+    this bench's columns: the boresight errors against hidden.yaml, the readout's error."""
+    r = _workflow(scen, run, ["--readout"] if readout else [], calib_scen)
+    if "refused" in r:
+        return r
+    report, hidden = r["report"], r["hidden"]
     err = np.subtract(report["boresight_rpy_deg"], hidden["boresight"]["rpy_deg"])
     true_readout = 1e3 * hidden["config"].get("rolling_shutter_readout", 0.0)
-    return {"rmse": ev["heading_ape"]["rmse_deg"], "p95": ev["heading_ape"]["p95_deg"],
-            "coverage": ev["coverage"]["share"], "roll_err": err[0], "pitch_err": err[1], "yaw_err": err[2],
-            "yaw_sigma": report["boresight_sigma_deg"][2],
-            "offset_err_ms": (offset - hidden["camera_time_offset"]) * 1e3,
-            "readout_ms": summary.get("readout_ms", 0.0),
-            "readout_err_ms": summary.get("readout_ms", 0.0) - true_readout,
-            "tilt_rmse": tilt_rmse_deg(run, os.path.join(scen, "truth.tum")),
-            "fps": summary["frames"] / wall, "rtf": summary["bag_duration_s"] / wall}
+    return dict(r, roll_err=err[0], pitch_err=err[1], yaw_err=err[2], yaw_sigma=report["boresight_sigma_deg"][2],
+                readout_err_ms=r["readout_ms"] - true_readout)
 
 
 def occluded(hall, eye, target) -> bool:

@@ -42,7 +42,7 @@ from .solver import (
 )
 from .tilt import Tilt, TiltEstimator, TiltParams
 from .tracking import MarkerTracker, TrackingParams, TrackingStats
-from .transforms import matrix_to_rpy, wrap_angle, yaw_of
+from .transforms import matrix_to_rpy, rpy_to_matrix, wrap_angle, yaw_of
 
 __all__ = ["PipelineParams", "AbsOrientPipeline", "FrameResult", "ObservationResult", "PipelineError",
            "PrismBuffer", "all_param_fields", "row_fraction", "PARAM_GROUPS"]
@@ -437,7 +437,10 @@ class AbsOrientPipeline:
         map_T_camera = None
         if self.filter.initialised:
             map_T_odom, _ = self.filter.map_T_odom(t)
-            map_T_base = map_T_odom @ odom_T_base
+            map_T_base = map_T_odom @ odom_T_base     # map→odom is a yaw: its roll and pitch are the odometry's,
+            roll, pitch, yaw = matrix_to_rpy(odom_T_base[:3, :3])        # corrected by the estimated tilt error
+            map_T_base[:3, :3] = rpy_to_matrix(*self.tilt.corrected(float(roll), float(pitch), float(yaw)),
+                                               float(yaw_of(map_T_base[:3, :3])))
             if prism is not None:  # the prism knows the position better than odometry
                 map_T_base[:3, 3] = prism[0] - map_T_base[:3, :3] @ self.base_T_prism[:3, 3]
             map_T_camera = map_T_base @ self.base_T_camera

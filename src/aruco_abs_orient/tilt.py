@@ -185,6 +185,14 @@ class TiltEstimator:
                 return self._imu[j]
         return None
 
+    def corrected(self, odom_roll: float, odom_pitch: float, odom_yaw: float) -> Tuple[float, float]:
+        """The odometry's roll and pitch (rad) corrected by the estimated tilt error, without taking any sample
+        (a prediction: where the markers will be)."""
+        if not (self.marker_updates or self.imu_updates):
+            return odom_roll, odom_pitch
+        d = self._seen_from(odom_yaw) @ self.offset
+        return odom_roll + float(d[0]), odom_pitch + float(d[1])
+
     def tilt(self, t: float, odom_roll: float, odom_pitch: float, odom_yaw: float = 0.0) -> Tilt:
         """The tilt of base_link at ``t`` (s) given the odometry's roll, pitch and yaw then (rad)."""
         imu = self.imu_at(t)

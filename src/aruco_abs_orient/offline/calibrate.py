@@ -150,7 +150,8 @@ def _until_broken(images, skipped: dict):
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
                   progress: bool = True, unknowns: Optional[Unknowns] = None,
                   params: Optional[CalibrationParams] = None,
-                  observations: Optional[CalibrateResult] = None, lenses: DualFisheye = SINGLE_CENTRE) -> Calibration:
+                  observations: Optional[CalibrateResult] = None, lenses: DualFisheye = SINGLE_CENTRE,
+                  readout: float = 0.0) -> Calibration:
     """Calibrate the camera of ``bag`` against ``marker_map``.
 
     ``time_offset`` (s): camera stamps = total-station time + ``time_offset`` (``timesync``'s sign);
@@ -160,6 +161,7 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
     middle rows' capture times; row v of H is captured at stamp + (v/H − ½)·readout).
     ``observations``: a :func:`collect_observations` result to reuse (detection is the slow part).
     ``lenses``: the camera's two lenses as known (``camera.DualFisheye``): fixed, or the start of their estimate.
+    ``readout`` (s): the camera's rolling-shutter readout as known: fixed, or the start of its estimate.
     Raises BagError (unusable bag) or CalibrationError (the recording cannot determine it: why).
     """
     obs = observations or collect_observations(bag, marker_map, topics, progress)
@@ -169,7 +171,7 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
                                "prism positions")
     rec = Recording(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
                     d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism, obs.rows, lenses)
-    cal = calibrate(rec, unknowns, params)
+    cal = calibrate(rec, unknowns, params, readout=readout)
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
     return cal
@@ -204,6 +206,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "is the middle row's capture time, row v of H at stamp + (v/H - 1/2)*readout); written "
                         "to the calibration YAML (camera_readout_ms), which process and the node read. Needs "
                         "turns with markers above and below the horizon")
+    p.add_argument("--readout-ms", type=float, default=0.0, metavar="MS",
+                   help="the camera's rolling-shutter readout as known (ms, first to last row; e.g. from a calibration "
+                        "run with --readout): used as it is, or with --readout as the start of its estimate; written "
+                        "to the calibration YAML (default 0: a global shutter)")
     p.add_argument("--heading-model", choices=HEADING_MODELS, default=None,
                    help="how the prism track's direction separates the boresight yaw from the map->odom yaw: "
                         "against the VO's yaw (vo_yaw: the platform drives where base_link x points), against the "
@@ -249,6 +255,8 @@ def run(args: argparse.Namespace) -> int:
                        args.base_frame, args.camera_frame, args.prism_frame)
     if args.every < 1:
         return _fail(f"--every: expected an integer ≥ 1, got {args.every}")
+    if not (math.isfinite(args.readout_ms) and 0.0 <= args.readout_ms < 1000.0):
+        return _fail(f"--readout-ms: expected milliseconds in [0, 1000), got {args.readout_ms}")
     if not math.isfinite(args.time_offset):
         return _fail(f"--time-offset: expected a finite number of seconds, got {args.time_offset}")
     out_dir = os.path.dirname(os.path.abspath(args.out))
@@ -269,7 +277,7 @@ def run(args: argparse.Namespace) -> int:
             params = dataclasses.replace(params, heading_model=args.heading_model)
         cal = calibrate_bag(recording, marker_map, args.time_offset, topics, observations=obs, params=params,
                             unknowns=Unknowns(args.lever_arm, args.refine_time_offset, args.readout, args.lenses),
-                            lenses=tunables.pipeline.lenses())
+                            lenses=tunables.pipeline.lenses(), readout=1e-3 * args.readout_ms)
     except CalibrationError as e:
         return _fail(f"{bag_name(recording)}: cannot calibrate: {e}", 1)
     text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
