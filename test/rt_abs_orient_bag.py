@@ -13,7 +13,7 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
    - ``--mode node``: heading of base_link from tf (map->odom ∘ odom->base_link) vs truth after the
      standstill: RMSE ≤ ``--max-yaw-rmse-deg`` (0.3°); the only map->odom publisher is /abs_orient; with
      ``--calibrated`` the node gets ``calibration:=`` the scenario's true camera mounting and rolling-shutter
-     readout (:func:`true_calibration`: what ``calibrate`` gives within its σ), as on a calibrated robot;
+     readout and lenses (:func:`true_calibration`: what ``calibrate`` gives within its σ), as on a calibrated robot;
    - ``--mode ekf``: /odometry/filtered yaw RMSE ≤ 0.3° and position RMSE ≤ ``--max-pos-rmse`` (3 cm)
      after the standstill; the only map->odom publisher is the EKF (/ekf_map);
    - ``--mode markers_only``: ``markers_only:=true use_ekf:=true``: no prism used (the EKF on
@@ -152,21 +152,25 @@ def time_offset_of(directory: Path) -> float:
 
 def true_calibration(directory: Path, turn_deg: float = 0.0) -> str:
     """A calibration YAML (in ROS_HOME) of the scenario's TRUE camera mounting turned by ``turn_deg`` about
-    base_link z, its prism lever arm and its camera's rolling-shutter readout; returns its path."""
+    base_link z, its prism lever arm, its camera's rolling-shutter readout and two lenses; returns its path."""
     import yaml
 
-    from aruco_abs_orient.calibration.io import READOUT_KEY
+    from aruco_abs_orient.calibration.io import LENSES_KEY, READOUT_KEY
     from aruco_abs_orient.transforms import matrix_to_rpy, rot_z
 
     hidden = yaml.safe_load((directory / "hidden.yaml").read_text())
     camera = np.array(hidden["base_T_camera_true"], dtype=float)
     turned = rot_z(math.radians(turn_deg)) @ camera[:3, :3]
     prism = np.array(hidden["base_T_prism"], dtype=float)
+    lenses = hidden["realism"]["camera_lenses"]
     path = Path(os.environ.get("ROS_HOME", "/tmp")) / f"rt_calibration_{ARGS.mode}.yaml"
     path.write_text(yaml.safe_dump({
         "base_link_to_camera": {"xyz": camera[:3, 3].tolist(), "rpy_deg": np.degrees(matrix_to_rpy(turned)).tolist()},
         "base_link_to_prism": {"xyz": prism[:3, 3].tolist()},
-        READOUT_KEY: 1e3 * float(hidden["config"]["rolling_shutter_readout"])}))
+        READOUT_KEY: 1e3 * float(hidden["config"]["rolling_shutter_readout"]),
+        LENSES_KEY: {"lens_offset_mm": 1e3 * lenses["lens_offset_m"],
+                     "back_lens_rotation_deg": lenses["back_lens_rotation_deg"],
+                     "stitch_distance_m": lenses["stitch_distance_m"], "blend_band_deg": lenses["blend_band_deg"]}}))
     return str(path)
 
 

@@ -409,8 +409,8 @@ def _check_determined(cal: Calibration, unknowns: Unknowns, params: CalibrationP
             f"the boresight {' and '.join(loose)} (1-σ {', '.join(f'{math.degrees(s):.3f}°' for s in sd[:2])}) are "
             "not told apart from the odometry's own tilt: the platform turned too little; the markers correct the "
             "platform's tilt while processing, so the heading does not rest on them. To separate them, drive a "
-            "loop or turns with markers in view (or, when the odometry is levelled by an IMU, set calibration "
-            "odom_levelled: true)")
+            "loop or turns with markers in view (or, when the odometry is levelled by an IMU, give calibrate "
+            "--params with 'calibration: {odom_levelled: true}')")
     # the yaw a marker's heading rests on is that of the lens that saw it: each lens that saw a fair share of the
     # markers must be determined; a lens that saw few is known as well as the lenses' prior allows (a warning)
     share = cal.lens_observations / max(int(cal.lens_observations.sum()), 1)
@@ -428,7 +428,7 @@ def _check_determined(cal: Calibration, unknowns: Unknowns, params: CalibrationP
         other = "vo_track" if cal.heading_model == "vo_yaw" else "vo_yaw"
         advice.append(f"the yaw is told from the map→odom yaw by the prism track's direction while driving "
                       f"({cal.heading_model_reason}): drive longer straight stretches with markers in view at "
-                      f"≥ {params.min_speed} m/s, or try calibration heading_model: {other}")
+                      f"≥ {params.min_speed} m/s, or try `calibrate --heading-model {other}`")
     if unknowns.lever_arm:
         bad += [f"lever arm {name}" for name, s in zip("xyz", cal.lever_arm_sigma) if not s <= params.max_lever_sigma]
     if unknowns.time_offset and not cal.time_offset_sigma <= params.max_time_offset_sigma:

@@ -164,7 +164,7 @@ def test_cli_heading_models(rendered, tmp_path, capsys):
     yaml_path.unlink()
     assert _cli(args + ["vo_track"]) == 1
     err = capsys.readouterr().err
-    assert "does not determine the boresight yaw" in err and "heading_model: vo_yaw" in err, err
+    assert "does not determine the boresight yaw" in err and "--heading-model vo_yaw" in err, err
     assert not yaml_path.exists()
 
 
