@@ -441,8 +441,8 @@ class RollingSelfCheck:
     ``add_prism`` and ``add_pose`` (total-station clock), call ``diagnostics()`` every few seconds (it
     fits ~a few thousand observations: milliseconds) for ``/diagnostics``: (level ``ok``/``warn``,
     message, {key: value}). With ``model`` (a :class:`ModelContext` whose odometry is ignored: the window's
-    poses are used) the time offset, tilt and boresight yaw are calibrate's model's on the window, run again
-    after ``model_interval`` s of data (a few s of CPU) and kept in between."""
+    poses are used) the time offset, tilt and boresight yaw are calibrate's model's on the window, first after
+    ``model_interval`` s of data, then every ``model_interval`` s (about a second of CPU each), kept in between."""
 
     marker_xyz: Mapping[int, Sequence[float]]
     time_offset: float = 0.0
@@ -484,9 +484,9 @@ class RollingSelfCheck:
         """The model context for this check when one is due (``model_interval`` s of data since the last)."""
         if self.model is None or len(self._odometry) < 2 or not self._obs:
             return None
-        newest = self._obs[-1][0]
-        if self._model_report is not None and newest - self._model_report[0] < (self.params or SelfCheckParams()
-                                                                                 ).model_interval:
+        newest, interval = self._obs[-1][0], (self.params or SelfCheckParams()).model_interval
+        last = self._obs[0][0] if self._model_report is None else self._model_report[0]
+        if newest - last < interval:      # the first after a window's worth of data, then every interval
             return None
         odometry = sorted(self._odometry, key=lambda p: p[0])
         traj = Trajectory.from_transforms(np.array([p[0] for p in odometry]), np.array([p[1] for p in odometry]))

@@ -255,3 +255,44 @@ def test_no_heading_finding_on_the_realistic_worlds_loop_with_the_prism_lever_ar
     assert not [f for f in r["findings"] if f["kind"] == "boresight_yaw"], r["findings"]
     r = check_run({}, prism, {}, (pose_t, pose_yaw + math.radians(0.3)), RunContext(prism_lever=lever))
     assert [f for f in r["findings"] if f["kind"] == "boresight_yaw"], r
+
+
+def test_the_node_s_rolling_check_runs_calibrate_s_model():
+    """The node's rolling self-check with calibrate's model (a ModelContext): fed 70 s of the generator's world
+    (exact bearings, its VO, its prism track) with a time offset 40 ms off and a camera turned 0.3° in roll that the
+    mounting in use does not know, it finds both with calibrate's own model after a window's worth of data, and
+    keeps them between model checks; with the true offset and mounting it finds none of them."""
+    import dataclasses
+
+    from aruco_abs_orient.camera import bearing_to_azel
+    from aruco_abs_orient.selfcheck import ModelContext, SelfCheckParams
+    from aruco_abs_orient.synthetic.feed import marker_observations
+    from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
+    from aruco_abs_orient.transforms import make_T, rot_x
+    from aruco_abs_orient.tum import Trajectory
+
+    sc = Scenario(dataclasses.replace(PRESETS["ci"], seed=4, duration=70.0, fps=5.0, boresight_deg=0.0))
+    frames = sc.frame_times
+    ob = marker_observations(sc, frames, noise=0.02 * DEG, rng=np.random.default_rng(4))
+    az, el = bearing_to_azel(ob.bearings)
+    kinds = {}
+    for name, error, turn in (("wrong", 0.04, 0.3), ("right", 0.0, 0.0)):
+        mounting = sc.base_T_camera_true @ make_T(rot_x(math.radians(turn)))   # what the run believes
+        model = ModelContext(sc.surveyed_markers, Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4))),
+                             mounting, sc.base_T_prism)
+        live = RollingSelfCheck({m.id: m.position for m in sc.markers}, window=65.0, model=model,
+                                params=SelfCheckParams(model_observations=600))
+        for t, p in zip(sc.prism.stamps, sc.prism.positions):
+            live.add_prism(float(t), p)
+        reports = []
+        for k, t in enumerate(frames):
+            live.add_odometry(float(t) + error, sc.odom_T_base(t))     # stamped on a clock 40 ms off
+            for i in np.flatnonzero(ob.frame == k):
+                live.add_observation(YawObservation(float(t) + error, int(ob.ids[i]), float(az[i]), float(el[i]),
+                                                    0.1 * DEG, math.nan, True, bearing_sigma=0.02 * DEG))
+            if k % 50 == 49:
+                reports.append(live.check())
+        assert "model_check" not in reports[0] and "model_check" in reports[-1], [r.keys() for r in reports]
+        kinds[name] = {f["kind"] for f in reports[-1]["findings"]}
+    assert {"time_offset", "camera_tilt"} <= kinds["wrong"], kinds
+    assert not kinds["right"] & {"time_offset", "camera_tilt", "boresight_yaw"}, kinds

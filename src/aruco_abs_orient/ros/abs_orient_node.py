@@ -79,7 +79,7 @@ from ..nodestate import (
 )
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
-from ..selfcheck import ModelContext, RollingSelfCheck, YawObservation
+from ..selfcheck import ModelContext, RollingSelfCheck, SelfCheckParams, YawObservation
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
 from ..tum import Trajectory, atomic_write_text
@@ -87,6 +87,9 @@ from ..tum import Trajectory, atomic_write_text
 __all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
 
 RECONFIGURABLE_NODE_PARAMS = ("time_offset",)
+#: the live self-check: calibrate's model on at most 600 bearings of its window (about a second of CPU a minute,
+#: in the diagnostics thread beside the image thread)
+_LIVE_SELFCHECK = SelfCheckParams(model_observations=600)
 """Node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)."""
 
 
@@ -498,7 +501,7 @@ class AbsOrientNode:
             model = ModelContext(self.marker_map, none, pipe.base_T_camera, pipe.base_T_prism, pipe.lenses,
                                  pipe.readout, self.config.tunables().calibration)
         return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset,
-                                prism_lever=lever, model=model)
+                                prism_lever=lever, model=model, params=_LIVE_SELFCHECK)
 
     def _feed_selfcheck(self, result: FrameResult, odom_T_base: np.ndarray) -> None:
         """The frame's marker yaws and pose for the rolling self-checks (time offset, tilt, moved marker)."""
