@@ -227,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", metavar="YAML", help="write it here (default: print it)")
     from ..markers import ARUCO_DICTIONARIES
+    from ..table import DECIMAL_MARKS, DELIMITERS
 
     p = sub.add_parser(
         "markers", help="marker map YAML from a survey: CSV id,E,N,H, Leica GSI-8/16, or four corners per marker",
@@ -241,6 +242,10 @@ def build_parser() -> argparse.ArgumentParser:
                "--origin 2600000 1200000 400 --out markers.yaml",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("survey", help="CSV (id, E, N, H) or GSI-8/16 file of the surveyed points")
+    p.add_argument("--delimiter", choices=DELIMITERS, metavar="D",
+                   help="the CSV's field delimiter: , ; tab or blank (default: detected)")
+    p.add_argument("--decimal", choices=DECIMAL_MARKS, metavar="MARK",
+                   help="the CSV's decimal mark: . or , (default: detected; a row that reads two ways is refused)")
     p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
     p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
                    help="ArUco dictionary (default DICT_4X4_50)")
@@ -403,8 +408,8 @@ def cmd_markers(a: argparse.Namespace) -> int:
 
     if not a.size > 0 or not a.tolerance > 0 or not a.sigma > 0:
         return _fail("--size, --tolerance and --sigma: expected positive numbers (metres)")
-    mm = marker_map_from_points(read_points(a.survey), a.dictionary, a.size, a.tolerance, a.sigma, a.origin,
-                                source=a.survey)
+    mm = marker_map_from_points(read_points(a.survey, a.delimiter, a.decimal), a.dictionary, a.size, a.tolerance,
+                                a.sigma, a.origin, source=a.survey)
     mm.save(a.out)
     with_normal = sum(m.normal is not None for m in mm)
     print(f"wrote {a.out}: {len(mm)} marker(s) ({with_normal} from their corners, with normals), {a.dictionary}, "
