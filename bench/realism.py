@@ -121,7 +121,7 @@ def workflow(scen: str, run: str, readout: bool = False, calib_scen: str = None)
     extra = ["--readout"] if readout else []
     try:
         text = cli("calibrate", cal_bag, "--markers", cal_markers, "--time-offset", offset, "--refine-time-offset",
-                   "--every", 3, "--out", cal, *extra)
+                   "--every", 3, "--out", cal, "--json", *extra)
     except RuntimeError as e:   # refused: the reason is the figure
         return {"refused": str(e).strip().splitlines()[-1][-300:]}
     report = json.loads(next(line for line in text.splitlines() if line.startswith("{")))

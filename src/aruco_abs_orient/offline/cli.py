@@ -151,6 +151,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write trajectory.csv: t, E, N, H (the map origin added back) and roll, pitch, heading "
                         "in degrees, for a surveyor")
     add_params_option(p, "pipeline, detection, tracking and filter sections")
+    p.add_argument("--force", action="store_true",
+                   help="write the trajectory even when the marker map does not fit the recording (the map check: "
+                        "another site's map, rotated, shifted, scaled, a wrong origin)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON line (for programs)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
     add_video_inputs(p)
@@ -284,13 +288,31 @@ def add_params_option(p: argparse.ArgumentParser, sections: str) -> None:
 
 
 
-def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
-    """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s) and marker
-    map as given (``markers`` already shell-quoted or a placeholder), the output in ``results/<bag name>``."""
+def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None,
+                    out: Optional[str] = None) -> str:
+    """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s), marker map
+    (``markers`` already shell-quoted or a placeholder) and ``calibration`` as given, the output in ``out`` (as
+    given; default ``results/<bag name>``)."""
     stem = os.path.splitext(os.path.basename(bag_name(bag)))[0] or "run"
-    cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} --out {shlex.quote('results/' + stem)} "
-           f"--time-offset {time_offset:.4f}")
+    cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} "
+           f"--out {shlex.quote(out or 'results/' + stem)} --time-offset {time_offset:.4f}")
     return cmd + (f" --calibration {shlex.quote(calibration)}" if calibration else "")
+
+
+def calibrate_command(bag: Bags, markers: Optional[str], time_offset: float) -> str:
+    """The ``calibrate`` command line that follows ``timesync`` (printed after ``use:``): the bag(s) and marker map
+    as given (``markers`` None: a placeholder), the offset refined there, ``--out`` beside the marker map."""
+    where = os.path.join(os.path.dirname(markers), "calibration.yaml") if markers else "calibration.yaml"
+    return (f"aruco-abs-orient calibrate {bags_for_shell(bag)} --markers "
+            f"{shlex.quote(markers) if markers else '<markers.yaml>'} --time-offset {time_offset:.4f} "
+            f"--refine-time-offset --every 3 --out {shlex.quote(where)}")
+
+
+def print_lines(rows) -> None:
+    """``(label, value)`` rows as aligned lines for people (the values with their units)."""
+    width = max((len(label) for label, _ in rows), default=0)
+    for label, value in rows:
+        print(f"{label:<{width}}  {value}")
 
 
 def _fail(msg: str, code: int = 2) -> int:
@@ -300,6 +322,7 @@ def _fail(msg: str, code: int = 2) -> int:
 
 def cmd_process(a: argparse.Namespace) -> int:
     from ..calibration import load_calibration
+    from ..mapcheck import DOES_NOT_FIT
     from .process import RunSetup, process_bag
 
     marker_map = MarkerMap.load(a.markers)
@@ -316,16 +339,43 @@ def cmd_process(a: argparse.Namespace) -> int:
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
     params = tunables.pipeline if a.jpeg_reduce is None else replace(tunables.pipeline, jpeg_reduce=a.jpeg_reduce)
-    setup = RunSetup(a.time_offset, _topics(a), calibration, a.full_coordinates, progress=not a.quiet)
+    setup = RunSetup(a.time_offset, _topics(a), calibration, a.full_coordinates, progress=not a.quiet, force=a.force)
     result = process_bag(recording, marker_map, a.out, setup,
                          tunables._replace(pipeline=replace(params, markers_only=a.no_prism)))
     s = result.summary
-    print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
+    check = s["map_check"]
+    refused = check["status"] == DOES_NOT_FIT and not a.force
+    if a.json:
+        print(json.dumps({**{k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")},
+                          "map_check": check["status"], "trajectory": result.trajectory_path or None}, default=float))
+    else:
+        frames, posed = s["frames"], s["frames_with_pose"]
+        skipped = sum(s["skipped"].values())
+        first = s["filter"]["initialised_at"]
+        rtf = s["real_time_factor"]
+        print_lines([
+            ("images", f"{frames}"),
+            ("with a pose", f"{posed} ({100.0 * posed / max(frames, 1):.1f} %)"
+             + (f", from {first - s['recording_start_s']:.1f} s into the recording" if first is not None else "")),
+            ("skipped", f"{skipped}" + (" (" + ", ".join(f"{k}: {v}" for k, v in sorted(s["skipped"].items()))
+                                        + ")" if skipped else "")),
+            ("marker map", check["message"] if check["status"] != DOES_NOT_FIT else "does not fit (below)"),
+            ("speed", f"{rtf:.2f} × real time ({s['wall_time_s']:.1f} s for {s['bag_duration_s']:.1f} s of recording)"
+             if rtf else "-"),
+        ])
     for w in s["warnings"]:
-        print(f"aruco-abs-orient: warning: {w}", file=sys.stderr)
-    print(f"wrote {result.trajectory_path}\n      {result.observations_path}\n      {result.summary_path}"
-          + "".join(f"\n      {p}" for p in result.extra_paths))
-    return 0 if s["frames_with_pose"] else 1
+        if not (refused and w == check["message"]):
+            print(f"aruco-abs-orient: warning: {w}", file=sys.stderr)
+    paths = [p for p in (result.trajectory_path, result.observations_path, result.summary_path) if p]
+    print("wrote " + "\n      ".join(paths + list(result.extra_paths)))
+    if refused:
+        return _fail(f"{check['message']}; no trajectory written ({a.markers} against {bag_name(recording)}: "
+                     "check the map, or --force to write it anyway)", 1)
+    if not s["frames_with_pose"]:
+        return 1
+    if not a.json:
+        print(f"use: aruco-abs-orient evaluate {shlex.quote(a.out)}   (the report: next step)")
+    return 0
 
 
 def cmd_timesync(a: argparse.Namespace) -> int:
@@ -364,9 +414,8 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     if est.confidence < a.min_confidence:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
                      "weak: record longer, with more turns of varying rate, or give --markers)", 1)
-    markers = shlex.quote(a.markers) if a.markers else "<markers.yaml>"
     hint = "" if a.markers else "   (give your marker map)"
-    print(f"use: {process_command(recording, markers, est.offset)}{hint}")
+    print(f"use: {calibrate_command(recording, a.markers, est.offset)}{hint}")
     return 0
 
 
