@@ -350,8 +350,9 @@ def _name_it(placed: _Placed, map_xyz: Mapping[int, Sequence[float]], p: MapChec
     if len(placed.ids) == 0:
         return "", details
     details["off_map"] = {i: float(o) for i, o, lim in zip(placed.ids, off, limit) if o > lim}
-    if len(placed.ids) >= 2 and np.sum(off > limit) * 2 <= len(placed.ids):
-        return None, details  # most where the map has them (one off: the self-checks' moved marker)
+    n_off = int(np.sum(off > limit))
+    if n_off == 0 or (len(placed.ids) >= 2 and n_off * 2 <= len(placed.ids)):
+        return None, details  # all or most where the map has them (one off: the self-checks' moved marker)
     seen = (f"marker{'s' if len(off) > 1 else ''} {_ids(placed.ids)} {'are' if len(off) > 1 else 'is'} seen "
             f"{_span(off)} from {'their' if len(off) > 1 else 'its'} map position{'s' if len(off) > 1 else ''}")
     spread = float(np.ptp(X[:, 0]) + np.ptp(X[:, 1])) if len(X) > 1 else 0.0
