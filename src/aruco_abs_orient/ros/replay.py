@@ -18,7 +18,7 @@ says in one line how it ended, ends the launch quietly, and leaves a master it d
   shows ``REQUIRED process [replay-…] has died … exit code 1``; roslaunch's own exit status is 0 whatever
   its nodes did, ros_comm #919): the node reports an error (a configuration it cannot run with: the
   playback stops at once; a marker map that does not fit), the node died or never started, the recorder
-  died (its bag incomplete), or no image arrived on the topic the node listens to (the bag's image topics
+  is not running (its bag incomplete), or no image arrived on the topic the node listens to (the bag's image topics
   are named).
 - On shutdown (the end, Ctrl-C, a failure) it deletes ``/use_sim_time`` from a master that its roslaunch
   did not start (a ``roscore`` running before): later nodes on that master are back on the wall clock.
@@ -146,11 +146,9 @@ class Watch:
         out = []
         for role, name in self.names.items():
             what = f"the recorder ({name})" if role == "recorder" else name
-            if not self.pids[role]:
-                out.append(f"{what} never ran (see its lines above)")
-            elif not self.alive[role]:
-                out.append(f"{what} died (see its lines above)" + (f": {record} is incomplete or missing"
-                                                                    if role == "recorder" else ""))
+            if not self.alive[role]:
+                out.append(f"{what} is not running: it died or never started (see its lines above)"
+                           + (f": {record} is incomplete or missing" if role == "recorder" else ""))
             elif len(self.pids[role]) > 1:
                 out.append(f"{what} was restarted {len(self.pids[role]) - 1} time(s): it died (see its lines above)")
         return out

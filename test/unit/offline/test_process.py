@@ -113,12 +113,15 @@ def test_timesync_cli_refines_the_offset_with_the_marker_bearings(ci_run, capsys
     assert code == 0, out
     assert "phase coherence" in out and "refined with the marker bearings" in out
     used = float(re.search(r"--time-offset (-?[0-9.]+)", out).group(1))
+    assert len(re.findall(r"--time-offset", out)) == 1  # one line to take the offset from (tools/demo.sh)
     assert abs(used - _hidden(scen)["camera_time_offset"]) < 0.005, out
-    # the use: line is a whole command: it parses with the CLI's own parser and names the real files
+    # the use: line is the next step (calibrate), a whole command: it parses with the CLI's own parser and names
+    # the user's files, the calibration beside the marker map
     use = shlex.split(out.split("use: ", 1)[1].splitlines()[0])
-    assert use[:2] == ["aruco-abs-orient", "process"]
+    assert use[:2] == ["aruco-abs-orient", "calibrate"]
     args = build_parser().parse_args(use[1:])
-    assert (args.bag, args.markers, args.out) == ([scen.bag], scen.markers, "results/scenario")
+    assert (args.bag, args.markers) == ([scen.bag], scen.markers) and args.refine_time_offset
+    assert args.out == os.path.join(os.path.dirname(scen.markers), "calibration.yaml")
 
 
 def test_evaluate_without_a_reference_reports_what_the_run_shows(ci_run, tmp_path, capsys):
@@ -328,3 +331,44 @@ def test_first_stamp_of_a_topic_and_of_a_missing_one(tiny):
     assert first_stamp(tiny.bag) is None
     data = read_bag_data(tiny.bag)
     assert first_stamp(tiny.bag, "/ms60/prism", clock_offset=0.5) == pytest.approx(data.prism_stamps[0] - 0.5)
+
+
+def test_a_map_that_does_not_fit_gets_no_trajectory_unless_forced(scenario_factory, tmp_path, capsys):
+    """The recording's own map shifted by 10 m (rendered tiny scenario): the map check names the shift, no
+    trajectory.tum is written (an older one removed), exit 1; --force writes it. The right map: a few aligned lines
+    for people, the next step with the user's own output directory."""
+    scen = scenario_factory("tiny")
+    offset = str(_hidden(scen)["camera_time_offset"])
+    data = yaml.safe_load(Path(scen.markers).read_text())
+    for m in data["markers"]:
+        m["position"][0] += 10.0
+    shifted = tmp_path / "shifted.yaml"
+    shifted.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "trajectory.tum").write_text("# an older run's\n")
+    assert cli_main(["process", scen.bag, "--markers", str(shifted), "--out", str(out), "--time-offset", offset,
+                     "--quiet"]) == 1
+    printed = capsys.readouterr()
+    err = printed.err.strip().splitlines()
+    assert err[-1].startswith("aruco-abs-orient: error: the marker map does not fit this recording: marker"), err
+    assert re.search(r"the map looks shifted by \(\+(9\.9\d|10\.0\d), [-+]0\.\d\d, [-+]0\.\d\d\) m", err[-1]), err
+    assert "no trajectory written" in err[-1] and "--force" in err[-1]
+    assert not (out / "trajectory.tum").exists() and (out / "summary.json").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    check = summary["map_check"]
+    assert check["status"] == "does_not_fit" and summary["warnings"][0] == check["message"]
+    assert re.search(r"^marker map +does not fit", printed.out, re.M), printed.out
+    cli_main(["process", scen.bag, "--markers", str(shifted), "--out", str(out), "--time-offset", offset, "--quiet",
+              "--force", "--json"])
+    line = json.loads(capsys.readouterr().out.splitlines()[0])  # for programs
+    assert line["map_check"] == "does_not_fit" and line["trajectory"] == str(out / "trajectory.tum")
+    assert (out / "trajectory.tum").exists()
+    good = tmp_path / "good"
+    assert cli_main(["process", scen.bag, "--markers", scen.markers, "--out", str(good), "--time-offset", offset,
+                     "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"^images +\d+$", printed, re.M) and re.search(r"^with a pose +\d+ \(\d+\.\d %\), from ", printed,
+                                                                        re.M), printed
+    assert re.search(r"^marker map +the marker map fits: ", printed, re.M), printed
+    assert f"use: aruco-abs-orient evaluate {good}" in printed
