@@ -430,7 +430,7 @@ def check_map(sightings: Sightings, prism, map_xyz: Mapping[int, Sequence[float]
                  key=lambda pl: pl.misfit)
     named, more = _name_it(placed, map_xyz, p, origin)
     details.update(more)
-    summary = f"sightings {math.degrees(median):.1f}° off their markers' map positions, median of {n}"
+    summary = f"sightings {math.degrees(median):.1f}° off the map, median of {n}"
     if named is None or (fits_as_is and not named):
         off_map = more.get("off_map") or {}
         note = "".join(f"; marker {i} is seen {o:.2f} m off its map position (moved or wrongly surveyed?)"
