@@ -19,12 +19,17 @@ import numpy as np
 from .errors import InputFileError
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
-__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp",
-           "read_yaml", "read_text", "sorted_series"]
+__all__ = ["TumError", "WriteError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes",
+           "slerp", "read_yaml", "read_text", "sorted_series"]
 
 
 class TumError(InputFileError, ValueError):
     """A TUM file that cannot be read: names the file and the line."""
+
+
+class WriteError(InputFileError, OSError):
+    """A file that cannot be written (its directory cannot be made, no permission, disk full): names the file.
+    An OSError too, for callers that catch those."""
 
 
 class Trajectory(NamedTuple):
@@ -114,17 +119,24 @@ def atomic_write_text(path: str, text: str) -> None:
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same directory and a rename."""
+    """Write ``data`` to ``path`` through a temporary file in the same directory (created when missing) and a
+    rename. Raises WriteError naming ``path`` when it cannot."""
     directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    try:
+        os.makedirs(directory, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    except OSError as e:
+        raise WriteError(f"{path}: cannot write: {e.strerror}") from None
     try:
         os.fchmod(fd, RESULT_FILE_MODE)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError):  # disk full, a directory in the way
+            raise WriteError(f"{path}: cannot write: {e.strerror}") from None
         raise
 
 

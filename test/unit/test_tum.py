@@ -127,3 +127,15 @@ def test_a_decimal_comma_tum_is_refused_not_misread(tmp_path):
         read_tum(str(path))
     path.write_text("12.5,3,4,5,0,0,0,1\n")  # a comma-separated TUM file still reads
     assert read_tum(str(path)).stamps.tolist() == [12.5]
+
+
+def test_a_write_makes_its_directory_or_names_the_file(tmp_path):
+    from aruco_abs_orient.errors import InputFileError
+    from aruco_abs_orient.tum import WriteError, atomic_write_text
+
+    atomic_write_text(str(tmp_path / "new" / "dir" / "a.txt"), "x\n")
+    assert (tmp_path / "new" / "dir" / "a.txt").read_text() == "x\n"
+    (tmp_path / "file").write_text("")
+    with pytest.raises(WriteError, match=r"file/b\.txt: cannot write: ") as e:
+        atomic_write_text(str(tmp_path / "file" / "b.txt"), "y")
+    assert isinstance(e.value, InputFileError) and isinstance(e.value, OSError)  # the CLI's one line; OSError callers

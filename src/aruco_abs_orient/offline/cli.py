@@ -471,6 +471,10 @@ def cmd_video_to_bag(a: argparse.Namespace) -> int:
 
     if not 1 <= a.quality <= 100:
         return _fail(f"--quality: expected 1-100, got {a.quality}")
+    try:
+        os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
+    except OSError as e:
+        return _fail(f"{a.out}: cannot create its directory: {e.strerror}")
     a.bag = None
     recording = video_recording(a, MarkerMap.load(a.markers) if a.markers else None)  # raises without --video
     r = video_to_bag(recording, a.out, a.time_offset, a.quality, progress=not a.quiet, topics=_topics(a))
