@@ -129,10 +129,16 @@ class Watch:
     def _pid(self, name: str) -> Optional[int]:
         import xmlrpc.client
 
+        class Transport(xmlrpc.client.Transport):  # a node that does not answer within 2 s counts as gone
+            def make_connection(self, host):
+                conn = super().make_connection(host)
+                conn.timeout = 2.0
+                return conn
+
         try:
             uri = self.master.lookupNode(name)
-            return int(xmlrpc.client.ServerProxy(uri).getPid("/replay")[2])
-        except Exception:  # not registered, or registered but gone (killed without unregistering)
+            return int(xmlrpc.client.ServerProxy(uri, transport=Transport()).getPid("/replay")[2])
+        except Exception:  # not registered, or registered but gone (killed without unregistering), or hung
             return None
 
     def poll(self) -> None:

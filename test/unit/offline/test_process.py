@@ -333,11 +333,51 @@ def test_first_stamp_of_a_topic_and_of_a_missing_one(tiny):
     assert first_stamp(tiny.bag, "/ms60/prism", clock_offset=0.5) == pytest.approx(data.prism_stamps[0] - 0.5)
 
 
-def test_a_map_that_does_not_fit_gets_no_trajectory_unless_forced(scenario_factory, tmp_path, capsys):
-    """The recording's own map shifted by 10 m (rendered tiny scenario): the map check names the shift, no
-    trajectory.tum is written (an older one removed), exit 1; --force writes it. The right map: a few aligned lines
-    for people, the next step with the user's own output directory."""
-    scen = scenario_factory("tiny")
+WRONG_MAPS = {  # the change of the map, what the refusal must say (the scenario below: 4 markers placed)
+    "rotated 90": (lambda p: [-p[1], p[0], p[2]], None,
+                   r"the map looks rotated by \+(8[89]|9[01])\.\d° about z around its origin \(E and N exchanged"),
+    "rotated 5": (lambda p: [p[0] * math.cos(0.0873) - p[1] * math.sin(0.0873),
+                             p[0] * math.sin(0.0873) + p[1] * math.cos(0.0873), p[2]], None,
+                  r"the map looks rotated by \+[456]\.\d° about z"),
+    "shifted 10 m": (lambda p: [p[0] + 10.0, p[1], p[2]], None,
+                     r"the map looks shifted by \(\+(9\.9\d|10\.0\d), [-+]0\.\d\d, [-+]0\.\d\d\) m"),
+    "mm for m": (lambda p: [1000.0 * v for v in p], None, r"the map looks scaled by (99\d|100\d)(\.\d)? \(millimetres"),
+    "wrong origin": (lambda p: p, [2600000.0, 1200000.0, 400.0],
+                     r"2863\.6 km off: a wrong origin \(the map's, \(2600000, 1200000, 400\), and the MS60 driver's"),
+}
+
+
+@pytest.fixture(scope="module")
+def ten_markers(scenario_factory):
+    """The tiny preset with 10 markers 2-5 m from a 10 s track (960 px, 10 fps): several markers seen while driving."""
+    return scenario_factory("tiny", n_markers=10, marker_distance=(2.0, 5.0), duration=10.0)
+
+
+@pytest.mark.parametrize("kind", sorted(WRONG_MAPS))
+def test_a_map_that_does_not_fit_is_refused_by_name(ten_markers, tmp_path, capsys, kind):
+    """The recording's own map changed as a surveyor's slip would: the run's map check names the change, no
+    trajectory.tum is written, exit status 1."""
+    change, origin, expected = WRONG_MAPS[kind]
+    data = yaml.safe_load(Path(ten_markers.markers).read_text())
+    for m in data["markers"]:
+        m["position"] = [float(v) for v in change(m["position"])]
+    if origin:
+        data["origin"] = origin
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert cli_main(["process", ten_markers.bag, "--markers", str(wrong), "--out", str(out), "--time-offset",
+                     str(_hidden(ten_markers)["camera_time_offset"]), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("aruco-abs-orient: error: the marker map does not fit this recording: marker"), err
+    assert re.search(expected, err[-1]), err[-1]
+    assert "no trajectory written" in err[-1] and not (out / "trajectory.tum").exists()
+
+
+def test_a_map_that_does_not_fit_gets_no_trajectory_unless_forced(ten_markers, tmp_path, capsys):
+    """The recording's own map shifted by 10 m: the summary says why, an older trajectory.tum is removed, --force
+    writes it. The right map: a few aligned lines for people, the next step with the user's own output directory."""
+    scen = ten_markers
     offset = str(_hidden(scen)["camera_time_offset"])
     data = yaml.safe_load(Path(scen.markers).read_text())
     for m in data["markers"]:
@@ -350,10 +390,7 @@ def test_a_map_that_does_not_fit_gets_no_trajectory_unless_forced(scenario_facto
     assert cli_main(["process", scen.bag, "--markers", str(shifted), "--out", str(out), "--time-offset", offset,
                      "--quiet"]) == 1
     printed = capsys.readouterr()
-    err = printed.err.strip().splitlines()
-    assert err[-1].startswith("aruco-abs-orient: error: the marker map does not fit this recording: marker"), err
-    assert re.search(r"the map looks shifted by \(\+(9\.9\d|10\.0\d), [-+]0\.\d\d, [-+]0\.\d\d\) m", err[-1]), err
-    assert "no trajectory written" in err[-1] and "--force" in err[-1]
+    assert "--force" in printed.err.strip().splitlines()[-1]
     assert not (out / "trajectory.tum").exists() and (out / "summary.json").exists()
     summary = json.loads((out / "summary.json").read_text())
     check = summary["map_check"]
