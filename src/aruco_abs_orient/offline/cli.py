@@ -288,14 +288,12 @@ def add_params_option(p: argparse.ArgumentParser, sections: str) -> None:
 
 
 
-def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None,
-                    out: Optional[str] = None) -> str:
-    """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s), marker map
-    (``markers`` already shell-quoted or a placeholder) and ``calibration`` as given, the output in ``out`` (as
-    given; default ``results/<bag name>``)."""
+def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
+    """The ``process`` command line that follows ``calibrate`` (printed after ``use:``): the bag(s), marker map
+    (``markers`` already shell-quoted) and ``calibration`` as given, the output in ``results/<bag name>``."""
     stem = os.path.splitext(os.path.basename(bag_name(bag)))[0] or "run"
     cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} "
-           f"--out {shlex.quote(out or 'results/' + stem)} --time-offset {time_offset:.4f}")
+           f"--out {shlex.quote('results/' + stem)} --time-offset {time_offset:.4f}")
     return cmd + (f" --calibration {shlex.quote(calibration)}" if calibration else "")
 
 

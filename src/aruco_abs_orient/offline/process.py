@@ -56,6 +56,7 @@ from .bagio import (
     read_bag_data,
     salvage_bag,
 )
+from .cli import calibrate_command
 
 __all__ = ["ProcessResult", "RunSetup", "process_bag", "OBSERVATION_COLUMNS"]
 
@@ -136,8 +137,7 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
-                "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
-                             f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
+                "calibrate": calibrate_command(bag, marker_map.source, summary["time_offset_s"])}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
                        (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"],
