@@ -33,8 +33,8 @@ import numpy as np
 from .selfcheck import _hat_basis, _robust_lsq
 from .transforms import wrap_angle
 
-__all__ = ["MapCheckParams", "Sightings", "MapVerdict", "check_map", "RollingMapCheck", "FITS", "DOES_NOT_FIT",
-           "UNDETERMINED"]
+__all__ = ["MapCheckParams", "Sightings", "SightingSample", "MapVerdict", "check_map", "RollingMapCheck", "FITS",
+           "DOES_NOT_FIT", "UNDETERMINED"]
 
 FITS, DOES_NOT_FIT, UNDETERMINED = "fits", "does_not_fit", "undetermined"
 
@@ -87,6 +87,26 @@ class Sightings(NamedTuple):
         t, ids, u, R = zip(*rows)
         return cls(np.array(t, dtype=float), np.array(ids, dtype=int), np.array(u, dtype=float).reshape(-1, 3),
                    np.array(R, dtype=float).reshape(-1, 3, 3))
+
+
+class SightingSample:
+    """Sightings of a whole run in bounded memory: every ``stride``-th one kept, the stride doubled (and every
+    other one kept dropped) whenever ``2 · size`` are held, so what is kept spans the run evenly (an hour at 30 fps
+    holds ``size`` to ``2 · size`` rows, not half a million)."""
+
+    def __init__(self, size: int = 3000):
+        self.size, self.stride, self._seen = int(size), 1, 0
+        self._rows: List[tuple] = []
+
+    def add(self, t: float, marker_id: int, bearing, odom_R) -> None:
+        if self._seen % self.stride == 0:
+            self._rows.append((float(t), int(marker_id), np.asarray(bearing, dtype=float), np.asarray(odom_R)))
+            if len(self._rows) >= 2 * self.size:
+                self._rows, self.stride = self._rows[::2], 2 * self.stride
+        self._seen += 1
+
+    def sightings(self) -> Sightings:
+        return Sightings.from_rows(self._rows)
 
 
 @dataclass

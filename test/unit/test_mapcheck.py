@@ -19,6 +19,7 @@ from aruco_abs_orient.mapcheck import (
     MapCheckParams,
     RollingMapCheck,
     Sightings,
+    SightingSample,
     check_map,
 )
 from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
@@ -123,3 +124,12 @@ def test_the_rolling_check_of_a_node_keeps_its_window():
         rolling.add_sighting(*row)
     assert rolling.check().status == FITS
     assert len(rolling._sightings) < len(s.time) and rolling._sightings[0][0] >= s.time[-1] - 8.0
+
+
+def test_a_long_run_is_sampled_evenly_in_bounded_memory():
+    sample = SightingSample(size=100)
+    for k in range(100_000):  # an hour's sightings, one per 36 ms
+        sample.add(0.036 * k, k % 7, [1.0, 0.0, 0.0], np.eye(3))
+    s = sample.sightings()
+    assert 100 <= len(s.time) < 200 and s.time[0] == 0.0 and s.time[-1] > 0.9 * 0.036 * 100_000
+    assert np.ptp(np.diff(s.time)) < 1e-6  # evenly spaced

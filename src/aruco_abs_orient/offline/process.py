@@ -37,7 +37,7 @@ from typing import Dict, List, NamedTuple, Optional
 import numpy as np
 
 from ..detection import DetectionError, decode_jpeg
-from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, Sightings, check_map
+from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, SightingSample, check_map
 from ..markers import MarkerMap
 from ..params import Tunables, parse_params
 from ..pipeline import AbsOrientPipeline, FrameResult
@@ -238,7 +238,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     odom_missing = 0
     timing_sum: Dict[str, float] = {}
     checked: List[tuple] = []  # (t, id, az, el, yaw σ, residual, accepted, yaw, odom yaw) of each marker yaw
-    sighted: List[tuple] = []  # (t, id, bearing, odom rotation) of each marker seen: the map check
+    sighted = SightingSample()  # (t, id, bearing, odom rotation) of the markers seen, evenly thinned: the map check
     modes: Dict[str, int] = {}
     tilt_sources: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
@@ -295,7 +295,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                 odom_yaw = float(yaw_of(T_odom[:3, :3]))
                 checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
                              r.residual, r.accepted, r.yaw, odom_yaw) for r in res.observations if math.isfinite(r.yaw)]
-                sighted += [(res.stamp, r.id, r.observation.centre, T_odom[:3, :3]) for r in res.observations]
+                for r in res.observations:
+                    sighted.add(res.stamp, r.id, r.observation.centre, T_odom[:3, :3])
                 if res.map_T_base is not None:
                     if not with_pose:
                         first_pose = res.stamp
@@ -377,13 +378,13 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     return ProcessResult(traj_path, obs_path, summary_path, summary, extra)
 
 
-def _map_check(sighted: List[tuple], data: BagData, marker_map: MarkerMap, pipe: AbsOrientPipeline,
+def _map_check(sighted: SightingSample, data: BagData, marker_map: MarkerMap, pipe: AbsOrientPipeline,
                markers_only: bool) -> MapVerdict:
     """Whether the marker map fits what the run saw (:func:`aruco_abs_orient.mapcheck.check_map`): the
     sightings along the prism track, with the lever arms the pipeline used (markers only: not checked here)."""
     if markers_only or len(data.prism_stamps) < 2:
         return MapVerdict(UNDETERMINED, "the marker map is not checked without a prism track", {})
-    return check_map(Sightings.from_rows(sighted), (data.prism_stamps, data.prism_positions),
+    return check_map(sighted.sightings(), (data.prism_stamps, data.prism_positions),
                      {m.id: m.position for m in marker_map}, pipe.base_T_camera, pipe.base_T_prism[:3, 3],
                      origin=marker_map.origin)
 
