@@ -273,12 +273,12 @@ def main(argv=None) -> int:
         line, failed = f"replay: {os.path.basename(bag)} {stopped}", True
     else:
         with lock:  # the node's state while the bag played (after it, the node says "no image for ...")
-            playing = str(diag.get("message", ""))
+            playing = {k: diag[k] for k in ("message", "level") if diag.get(k)}
         time.sleep(settle)  # wall clock: the sim clock stopped with the bag
         watch.poll()
         problems = watch.problems(record)
         with lock:
-            final = dict(diag, message=playing or diag.get("message", "")) if diag else None
+            final = dict(diag, **playing) if diag else None
         line = summary_line(bag, _bag_duration(bag), dict(counts), final, problems, _image_topics(bag))
         failed = bool(problems) or final is None or final.get("level") == "error" or str(
             final.get("images received", "")) == "0"
