@@ -9,12 +9,16 @@ which markers, how far off and what it looks like, and its figures (JSON-able).
 How. (1) The map as it is: from the camera (prism + lever arm), every sighting must point at its marker's
 map position, up to the map→odom yaw (hat functions in time: the odometry drifts) and a time-offset error
 (searched within ±``max_time_error``: a wrong ``--time-offset`` is the self-checks' finding, not the
-map's). The map fits when the median angle between them is within ``fit_deg``. (2) When it does not, the
-markers are placed where they are seen (triangulated from their rays along the prism track, jointly with
-the map→odom yaw), and the simplest change of the map that puts its markers there is named: a shift, a
-rotation about z (about the map's origin) with a shift, or a scale as well. A shift of a kilometre or more
-is a wrong ``origin``, a scale of 1000 millimetres written as metres; when none fits, another site's map
-(or several moved markers). One marker off the others is the self-checks' finding, not this one's.
+map's). (2) The markers are placed where they are seen: triangulated from their rays along the prism track,
+jointly with the map→odom yaw (robust Gauss-Newton from the best constant yaw of a grid), with the time offset
+in use or the one (1) fitted best at, whichever the rays agree better with. The map fits when the median angle
+of (1) is within ``fit_deg`` and most placed markers are within ``tolerance`` (+ 3 σ) of their map positions
+(a 5° rotation can hide in the angles of (1) but not in the places); otherwise the simplest change of the map
+that puts its markers where they are seen is named: a shift, a rotation about z (about the map's origin) with a
+shift, or a scale as well. A shift of a kilometre or more is a wrong ``origin``, a scale of 1000 millimetres
+written as metres; when none fits, another site's map (or several moved markers). One marker off the others
+is a moved marker, the self-checks' finding (named in the message, the map still fits); from a standstill no
+marker can be placed: the map can be refused by (1), not named.
 
 ROS-free (process, calibrate and the node call it); Python 3.8 / numpy 1.17. Radians, metres, seconds inside;
 degrees and metres in messages.
