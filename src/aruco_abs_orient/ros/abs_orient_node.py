@@ -656,13 +656,14 @@ class AbsOrientNode:
         return state_path(self.config.state_file, self.rospy.get_name(), self._master_uri)
 
     def _check_map(self, now_wall: float) -> None:
-        """Start the map check in a worker thread every 2 s (wall) until it has a verdict, then every 15 s (0.1-0.2 s
-        of CPU each on 1000 sightings); take its verdict. A map that does not fit stops everything that depends on
-        it, for good."""
+        """Start the map check in a worker thread every 2 s (wall) until the map fits, then every 15 s (0.1-0.2 s of
+        CPU each on 1000 sightings); take its verdict. A map that does not fit stops everything that depends on it,
+        for good; later checks only say better how it is off (once its markers were seen from different places)."""
         worker = self._mapcheck_worker
-        if self.mapcheck is None or self.map_refused or (worker is not None and worker.is_alive()):
+        if self.mapcheck is None or (worker is not None and worker.is_alive()):
             return
-        if now_wall - self._mapcheck_wall < (15.0 if self.map_verdict.status == FITS else 2.0):
+        if now_wall - self._mapcheck_wall < (15.0 if self.map_verdict.status == FITS and not self.map_refused
+                                             else 2.0):
             return
         self._mapcheck_wall = now_wall
 
@@ -671,13 +672,17 @@ class AbsOrientNode:
                 verdict = self.mapcheck.check()
             except Exception as e:  # a check must never take the node down
                 verdict = MapVerdict("undetermined", f"the map check failed: {type(e).__name__}: {e}", {})
+            if self.map_refused and verdict.status != DOES_NOT_FIT:
+                return  # refused for good: a later window of sightings does not take it back
             self.map_verdict = verdict
             if verdict.status == DOES_NOT_FIT:
+                first = not self.map_refused
                 self.map_refused = verdict.message
                 with self._tf_lock:
                     self._prediction = None  # the timer stops re-publishing map->odom
-                self.rospy.logerr(f"abs_orient: {verdict.message}: map->odom, the absolute yaw and pose are no longer "
-                                  f"published (check ~markers {self.config.markers})")
+                if first:
+                    self.rospy.logerr(f"abs_orient: {verdict.message}: map->odom, the absolute yaw and pose are no "
+                                      f"longer published (check ~markers {self.config.markers})")
 
         self._mapcheck_worker = threading.Thread(target=check, name="map check", daemon=True)
         self._mapcheck_worker.start()

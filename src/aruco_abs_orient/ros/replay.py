@@ -277,8 +277,8 @@ def main(argv=None) -> int:
         time.sleep(settle)  # wall clock: the sim clock stopped with the bag
         watch.poll()
         problems = watch.problems(record)
-        with lock:
-            final = dict(diag, **playing) if diag else None
+        with lock:  # an error found in the last frames (the map check's verdict) wins over the state while playing
+            final = (dict(diag) if diag.get("level") == "error" else dict(diag, **playing)) if diag else None
         line = summary_line(bag, _bag_duration(bag), dict(counts), final, problems, _image_topics(bag))
         failed = bool(problems) or final is None or final.get("level") == "error" or str(
             final.get("images received", "")) == "0"

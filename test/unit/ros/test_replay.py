@@ -147,7 +147,7 @@ def test_a_map_that_does_not_fit_is_an_error_and_no_map_odom_follows(scenario_fa
     replay's last line says it, with exit status 1."""
     import rosbag
 
-    scen = scenario_factory("tiny")
+    scen = scenario_factory("tiny", n_markers=10, marker_distance=(2.0, 5.0), duration=10.0)  # as test_process's
     shutil.copy(scen.bag, tmp_path / "run1.bag")
     data = yaml.safe_load(Path(scen.markers).read_text())
     for m in data["markers"]:
