@@ -80,7 +80,7 @@ def workflow(scen: str, run: str, calibrate_args=(), calib_scen: str = None, pro
     cal = os.path.join(run, "calibration.yaml")
     try:
         text = cli("calibrate", cal_bag, "--markers", cal_markers, "--time-offset", offset, "--refine-time-offset",
-                   "--every", 3, "--out", cal, *calibrate_args)
+                   "--every", 3, "--out", cal, "--json", *calibrate_args)
     except RuntimeError as e:   # refused: the reason is the figure
         return {"refused": str(e).strip().splitlines()[-1][-400:]}
     report = json.loads(next(line for line in text.splitlines() if line.startswith("{")))

@@ -28,7 +28,6 @@ its stamp (to the 6 decimals of COM_SetDoublePrecision, stamp within ``MAX_STAMP
 strictly increase (none backwards, none repeated), the driver reported the reconnection (``ms60/status``
 ``reconnects``), and the simulator saw no internal error. Figures are printed as ``[figure]`` lines.
 """
-import json
 import os
 import signal
 import sys
@@ -41,11 +40,12 @@ import numpy as np
 import rosgraph
 import rospy
 import rostest
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
-from std_msgs.msg import String
 
 from aruco_abs_orient.geocom.simulator import FaultRates, Ms60Simulator, SimConfig
 from aruco_abs_orient.geocom.tracker import TrackerConfig
+from aruco_abs_orient.ros.ms60_node import status_values
 
 NODE = "/ms60_driver"
 RESPAWN_DELAY_S = 2.0      # ms60.launch
@@ -81,7 +81,7 @@ class Ms60ChaosCheck(unittest.TestCase):
         self.prisms = []     # (monotonic arrival s, stamp s, x, y, z)
         self.statuses = []
         rospy.Subscriber("/ms60/prism", PointStamped, self.on_prism, queue_size=200)
-        rospy.Subscriber("/ms60/status", String, lambda m: self.statuses.append(json.loads(m.data)))
+        rospy.Subscriber("/ms60/status", DiagnosticStatus, lambda m: self.statuses.append(status_values(m)))
 
     def on_prism(self, msg):
         with self.lock:

@@ -4,7 +4,6 @@ byte timing) and one on a pty (a serial line), listens to each driver's ms60/pri
 of fresh positions, positions equal to the simulator's truth, stamps within 2 ms (p95) of the true
 time of each position's distance, the status (locked, the measurement program), and the re-lock
 within the simulator's lock-in time + 1 s after the prism was hidden."""
-import json
 import os
 import sys
 import threading
@@ -16,9 +15,9 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PointStamped
-from std_msgs.msg import String
 
 from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig
+from aruco_abs_orient.ros.ms60_node import status_values
 
 
 class Link:
@@ -29,7 +28,7 @@ class Link:
         self.lock = threading.Lock()
         self.prisms, self.statuses = [], []
         rospy.Subscriber(f"/{ns}/ms60/prism", PointStamped, self.on_prism, queue_size=100)
-        rospy.Subscriber(f"/{ns}/ms60/status", String, lambda m: self.statuses.append(json.loads(m.data)))
+        rospy.Subscriber(f"/{ns}/ms60/status", DiagnosticStatus, lambda m: self.statuses.append(status_values(m)))
 
     def on_prism(self, msg):
         with self.lock:

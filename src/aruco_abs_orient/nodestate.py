@@ -22,6 +22,10 @@ Stamp policy (:class:`MapOdomStamps`), DESIGN §3 and doc/ros_api.md "map → od
 - A stamp of the inputs going back by more than ``jump_tolerance`` (a bag looped or restarted, the clock
   set back) is a clock jump: the node resets, and so does the policy (the new timeline starts afresh).
 
+The state file (:func:`state_path`, :func:`state_record`, :func:`state_snapshot`): one per node name and
+master, and a state is restored only by the node, master and ``/run_id`` that wrote it (a respawn), never by
+another replay or robot sharing the directory.
+
 Live time offset (:func:`live_offset_to_apply`): a confident live estimate that contradicts the offset in
 use replaces it, unless the marker yaws (the rolling self-check) support the offset in use and contradict
 the estimate.
@@ -31,6 +35,8 @@ from __future__ import annotations
 
 import collections
 import math
+import os
+import re
 from typing import Deque, Dict, Iterable, List, NamedTuple, Optional, Tuple
 
 import numpy as np
@@ -38,11 +44,40 @@ import numpy as np
 from .transforms import make_T, rot_z, wrap_angle, yaw_of
 
 __all__ = ["MapOdomStamps", "MapOdomPrediction", "NodeHealth", "NodeSnapshot", "IMAGE_OK", "IMAGE_JUMPED_BACK",
-           "IMAGE_NOT_AFTER", "live_offset_to_apply"]
+           "IMAGE_NOT_AFTER", "live_offset_to_apply", "state_path", "state_record", "state_snapshot"]
 
 IMAGE_OK = "ok"
 IMAGE_JUMPED_BACK = "jumped back"
 IMAGE_NOT_AFTER = "not after the previous one"
+
+
+def state_path(path: str, node_name: str, master_uri: str) -> str:
+    """``path`` (``~state_file``) with the node's name and the master's port before its extension:
+    ``~/.ros/abs_orient_state.json`` of ``/robot1/abs_orient`` on ``http://localhost:11311/`` →
+    ``~/.ros/abs_orient_state.robot1.abs_orient.11311.json``; '' stays '' (no state file)."""
+    if not path:
+        return ""
+    root, ext = os.path.splitext(path)
+    port = master_uri.rstrip("/").rsplit(":", 1)[-1] if ":" in master_uri else "master"
+    name = re.sub(r"[^A-Za-z0-9_-]+", ".", node_name).strip(".") or "node"
+    return f"{root}.{name}.{port if port.isdigit() else 'master'}{ext or '.json'}"
+
+
+def state_record(snapshot: Dict[str, object], writer: Dict[str, str]) -> Dict[str, object]:
+    """What the state file holds: the filter's ``snapshot`` and its ``writer`` (node name, master URI, run id)."""
+    return {"writer": dict(writer), "filter": snapshot}
+
+
+def state_snapshot(record, writer: Dict[str, str]) -> Tuple[Optional[Dict[str, object]], str]:
+    """(the filter's snapshot, '') of a state file's ``record`` written by ``writer`` (this node), or (None, why
+    not): another node, master or run wrote it (a state from another replay or robot is never restored)."""
+    if not isinstance(record, dict) or not isinstance(record.get("writer"), dict) or "filter" not in record:
+        return None, "not a state of this version (no writer)"
+    theirs = record["writer"]
+    for key, what in (("node", "node"), ("master", "master"), ("run_id", "run (roscore /run_id)")):
+        if str(theirs.get(key)) != str(writer.get(key)):
+            return None, f"written by another {what}: {theirs.get(key)!r}, not {writer.get(key)!r}"
+    return record["filter"], ""
 
 
 def live_offset_to_apply(in_use: float, estimator, selfcheck) -> Tuple[Optional[float], bool]:

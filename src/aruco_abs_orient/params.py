@@ -38,6 +38,7 @@ from .evaluation import EvaluationParams
 from .pipeline import PARAM_GROUPS, PipelineParams
 from .timesync import TimeSyncParams
 from .tracking import TrackingParams
+from .tum import read_yaml
 
 __all__ = ["SECTIONS", "ParamsError", "Tunables", "load_params", "parse_params", "defaults_yaml", "describe"]
 
@@ -152,16 +153,7 @@ def load_params(path: Optional[str]) -> Tunables:
     """The tunables of a params YAML file (None or '': every default). Raises ParamsError (one line)."""
     if not path:
         return parse_params({})
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise ParamsError(f"{path}: cannot read the params file: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" (line {mark.line + 1})" if mark is not None else ""
-        raise ParamsError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
-    return parse_params(data, path)
+    return parse_params(read_yaml(path, ParamsError), path)
 
 
 # --------------------------------------------------------------------------- the documented defaults

@@ -425,6 +425,8 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
                                         f"direction of travel by {_deg(med)} ({int(straight.sum())} poses): the "
                                         f"camera's mounting yaw (or a platform that crabs); run `{fix}`",
                                         "heading-wrong-by-180", math.degrees(med)))
+    if any(f.kind == "time_offset" for f in findings):  # a wrong offset biases each marker's yaws: fix it first
+        findings = [f for f in findings if f.kind != "marker"]
     rms = out["normalised_residual_rms"]
     if rms is not None and rms > p.max_normalised_rms:
         causes = ", ".join(f.kind.replace("_", " ") for f in findings if f.kind in

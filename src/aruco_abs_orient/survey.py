@@ -7,6 +7,11 @@ bottom-right, bottom-left. From the corners come the centre and the face normal 
 the wall, towards where the marker can be seen from); they must form a square of side ``size`` in a
 plane within ``tolerance``, or the marker is rejected and the offending point named.
 
+CSV: ``id, E, N, H`` per row, the delimiter (comma, semicolon, tab, blanks) and the decimal mark (``.``
+or ``,``: a Swiss or German spreadsheet's ``3;1,5;2,5;0,3``) detected or given; a row that reads two
+ways is refused with its line (:mod:`aruco_abs_orient.table`). Any file: a byte-order mark is dropped, a
+binary file or an unknown encoding is an error naming the file (:func:`aruco_abs_orient.tum.read_text`).
+
 GSI (Leica Geo Serial Interface): one block per line, words separated by blanks; GSI-16 lines start
 with ``*``. A word is ``WI`` (2 digits) + 4 information characters (the last one the unit of a
 distance) + sign + 8 (GSI-8) or 16 (GSI-16) data characters. Known word indices are in
@@ -17,7 +22,6 @@ Runs on the robots' Python 3.8 / numpy 1.17 (core module: no ROS, no OpenCV).
 
 from __future__ import annotations
 
-import csv
 import math
 import re
 from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
@@ -25,6 +29,8 @@ from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .markers import Marker, MarkerMap, MarkerMapError
+from .table import read_table
+from .tum import read_text
 
 __all__ = ["SurveyError", "SurveyPoint", "GSI_WORDS", "read_points", "read_csv_points", "read_gsi", "gsi_blocks",
            "format_gsi", "marker_from_corners", "marker_map_from_points"]
@@ -60,12 +66,7 @@ CENTRE_NAME = re.compile(r"^[A-Za-z]*(\d+)$")
 def gsi_blocks(path: str) -> List[Tuple[int, Dict[int, str], Dict[int, str]]]:
     """``(line number, {WI: data text}, {WI: information text})`` of each block of a GSI-8/16 file."""
     out = []
-    try:
-        with open(path, encoding="ascii", errors="replace") as f:
-            lines = f.read().splitlines()
-    except OSError as e:
-        raise SurveyError(f"{path}: cannot read: {e.strerror}") from None
-    for lineno, line in enumerate(lines, 1):
+    for lineno, line in enumerate(read_text(path, SurveyError, "GSI").splitlines(), 1):
         text = line.strip()
         if not text:
             continue
@@ -139,48 +140,26 @@ def format_gsi(points: Sequence[Tuple[str, Sequence[float]]], gsi16: bool = True
     return "\n".join(lines) + "\n"
 
 
-def read_csv_points(path: str) -> List[SurveyPoint]:
-    """Points of a CSV ``id, E, N, H`` (comma, semicolon or blank separated; a header line and ``#`` comments
-    allowed)."""
+def read_csv_points(path: str, delimiter: Optional[str] = None, decimal: Optional[str] = None) -> List[SurveyPoint]:
+    """Points of a CSV ``id, E, N, H`` (a header line and ``#`` comments allowed); ``delimiter`` (``,`` ``;``
+    ``tab`` ``blank``) and ``decimal`` (``.`` ``,``) as given, else detected (:func:`table.read_table`)."""
+    table = read_table(path, read_text(path, SurveyError, "survey"), (1, 2, 3), 4, SurveyError, "'id, E, N, H'",
+                       delimiter, decimal)
     points = []
-    try:
-        with open(path, newline="") as f:
-            lines = f.read().splitlines()
-    except OSError as e:
-        raise SurveyError(f"{path}: cannot read: {e.strerror}") from None
-    first = True
-    for lineno, line in enumerate(lines, 1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        header, first = first, False
-        fields = [x.strip() for x in next(csv.reader([text.replace(";", ",")]))]
-        if len(fields) == 1:
-            fields = text.split()
-        if len(fields) < 4:
-            raise SurveyError(f"{path}:{lineno}: expected 'id, E, N, H', got {len(fields)} field(s): {text!r}")
-        try:
-            xyz = np.array([float(x) for x in fields[1:4]])
-        except ValueError:
-            if header:
-                continue  # the header line
-            raise SurveyError(f"{path}:{lineno}: expected numbers for E, N, H, got {fields[1:4]}") from None
+    for lineno, (name, *xyz) in table.rows:
         if not np.all(np.isfinite(xyz)):
             raise SurveyError(f"{path}:{lineno}: NaN or inf in E, N, H")
-        points.append(SurveyPoint(fields[0], xyz, f"{path}:{lineno}"))
+        points.append(SurveyPoint(name, np.array(xyz, dtype=float), f"{path}:{lineno}"))
     return _unique(points, path)
 
 
-def read_points(path: str) -> List[SurveyPoint]:
-    """The points of a survey file: GSI when its first block looks like GSI (``*11…`` or ``11…+``), else CSV."""
-    try:
-        with open(path, encoding="ascii", errors="replace") as f:
-            first = next((line.strip() for line in f if line.strip()), "")
-    except OSError as e:
-        raise SurveyError(f"{path}: cannot read: {e.strerror}") from None
+def read_points(path: str, delimiter: Optional[str] = None, decimal: Optional[str] = None) -> List[SurveyPoint]:
+    """The points of a survey file: GSI when its first block looks like GSI (``*11…`` or ``11…+``), else CSV
+    (``delimiter``, ``decimal``: :func:`read_csv_points`'s)."""
+    first = next((line.strip() for line in read_text(path, SurveyError, "survey").splitlines() if line.strip()), "")
     if re.match(r"^\*?\d{6}[+-]", first):
         return read_gsi(path)
-    return read_csv_points(path)
+    return read_csv_points(path, delimiter, decimal)
 
 
 def _unique(points: List[SurveyPoint], path: str) -> List[SurveyPoint]:

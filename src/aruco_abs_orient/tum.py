@@ -1,14 +1,16 @@
 """TUM trajectory files: one pose per line, ``t x y z qx qy qz qw`` (seconds, metres).
 
 The package's one reader/writer of the format (truth files, offline results, simulator input),
-and its file helpers: atomic writes (the file appears complete or not at all) and YAML reading
-with errors that name the file.
+and its file helpers: atomic writes (the file appears complete or not at all), text and YAML reading
+with one-line errors that name the file (a byte-order mark is dropped, UTF-16 decoded, a binary file
+or one in an unknown encoding refused: never a UnicodeDecodeError).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import tempfile
 from typing import NamedTuple, Optional, Tuple
 
@@ -17,12 +19,17 @@ import numpy as np
 from .errors import InputFileError
 from .transforms import make_T, matrix_to_quat, quat_to_matrix
 
-__all__ = ["TumError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes", "slerp",
-           "read_yaml", "sorted_series"]
+__all__ = ["TumError", "WriteError", "Trajectory", "read_tum", "write_tum", "atomic_write_text", "atomic_write_bytes",
+           "slerp", "read_yaml", "read_text", "sorted_series"]
 
 
 class TumError(InputFileError, ValueError):
     """A TUM file that cannot be read: names the file and the line."""
+
+
+class WriteError(InputFileError, OSError):
+    """A file that cannot be written (its directory cannot be made, no permission, disk full): names the file.
+    An OSError too, for callers that catch those."""
 
 
 class Trajectory(NamedTuple):
@@ -112,43 +119,88 @@ def atomic_write_text(path: str, text: str) -> None:
 
 
 def atomic_write_bytes(path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same directory and a rename."""
+    """Write ``data`` to ``path`` through a temporary file in the same directory (created when missing) and a
+    rename. Raises WriteError naming ``path`` when it cannot."""
     directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    try:
+        os.makedirs(directory, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    except OSError as e:
+        raise WriteError(f"{path}: cannot write: {e.strerror}") from None
     try:
         os.fchmod(fd, RESULT_FILE_MODE)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError):  # disk full, a directory in the way
+            raise WriteError(f"{path}: cannot write: {e.strerror}") from None
         raise
 
 
 def read_tum(path: str) -> Trajectory:
-    """Read a TUM file; ``#`` comments and blank lines are skipped. Raises TumError."""
+    """Read a TUM file (blank- or comma-separated, '.' decimal marks); ``#`` comments and blank lines are
+    skipped. Raises TumError naming the file and the line (a decimal comma is refused, never misread)."""
     rows = []
-    try:
-        with open(path) as f:
-            for lineno, line in enumerate(f, 1):
-                line = line.strip()
-                if not line or line.startswith("#"):
-                    continue
-                fields = line.replace(",", " ").split()
-                if len(fields) != 8:
-                    raise TumError(f"{path}:{lineno}: expected 8 fields 't x y z qx qy qz qw', got {len(fields)}")
-                try:
-                    values = [float(x) for x in fields]
-                except ValueError:
-                    raise TumError(f"{path}:{lineno}: not a number in {line!r}") from None
-                if not all(math.isfinite(x) for x in values):
-                    raise TumError(f"{path}:{lineno}: NaN or inf in {line!r}")
-                rows.append(values)
-    except OSError as e:
-        raise TumError(f"{path}: cannot read: {e.strerror}") from None
+    for lineno, line in enumerate(read_text(path, TumError, "TUM trajectory").splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        if "," in line and len(line.split()) > 1:
+            raise TumError(f"{path}:{lineno}: commas between blank-separated fields (a decimal comma?): expected "
+                           f"'t x y z qx qy qz qw' with '.' decimal marks, got {_shown(line)}")
+        fields = line.replace(",", " ").split()
+        if len(fields) != 8:
+            raise TumError(f"{path}:{lineno}: expected 8 fields 't x y z qx qy qz qw', got {len(fields)}")
+        try:
+            values = [float(x) for x in fields if "_" not in x]
+        except ValueError:
+            values = []
+        if len(values) != 8:
+            raise TumError(f"{path}:{lineno}: not a number in {_shown(line)}")
+        if not all(math.isfinite(x) for x in values):
+            raise TumError(f"{path}:{lineno}: NaN or inf in {_shown(line)}")
+        rows.append(values)
     data = np.array(rows, dtype=float).reshape(-1, 8)
     return Trajectory(data[:, 0], data[:, 1:4], data[:, 4:8])
+
+
+def _shown(text: str, limit: int = 80) -> str:
+    """``text`` quoted on one line for an error message, cut to ``limit`` characters."""
+    return repr(text if len(text) <= limit else text[:limit] + "…")
+
+
+def read_text(path: str, error: type, what: str = "text") -> str:
+    """The text of ``path``: UTF-8 (a byte-order mark dropped), UTF-16 with its byte-order mark, or Windows-1252
+    (Latin-1 spreadsheets). ``error`` (an exception class) with one line naming the file when it cannot be
+    read, holds NUL or other control bytes (a binary file) or decodes in none of these; ``what``: the kind of
+    file expected, for that message."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise error(f"{path}: cannot read: {e.strerror}") from None
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return data.decode("utf-16")  # the codec drops the byte-order mark
+        except UnicodeDecodeError:
+            raise error(f"{path}: not a {what} file: a UTF-16 byte-order mark, then bytes that are not UTF-16") \
+                from None
+    control = re.search(rb"[\x00-\x08\x0b\x0e-\x1f\x7f]", data)
+    if control:
+        raise error(f"{path}: not a {what} file: control byte 0x{control.group()[0]:02x} at offset "
+                    f"{control.start()} (a binary file?)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        try:
+            text = data.decode("cp1252")
+        except UnicodeDecodeError:
+            raise error(f"{path}: not a {what} file: byte 0x{data[e.start]:02x} at offset {e.start} is neither "
+                        "UTF-8 nor Windows-1252 text") from None
+    return text[1:] if text.startswith("\ufeff") else text
 
 
 def sorted_series(t, values, name: str, error: type, ncols: Optional[int] = None) -> Tuple[np.ndarray, np.ndarray]:
@@ -170,17 +222,18 @@ def sorted_series(t, values, name: str, error: type, ncols: Optional[int] = None
 
 
 def read_yaml(path: str, error: type):
-    """The parsed YAML document of ``path``; ``error`` (an exception class) naming the file when
-    it cannot be read or is not valid YAML."""
+    """The parsed YAML document of ``path`` (:func:`read_text`); ``error`` (an exception class) with one line
+    naming the file (and the line) when it cannot be read or is not valid YAML."""
     import yaml
 
+    text = read_text(path, error, "YAML")
     try:
-        with open(path) as f:
-            return yaml.safe_load(f)
-    except OSError as e:
-        raise error(f"{path}: cannot read: {e.strerror}") from None
+        return yaml.safe_load(text)
     except yaml.YAMLError as e:
-        raise error(f"{path}: not valid YAML: {e}") from None
+        mark = getattr(e, "problem_mark", None)
+        where = f":{mark.line + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(e, "problem", None) or e).split())
+        raise error(f"{path}{where}: not valid YAML: {problem}") from None
 
 
 def write_tum(path: str, trajectory: Trajectory, header: str = "") -> None:

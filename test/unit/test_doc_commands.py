@@ -1,37 +1,48 @@
-"""Every command of the README and doc/*.md runs as written (issue 20), on the rendered ``ci`` scenario.
+"""Every command of the README and doc/*.md as a user types it, on the rendered ``ci`` scenario.
 
-The ```bash blocks are taken in document order and played in a sandbox laid out as the documents
-assume (``run1.bag`` = the ci scenario's bag, ``site/markers.yaml``, ``site/calibration.yaml`` with the
-bag's lever arms, ``truth.tum``), with ``<placeholders>`` mapped to those files:
+The ```bash blocks are taken in document order and played in a fresh directory laid out as the documents
+assume before their first command (``run1.bag`` = the ci scenario's bag, ``site/markers.yaml`` its marker
+map, ``truth.tum`` its truth), with ``<placeholders>`` mapped to those files. What each command gets:
 
-- ``aruco-abs-orient process`` and ``evaluate`` (without ``--fused``) and ``timesync`` without
-  ``--markers`` are run, as written, in the sandbox: they must exit 0 (``timesync`` may answer with its
-  documented refusal, exit status 1: the ci track turns at one rate); the others parse with the CLI's
-  own parser (calibration and marker-bearing detection take minutes);
-- every file a command reads must exist, or be written by a command before it (``--out``, ``record:=``);
-- ``roslaunch`` lines are loaded by roslaunch's own loader from the sandbox (``$PWD``): the launch file,
+- README.md and doc/field_guide.md (the user's path through the package), **run as written**:
+  every ``aruco-abs-orient`` command (timesync, calibrate, process, evaluate, …) and ``roslaunch
+  aruco_abs_orient postprocess.launch`` (a real replay, on a master of its own at a free port). Each must
+  work (exit 0; the replay's last line ``played to its end`` and no failure), or fail with exit status 1 or 2
+  and one line that says what is wrong and what to do (``…: error: …``; never a traceback);
+  ``aruco-abs-orient-ms60-sim --pty`` must print the pseudo-terminal it serves;
+- the other documents' ``aruco-abs-orient`` lines parse with the CLI's own parser and read files that exist
+  or an earlier command writes (the field guide runs the same commands);
+- ``roslaunch`` lines that need the robot or the instrument (``live.launch``, ``ms60.launch``,
+  ``abs_orient.launch``) are loaded by roslaunch's own loader from the directory (``$PWD``): the launch file,
   its args, the required ones, and every file parameter resolved to a file that exists;
-- other commands name an executable that is installed (``rostopic``, ``rosbag``, ...), a file of the
-  repository (``source tools/env.sh``) or a make target.
-A command that does not run fails the build. About 40 s (the process run on the ci scenario).
+- commands that need a running robot (``rostopic``, ``rosbag record``, ``rosparam``) name an installed
+  executable, ``source`` a file of the repository, ``make`` a target of the Makefile.
+
+The test lists every command with what was done and what came out (printed; in the failure message when
+one fails). About 90 s on 2 cores (three calibrations, a timesync with the markers, a process and a 20 s
+replay of the ci scenario).
 """
 import os
 import re
 import shlex
 import shutil
+import signal
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from .test_docs import code_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCUMENTS = sorted((ROOT / "doc").glob("*.md")) + [ROOT / "README.md"]
+RUN_AS_WRITTEN = {"field_guide.md", "README.md"}
 PLACEHOLDERS = {"<markers.yaml>": "site/markers.yaml", "<bag>": "run1.bag", "<reference.tum>": "truth.tum"}
-RUN = {"process", "evaluate", "timesync"}
+ROBOT_LAUNCHES = {"live.launch", "ms60.launch", "abs_orient.launch"}  # need the robot or the instrument
+ERROR_LINE = re.compile(r"^aruco-abs-orient( \w+)?: error: \S.*$")
 
 
 def bash_commands(path: Path) -> list:
@@ -49,34 +60,36 @@ def substitute(line: str) -> str:
 
 @pytest.fixture(scope="module")
 def sandbox(scenario_factory, tmp_path_factory):
-    from aruco_abs_orient.offline.bagio import read_bag_data
-    from aruco_abs_orient.transforms import matrix_to_rpy
-
+    """A fresh directory with what the documents assume before their first command: the recording, the
+    marker map, the reference trajectory."""
     scen = scenario_factory("ci")
     box = tmp_path_factory.mktemp("doc_commands")
     (box / "site").mkdir()
-    (box / "results").mkdir()
     os.symlink(scen.bag, box / "run1.bag")
     shutil.copy(scen.markers, box / "site" / "markers.yaml")
     shutil.copy(scen.truth, box / "truth.tum")
-    data = read_bag_data(scen.bag)
-
-    def entry(T):
-        rpy = np.degrees(matrix_to_rpy(T[:3, :3]))
-        xyz = ", ".join(f"{v:.6f}" for v in T[:3, 3])
-        return f"{{xyz: [{xyz}], rpy_deg: [{', '.join(f'{v:.6f}' for v in rpy)}]}}"
-
-    (box / "site" / "calibration.yaml").write_text(f"base_link_to_camera: {entry(data.base_T_camera)}\n"
-                                                  f"base_link_to_prism: {entry(data.base_T_prism)}\n")
     return box
 
 
-def _cli(words, cwd):
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env(box: Path) -> dict:
+    """The user's shell in the sandbox (tools/env.sh sourced): $PWD there, a master of its own."""
+    return {**os.environ, "PWD": str(box), "ROS_MASTER_URI": f"http://localhost:{_free_port()}",
+            "ROS_HOME": str(box / ".ros"), "MPLBACKEND": "Agg"}
+
+
+def _cli(words, box):
+    """The command as written (``--quiet`` added where it has a progress bar), in the sandbox."""
     code = ("import sys; from aruco_abs_orient.offline.cli import main; sys.argv[0] = 'aruco-abs-orient'; "
             "sys.exit(main(sys.argv[1:]))")
-    path = f"{ROOT / 'src'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
-    return subprocess.run([sys.executable, "-c", code, *words[1:]], cwd=str(cwd), stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, timeout=600, env={**os.environ, "PYTHONPATH": path})
+    quiet = ["--quiet"] if words[1] in ("process", "timesync", "calibrate", "video-to-bag") else []
+    return subprocess.run([sys.executable, "-c", code, *words[1:], *quiet], cwd=str(box), capture_output=True,
+                          text=True, timeout=900, env=_env(box))
 
 
 def _inputs_and_outputs(args) -> tuple:
@@ -125,17 +138,53 @@ def _check_roslaunch(words, box, produced, where):
             produced.add(os.path.relpath(m.group(1), box))
 
 
-def test_every_documented_command_runs_or_parses(sandbox):
+def _outcome(proc) -> tuple:
+    """(works, what came out in one line) of a finished aruco-abs-orient command."""
+    err = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    if proc.returncode == 0:
+        out = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+        return True, (out[-1] if out else "exit 0")
+    last = err[-1] if err else ""
+    refused = proc.returncode in (1, 2) and "Traceback" not in proc.stderr and ERROR_LINE.match(last)
+    return bool(refused), f"exit {proc.returncode}: {last or proc.stdout[-300:]}"
+
+
+def _replay(words, box):
+    """roslaunch as written, in the sandbox, on a master of its own; (works, its last line)."""
+    proc = subprocess.run(words, cwd=str(box), env=_env(box), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          text=True, timeout=600, start_new_session=True)
+    bag = next(os.path.basename(w.split(":=", 1)[1]) for w in words if w.startswith("bag:="))
+    ends = [ln for ln in proc.stdout.replace("\r", "\n").splitlines() if f"replay: {bag} " in ln]
+    last = ends[-1].split("replay: ", 1)[1] if ends else proc.stdout[-300:]
+    failed = "REQUIRED process" in proc.stdout or not ends or "played to its end" not in last
+    return not failed, last
+
+
+def _simulator(words, box):
+    """aruco-abs-orient-ms60-sim --pty runs until stopped: it must say which pseudo-terminal it serves."""
+    sim = subprocess.Popen(words, cwd=str(box), env=_env(box), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                           text=True, start_new_session=True)
+    try:
+        deadline, first = time.monotonic() + 20, ""
+        while time.monotonic() < deadline and not first:
+            first = sim.stdout.readline().strip()
+        return "/dev/pts/" in first, first
+    finally:
+        os.killpg(sim.pid, signal.SIGINT)
+        sim.wait(10)
+
+
+def test_every_documented_command_runs_or_says_what_to_do(sandbox):
     from aruco_abs_orient.offline.cli import build_parser
 
-    box, produced, ran, checked = sandbox, set(), [], 0
+    box, produced, listed = sandbox, set(), []
     makefile_targets = set(re.findall(r"^([\w-]+):", (ROOT / "Makefile").read_text(), re.M))
     for doc in DOCUMENTS:
+        run = doc.name in RUN_AS_WRITTEN
         for raw in bash_commands(doc):
             line = substitute(raw)
             where = f"{doc.name}: `{raw}`"
             words = shlex.split(line)
-            checked += 1
             if words[0] == "aruco-abs-orient":
                 try:
                     args = build_parser().parse_args(words[1:])
@@ -144,31 +193,48 @@ def test_every_documented_command_runs_or_parses(sandbox):
                 reads, writes = _inputs_and_outputs(args)
                 missing = [p for p in reads if not (box / p).exists() and os.path.normpath(p) not in produced]
                 assert not missing, f"{where}: reads files that no earlier command writes: {missing}"
-                unrun = [p for p in reads if not (box / p).exists()]
-                if args.command in RUN and not unrun and not (args.command == "timesync" and args.markers):
-                    proc = _cli(words, box)
-                    # timesync may refuse a recording that does not determine the offset (exit status 1, its
-                    # documented answer: the ci track turns at one rate); bad input (2) or a crash never passes
-                    refused = args.command == "timesync" and proc.returncode == 1 and "no time offset:" in proc.stdout
-                    assert proc.returncode == 0 or refused, \
-                        f"{where}: exit status {proc.returncode}:\n{proc.stdout[-3000:]}"
-                    ran.append(raw)
+                if run:
+                    works, said = _outcome(_cli(words, box))
+                    listed.append((where, "ran", works, said))
+                else:
+                    listed.append((where, "parsed", True, ""))
                 produced.update(os.path.normpath(p) for p in writes)
             elif words[0] == "roslaunch":
                 assert words[1] == "aruco_abs_orient", where
-                _check_roslaunch(words, box, produced, where)
+                if run and words[2] == "postprocess.launch":
+                    works, said = _replay(words, box)
+                    listed.append((where, "ran", works, said))
+                    m = [w.split(":=", 1)[1] for w in words if w.startswith("record:=")]
+                    assert not m or (box / m[0]).exists(), f"{where}: recorded nothing to {m[0]}"
+                else:
+                    _check_roslaunch(words, box, produced, where)
+                    listed.append((where, "loaded" + (" (needs the robot)" if words[2] in ROBOT_LAUNCHES else ""),
+                                   True, ""))
+            elif words[0] == "aruco-abs-orient-ms60-sim" and run:
+                works, said = _simulator(words, box)
+                listed.append((where, "ran", works, said))
             elif words[0] == "make":
                 assert set(words[1:]) <= makefile_targets, f"{where}: no such make target"
+                listed.append((where, "make target", True, ""))
             elif words[0] == "source":
                 assert (ROOT / words[1]).exists(), f"{where}: no {words[1]} in the repository"
+                listed.append((where, "file", True, ""))
             else:
                 assert shutil.which(words[0]), f"{where}: {words[0]} is not installed here"
-    assert checked >= 25 and len(ran) >= 4, (checked, ran)
+                listed.append((where, "installed (needs a running robot)", True, ""))
+    table = "\n".join(f"{'ok ' if ok else 'BAD'} {how:34s} {where}" + (f"\n      -> {said[:300]}" if said else "")
+                      for where, how, ok, said in listed)
+    print(table)
+    assert all(ok for _, _, ok, _ in listed), "documented commands that neither work nor say what to do:\n" + table
+    ran = [w for w, how, _, _ in listed if how == "ran"]
+    assert len(listed) >= 30 and len(ran) >= 10, table
     assert (box / "results" / "run1" / "report.md").exists()  # evaluate wrote its report where the guide says
+    assert (box / "site" / "calibration.yaml").exists()       # calibrate wrote the file the later steps use
 
 
 def test_the_checks_can_fail(sandbox):
-    """A command with a wrong option, a missing file or an unknown launch arg is caught."""
+    """A command with a wrong option, a missing file, an unknown launch arg, or an error that is not one line
+    is caught."""
     from aruco_abs_orient.offline.cli import build_parser
 
     with pytest.raises(SystemExit):
@@ -181,3 +247,8 @@ def test_the_checks_can_fail(sandbox):
     with pytest.raises(AssertionError, match="does not exist"):
         _check_roslaunch(shlex.split("roslaunch aruco_abs_orient postprocess.launch bag:=nope.bag "
                                      "markers:=site/markers.yaml"), sandbox, set(), "test")
+    crash = subprocess.CompletedProcess([], 1, "", "Traceback (most recent call last):\n  ...\nKeyError: 'x'\n")
+    assert _outcome(crash)[0] is False
+    refused = _outcome(_cli(shlex.split("aruco-abs-orient process nope.bag --markers site/markers.yaml --out r"),
+                            sandbox))
+    assert refused[0] and refused[1].startswith("exit 2: aruco-abs-orient: error: "), refused

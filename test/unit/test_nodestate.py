@@ -181,3 +181,21 @@ def test_prediction_reproduces_the_filters_own():
     p = MapOdomPrediction(100.5, f.map_T_odom(100.5)[0], 101.5, f.map_T_odom(101.5)[0])
     for t in (100.9, 102.0, 105.0):
         np.testing.assert_allclose(p.at(t), f.map_T_odom(t)[0], atol=1e-12)
+
+
+def test_the_state_file_is_per_node_and_master_and_restored_only_by_its_writer():
+    from aruco_abs_orient.nodestate import state_path, state_record, state_snapshot
+
+    assert state_path("/r/.ros/abs_orient_state.json", "/abs_orient", "http://localhost:11311/") == \
+        "/r/.ros/abs_orient_state.abs_orient.11311.json"
+    assert state_path("/r/s.json", "/robot1/abs_orient", "http://10.0.0.2:45123") == "/r/s.robot1.abs_orient.45123.json"
+    assert state_path("", "/abs_orient", "http://localhost:11311/") == ""
+    me = {"node": "/abs_orient", "master": "http://localhost:11311/", "run_id": "a1"}
+    snap = {"t": 1.0, "x": [0.0] * 5}
+    assert state_snapshot(state_record(snap, me), me) == (snap, "")
+    another_run = dict(me, run_id="b2")   # a second replay on a new roscore, same HOME
+    got, why = state_snapshot(state_record(snap, another_run), me)
+    assert got is None and why == "written by another run (roscore /run_id): 'b2', not 'a1'"
+    got, why = state_snapshot(state_record(snap, dict(me, node="/other")), me)
+    assert got is None and why.startswith("written by another node")
+    assert state_snapshot(snap, me) == (None, "not a state of this version (no writer)")  # an older file

@@ -296,3 +296,21 @@ def test_the_node_s_rolling_check_runs_calibrate_s_model():
         kinds[name] = {f["kind"] for f in reports[-1]["findings"]}
     assert {"time_offset", "camera_tilt"} <= kinds["wrong"], kinds
     assert not kinds["right"] & {"time_offset", "camera_tilt", "boresight_yaw"}, kinds
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+def test_a_wrong_time_offset_sign_names_the_offset_not_a_moved_marker(seed):
+    """A time offset given with the wrong sign (−0.367 s for +0.367 s: 0.734 s off) looks the prism up 0.73 m
+    along its track: each marker's yaw is off by the change of its bearing from there (exactly, not linearised),
+    which a per-marker offset partly absorbs. The offset is the finding, not a moved marker."""
+    rng = np.random.default_rng(seed)
+    pt, prism, heading, markers = _world(rng)
+    obs = _observations(rng, pt, prism, heading, markers, 0.0, (0.0, 0.0))
+    err = 0.734
+    for k, (t, mid) in enumerate(zip(obs["time"], obs["id"])):
+        m = markers[int(mid)]
+        here, there = ([np.interp(s, pt, prism[:, j]) for j in range(2)] for s in (t, t + err))
+        shift = math.atan2(m[1] - there[1], m[0] - there[0]) - math.atan2(m[1] - here[1], m[0] - here[0])
+        obs["yaw"][k] += (shift + math.pi) % (2 * math.pi) - math.pi
+    kinds = [f["kind"] for f in check_run(obs, (pt, prism), markers, run=RunContext(time_offset=-0.367))["findings"]]
+    assert "time_offset" in kinds and "marker" not in kinds, kinds

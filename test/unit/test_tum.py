@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.transforms import matrix_to_quat, quat_to_matrix, rpy_to_matrix, yaw_of
@@ -76,3 +76,66 @@ def test_sorted_series_sorts_stably_and_names_the_series_in_the_given_error():
         sorted_series([1.0, 2.0], [1.0, 2.0, 3.0], "yaw", MyError)
     with pytest.raises(MyError, match="track: NaN or inf"):
         sorted_series([1.0, float("nan")], [[0.0, 0.0], [1.0, 1.0]], "track", MyError, ncols=2)
+
+
+def _readers():
+    from aruco_abs_orient.calibration import load_calibration
+    from aruco_abs_orient.markers import MarkerMap
+    from aruco_abs_orient.offline.prism import read_prism
+    from aruco_abs_orient.params import load_params
+    from aruco_abs_orient.survey import read_gsi, read_points
+
+    return {"survey": read_points, "gsi": read_gsi, "prism": read_prism,
+            "prism gsi": lambda p: read_prism(p, "gsi"), "tum": read_tum, "marker map": MarkerMap.load,
+            "calibration": load_calibration, "params": load_params}
+
+
+READERS = sorted(_readers())
+# random bytes, and random bytes behind a start each reader recognises (a GSI word, a CSV row, YAML)
+PREFIXES = [b"", b"*110001+0000000000000007 81..00+", b"7,1.5,2.5,", b"markers:\n  - {id: 1, position: [",
+            b"\xef\xbb\xbf", b"\xff\xfe"]
+
+
+@settings(max_examples=40)
+@given(reader=st.sampled_from(READERS), prefix=st.sampled_from(PREFIXES), data=st.binary(min_size=1, max_size=300))
+def test_random_bytes_to_any_reader_give_one_line_naming_the_file(tmp_path_factory, reader, prefix, data):
+    """Whatever the bytes, a reader returns or raises the package's error: one line that names the file."""
+    from aruco_abs_orient.errors import AbsOrientError
+
+    path = tmp_path_factory.mktemp("fuzz") / "input.dat"
+    path.write_bytes(prefix + data)
+    try:
+        _readers()[reader](str(path))
+    except AbsOrientError as e:
+        assert str(path) in str(e) and "\n" not in str(e), str(e)
+
+
+@pytest.mark.parametrize("reader", READERS)
+def test_a_binary_file_is_named_as_one(tmp_path, reader):
+    from aruco_abs_orient.errors import AbsOrientError
+
+    path = tmp_path / "x.bin"
+    path.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(AbsOrientError, match=r"x\.bin: not a .* file: control byte 0x00 at offset 0"):
+        _readers()[reader](str(path))
+
+
+def test_a_decimal_comma_tum_is_refused_not_misread(tmp_path):
+    path = tmp_path / "vo.tum"
+    path.write_text("12,5 3 4 5 0 0 0 1\n")
+    with pytest.raises(TumError, match=r"vo\.tum:1: commas between blank-separated fields \(a decimal comma\?\)"):
+        read_tum(str(path))
+    path.write_text("12.5,3,4,5,0,0,0,1\n")  # a comma-separated TUM file still reads
+    assert read_tum(str(path)).stamps.tolist() == [12.5]
+
+
+def test_a_write_makes_its_directory_or_names_the_file(tmp_path):
+    from aruco_abs_orient.errors import InputFileError
+    from aruco_abs_orient.tum import WriteError, atomic_write_text
+
+    atomic_write_text(str(tmp_path / "new" / "dir" / "a.txt"), "x\n")
+    assert (tmp_path / "new" / "dir" / "a.txt").read_text() == "x\n"
+    (tmp_path / "file").write_text("")
+    with pytest.raises(WriteError, match=r"file/b\.txt: cannot write: ") as e:
+        atomic_write_text(str(tmp_path / "file" / "b.txt"), "y")
+    assert isinstance(e.value, InputFileError) and isinstance(e.value, OSError)  # the CLI's one line; OSError callers

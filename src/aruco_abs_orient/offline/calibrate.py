@@ -5,8 +5,10 @@ images streamed one by one, each searched whole for the map's markers (``trackin
 without a prediction, so the nominal calibration cannot bias what is found). Every observation
 (time, id, camera-frame bearing, σ, image row) goes to :func:`aruco_abs_orient.calibration.calibrate` with the
 odometry trajectory and the prism track moved onto the camera clock (prism stamp + ``time_offset``).
-Writes the static-tf YAML read by ``live.launch``/``postprocess.launch`` and a launch file beside it
-(``calibration.yaml`` → ``calibration.launch``: the same static tfs, to roslaunch or ``<include>``).
+Before the solve, the map check (:mod:`aruco_abs_orient.mapcheck`): a marker map that does not fit the
+recording is refused, saying how it is off (``--force`` calibrates anyway). Writes the static-tf YAML read by
+``live.launch``/``postprocess.launch`` and a launch file beside it (``calibration.yaml`` →
+``calibration.launch``: the same static tfs, to roslaunch or ``<include>``; the directory is created).
 
 Units: seconds, metres, radians inside; degrees and millimetres in what is printed.
 """
@@ -38,13 +40,14 @@ from ..calibration import (
 from ..camera import SINGLE_CENTRE, DualFisheye
 from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..errors import AbsOrientError
+from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, Sightings, check_map
 from ..markers import MarkerMap
 from ..params import load_params
 from ..pipeline import row_fraction
 from ..tracking import MarkerTracker
 from ..tum import atomic_write_text
 from .bagio import BagData, BagTopics, bag_name, iter_images, read_bag_data
-from .cli import add_params_option, add_video_inputs, process_command, video_recording
+from .cli import add_params_option, add_video_inputs, print_lines, process_command, video_recording
 
 __all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
 
@@ -147,6 +150,18 @@ def _until_broken(images, skipped: dict):
         k += 1
 
 
+def map_check(obs: CalibrateResult, marker_map: MarkerMap, time_offset: float) -> MapVerdict:
+    """Whether ``marker_map`` fits the observations (:func:`aruco_abs_orient.mapcheck.check_map`) with the bag's
+    own lever arms, the prism track on its clock (observations at camera time − ``time_offset``)."""
+    d = obs.data
+    if len(d.prism_stamps) < 2 or not len(obs.times):
+        return MapVerdict(UNDETERMINED, "the marker map is not checked: no prism track or no marker seen", {})
+    T, valid = d.odom.transforms_at(obs.times)
+    rows = Sightings(obs.times[valid] - time_offset, obs.ids[valid], obs.bearings[valid], T[valid][:, :3, :3])
+    return check_map(rows, (d.prism_stamps, d.prism_positions), {m.id: m.position for m in marker_map},
+                     d.base_T_camera, d.base_T_prism[:3, 3], origin=marker_map.origin)
+
+
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,
                   progress: bool = True, unknowns: Optional[Unknowns] = None,
                   params: Optional[CalibrationParams] = None,
@@ -223,6 +238,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "they are estimated, and written to the calibration YAML)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
+    p.add_argument("--force", action="store_true",
+                   help="calibrate even when the marker map does not fit the recording (the map check)")
+    p.add_argument("--json", action="store_true", help="print the estimate as one JSON line (for programs)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     d = BagTopics()
     g = p.add_argument_group("topics and frames")
@@ -260,8 +278,12 @@ def run(args: argparse.Namespace) -> int:
     if not math.isfinite(args.time_offset):
         return _fail(f"--time-offset: expected a finite number of seconds, got {args.time_offset}")
     out_dir = os.path.dirname(os.path.abspath(args.out))
-    if not os.path.isdir(out_dir) or not os.access(out_dir, os.W_OK):
-        return _fail(f"{args.out}: the directory {out_dir} does not exist or is not writable")
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as e:
+        return _fail(f"{args.out}: cannot create the directory {out_dir}: {e.strerror}")
+    if not os.access(out_dir, os.W_OK):
+        return _fail(f"{args.out}: the directory {out_dir} is not writable")
     try:
         marker_map = MarkerMap.load(args.markers)
         recording = video_recording(args, marker_map) or args.bag
@@ -271,6 +293,12 @@ def run(args: argparse.Namespace) -> int:
                                    every=args.every, detector_params=tunables.detection)
     except AbsOrientError as e:
         return _fail(str(e))
+    check = map_check(obs, marker_map, args.time_offset)
+    if check.status == DOES_NOT_FIT:
+        if not args.force:
+            return _fail(f"{check.message}; not calibrated ({args.markers} against {bag_name(recording)}: check the "
+                         "map, or --force to calibrate anyway)", 1)
+        print(f"aruco-abs-orient calibrate: warning: {check.message}", file=sys.stderr)
     try:
         params = tunables.calibration
         if args.heading_model is not None:
@@ -286,17 +314,45 @@ def run(args: argparse.Namespace) -> int:
     launch = launch_path(args.out)
     atomic_write_text(args.out, text)
     atomic_write_text(launch, f"<launch>\n{snippet}</launch>\n")
-    print(json.dumps(cal.report_dict(), default=float))
-    print(f"platform model: {cal.heading_model_reason}")
-    for warning in cal.warnings:
-        print(f"note: {warning}")
+    report = cal.report_dict()
+    offset = args.time_offset + (cal.time_offset_delta if cal.time_offset_estimated else 0.0)
+    if args.json:
+        print(json.dumps({**report, "map_check": check.status}, default=float))
+    else:
+        print_lines(_report_lines(cal, report, args.time_offset, check))
     print(f"wrote {args.out}\n      {launch}  (the static tfs: roslaunch it, or "
           f"<include file=\"{os.path.abspath(launch)}\"/>)")
-    if cal.readout_estimated:
-        print(f"rolling-shutter readout: {1e3 * cal.readout:.1f} ms ± {1e3 * cal.readout_sigma:.1f} ms")
-    if cal.time_offset_estimated:
-        offset = args.time_offset + cal.time_offset_delta
-        print(f"time offset refined with the marker bearings: {1e3 * offset:+.1f} ms ± "
-              f"{1e3 * cal.time_offset_sigma:.1f} ms (given {1e3 * args.time_offset:+.1f} ms)")
-        print(f"use: {process_command(recording, shlex.quote(args.markers), offset, args.out)}")
+    print(f"use: {process_command(recording, shlex.quote(args.markers), offset, args.out)}   (next step)")
     return 0
+
+
+def _report_lines(cal: Calibration, report: dict, given_offset: float, check: MapVerdict) -> List[tuple]:
+    """The calibration for people: (label, value with units) rows."""
+    rpy, sig = report["boresight_rpy_deg"], report["boresight_sigma_deg"]
+    rows = [("boresight roll, pitch, yaw", ", ".join(f"{v:+.3f}° ± {s:.3f}°" for v, s in zip(rpy, sig))),
+            ("bearing residual RMS", f"{report['residual_rms_before_deg']:.3f}° before, "
+                                     f"{report['residual_rms_after_deg']:.3f}° after"),
+            ("observations", f"{report['observations_used']} of {report['observations']} used, "
+                             f"{report['markers']} markers, {report['moving_time_s']:.1f} s driving")]
+    if cal.time_offset_estimated:
+        rows.append(("time offset", f"{1e3 * (given_offset + cal.time_offset_delta):+.1f} ms ± "
+                                    f"{1e3 * cal.time_offset_sigma:.1f} ms (refined with the marker bearings; given "
+                                    f"{1e3 * given_offset:+.1f} ms)"))
+    if cal.readout_estimated:
+        rows.append(("rolling-shutter readout", f"{1e3 * cal.readout:.1f} ms ± {1e3 * cal.readout_sigma:.1f} ms"))
+    if cal.lever_arm_estimated:
+        rows.append(("camera lever arm change", ", ".join(f"{v:+.1f} ± {s:.1f}" for v, s in zip(
+            report["lever_arm_delta_mm"], report["lever_arm_sigma_mm"])) + " mm (x, y, z)"))
+    if cal.lenses_estimated:
+        rows.append(("lens offset", f"{report['lens_offset_mm']:+.2f} mm ± {report['lens_offset_sigma_mm']:.2f} mm "
+                                    "(each lens's centre from the camera's, along its axis)"))
+        rows.append(("back lens rotation", ", ".join(f"{v:+.3f}° ± {s:.3f}°" for v, s in zip(
+            report["lens_rotation_deg"], report["lens_rotation_sigma_deg"])) + " (against the front lens)"))
+    rows.append(("each lens's yaw σ", ", ".join(f"{s:.3f}°" for s in report["lens_yaw_sigma_deg"])
+                 + f" (front, back; {', '.join(str(n) for n in report['lens_observations'])} observations)"))
+    rows.append(("odometry tilt at the start", ", ".join(f"{v:+.3f}° ± {s:.3f}°" for v, s in zip(
+        report["odom_tilt_deg"], report["odom_tilt_sigma_deg"])) + " (about map x, y)"))
+    rows.append(("platform model", cal.heading_model_reason))
+    rows.append(("marker map", check.message))
+    rows += [("note", warning) for warning in cal.warnings]
+    return rows

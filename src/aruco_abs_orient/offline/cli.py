@@ -151,6 +151,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write trajectory.csv: t, E, N, H (the map origin added back) and roll, pitch, heading "
                         "in degrees, for a surveyor")
     add_params_option(p, "pipeline, detection, tracking and filter sections")
+    p.add_argument("--force", action="store_true",
+                   help="write the trajectory even when the marker map does not fit the recording (the map check: "
+                        "another site's map, rotated, shifted, scaled, a wrong origin)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON line (for programs)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_topics(p)
     add_video_inputs(p)
@@ -227,6 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", metavar="YAML", help="write it here (default: print it)")
     from ..markers import ARUCO_DICTIONARIES
+    from ..table import DECIMAL_MARKS, DELIMITERS
 
     p = sub.add_parser(
         "markers", help="marker map YAML from a survey: CSV id,E,N,H, Leica GSI-8/16, or four corners per marker",
@@ -241,6 +246,10 @@ def build_parser() -> argparse.ArgumentParser:
                "--origin 2600000 1200000 400 --out markers.yaml",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("survey", help="CSV (id, E, N, H) or GSI-8/16 file of the surveyed points")
+    p.add_argument("--delimiter", choices=DELIMITERS, metavar="D",
+                   help="the CSV's field delimiter: , ; tab or blank (default: detected)")
+    p.add_argument("--decimal", choices=DECIMAL_MARKS, metavar="MARK",
+                   help="the CSV's decimal mark: . or , (default: detected; a row that reads two ways is refused)")
     p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
     p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
                    help="ArUco dictionary (default DICT_4X4_50)")
@@ -280,12 +289,28 @@ def add_params_option(p: argparse.ArgumentParser, sections: str) -> None:
 
 
 def process_command(bag: Bags, markers: str, time_offset: float, calibration: Optional[str] = None) -> str:
-    """The ``process`` command line that uses an estimate (printed after ``use:``): the bag(s) and marker
-    map as given (``markers`` already shell-quoted or a placeholder), the output in ``results/<bag name>``."""
+    """The ``process`` command line that follows ``calibrate`` (printed after ``use:``): the bag(s), marker map
+    (``markers`` already shell-quoted) and ``calibration`` as given, the output in ``results/<bag name>``."""
     stem = os.path.splitext(os.path.basename(bag_name(bag)))[0] or "run"
-    cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} --out {shlex.quote('results/' + stem)} "
-           f"--time-offset {time_offset:.4f}")
+    cmd = (f"aruco-abs-orient process {bags_for_shell(bag)} --markers {markers} "
+           f"--out {shlex.quote('results/' + stem)} --time-offset {time_offset:.4f}")
     return cmd + (f" --calibration {shlex.quote(calibration)}" if calibration else "")
+
+
+def calibrate_command(bag: Bags, markers: Optional[str], time_offset: float) -> str:
+    """The ``calibrate`` command line that follows ``timesync`` (printed after ``use:``): the bag(s) and marker map
+    as given (``markers`` None: a placeholder), the offset refined there, ``--out`` beside the marker map."""
+    where = os.path.join(os.path.dirname(markers), "calibration.yaml") if markers else "calibration.yaml"
+    return (f"aruco-abs-orient calibrate {bags_for_shell(bag)} --markers "
+            f"{shlex.quote(markers) if markers else '<markers.yaml>'} --time-offset {time_offset:.4f} "
+            f"--refine-time-offset --every 3 --out {shlex.quote(where)}")
+
+
+def print_lines(rows) -> None:
+    """``(label, value)`` rows as aligned lines for people (the values with their units)."""
+    width = max((len(label) for label, _ in rows), default=0)
+    for label, value in rows:
+        print(f"{label:<{width}}  {value}")
 
 
 def _fail(msg: str, code: int = 2) -> int:
@@ -295,6 +320,7 @@ def _fail(msg: str, code: int = 2) -> int:
 
 def cmd_process(a: argparse.Namespace) -> int:
     from ..calibration import load_calibration
+    from ..mapcheck import DOES_NOT_FIT
     from .process import RunSetup, process_bag
 
     marker_map = MarkerMap.load(a.markers)
@@ -311,16 +337,43 @@ def cmd_process(a: argparse.Namespace) -> int:
     if not os.access(a.out, os.W_OK):
         return _fail(f"{a.out}: output directory is not writable")
     params = tunables.pipeline if a.jpeg_reduce is None else replace(tunables.pipeline, jpeg_reduce=a.jpeg_reduce)
-    setup = RunSetup(a.time_offset, _topics(a), calibration, a.full_coordinates, progress=not a.quiet)
+    setup = RunSetup(a.time_offset, _topics(a), calibration, a.full_coordinates, progress=not a.quiet, force=a.force)
     result = process_bag(recording, marker_map, a.out, setup,
                          tunables._replace(pipeline=replace(params, markers_only=a.no_prism)))
     s = result.summary
-    print(json.dumps({k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")}, default=float))
+    check = s["map_check"]
+    refused = check["status"] == DOES_NOT_FIT and not a.force
+    if a.json:
+        print(json.dumps({**{k: s[k] for k in ("frames", "frames_with_pose", "skipped", "real_time_factor")},
+                          "map_check": check["status"], "trajectory": result.trajectory_path or None}, default=float))
+    else:
+        frames, posed = s["frames"], s["frames_with_pose"]
+        skipped = sum(s["skipped"].values())
+        first = s["filter"]["initialised_at"]
+        rtf = s["real_time_factor"]
+        print_lines([
+            ("images", f"{frames}"),
+            ("with a pose", f"{posed} ({100.0 * posed / max(frames, 1):.1f} %)"
+             + (f", from {first - s['recording_start_s']:.1f} s into the recording" if first is not None else "")),
+            ("skipped", f"{skipped}" + (" (" + ", ".join(f"{k}: {v}" for k, v in sorted(s["skipped"].items()))
+                                        + ")" if skipped else "")),
+            ("marker map", check["message"] if check["status"] != DOES_NOT_FIT else "does not fit (below)"),
+            ("speed", f"{rtf:.2f} × real time ({s['wall_time_s']:.1f} s for {s['bag_duration_s']:.1f} s of recording)"
+             if rtf else "-"),
+        ])
     for w in s["warnings"]:
-        print(f"aruco-abs-orient: warning: {w}", file=sys.stderr)
-    print(f"wrote {result.trajectory_path}\n      {result.observations_path}\n      {result.summary_path}"
-          + "".join(f"\n      {p}" for p in result.extra_paths))
-    return 0 if s["frames_with_pose"] else 1
+        if not (refused and w == check["message"]):
+            print(f"aruco-abs-orient: warning: {w}", file=sys.stderr)
+    paths = [p for p in (result.trajectory_path, result.observations_path, result.summary_path) if p]
+    print("wrote " + "\n      ".join(paths + list(result.extra_paths)))
+    if refused:
+        return _fail(f"{check['message']}; no trajectory written ({a.markers} against {bag_name(recording)}: "
+                     "check the map, or --force to write it anyway)", 1)
+    if not s["frames_with_pose"]:
+        return 1
+    if not a.json:
+        print(f"use: aruco-abs-orient evaluate {shlex.quote(a.out)}   (the report: next step)")
+    return 0
 
 
 def cmd_timesync(a: argparse.Namespace) -> int:
@@ -359,9 +412,8 @@ def cmd_timesync(a: argparse.Namespace) -> int:
     if est.confidence < a.min_confidence:
         return _fail(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence peak is "
                      "weak: record longer, with more turns of varying rate, or give --markers)", 1)
-    markers = shlex.quote(a.markers) if a.markers else "<markers.yaml>"
     hint = "" if a.markers else "   (give your marker map)"
-    print(f"use: {process_command(recording, markers, est.offset)}{hint}")
+    print(f"use: {calibrate_command(recording, a.markers, est.offset)}{hint}")
     return 0
 
 
@@ -403,8 +455,8 @@ def cmd_markers(a: argparse.Namespace) -> int:
 
     if not a.size > 0 or not a.tolerance > 0 or not a.sigma > 0:
         return _fail("--size, --tolerance and --sigma: expected positive numbers (metres)")
-    mm = marker_map_from_points(read_points(a.survey), a.dictionary, a.size, a.tolerance, a.sigma, a.origin,
-                                source=a.survey)
+    mm = marker_map_from_points(read_points(a.survey, a.delimiter, a.decimal), a.dictionary, a.size, a.tolerance,
+                                a.sigma, a.origin, source=a.survey)
     mm.save(a.out)
     with_normal = sum(m.normal is not None for m in mm)
     print(f"wrote {a.out}: {len(mm)} marker(s) ({with_normal} from their corners, with normals), {a.dictionary}, "
@@ -417,6 +469,10 @@ def cmd_video_to_bag(a: argparse.Namespace) -> int:
 
     if not 1 <= a.quality <= 100:
         return _fail(f"--quality: expected 1-100, got {a.quality}")
+    try:
+        os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
+    except OSError as e:
+        return _fail(f"{a.out}: cannot create its directory: {e.strerror}")
     a.bag = None
     recording = video_recording(a, MarkerMap.load(a.markers) if a.markers else None)  # raises without --video
     r = video_to_bag(recording, a.out, a.time_offset, a.quality, progress=not a.quiet, topics=_topics(a))

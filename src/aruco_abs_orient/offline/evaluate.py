@@ -117,7 +117,8 @@ def odometry_from_bag(bag: str, topic: str = "/odometry/filtered", clock_offset:
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:
-            raise BagError(f"{bag}: no topic {topic}")
+            raise BagError(f"{bag}: no topic {topic} (the EKF's output): record it with postprocess.launch "
+                           "use_ekf:=true record:=<bag>")
         for c, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, c.msgtype)
             p, q = msg.pose.pose.position, msg.pose.pose.orientation

@@ -1,24 +1,27 @@
 """The total station's prism log as a file: CSV ``t, x, y, z``, our ``ms60_driver`` log, Leica GSI-16.
 
-- CSV: ``t, x, y, z`` (s, m; comma, semicolon or blank separated; an optional header line naming the
+- CSV: ``t, x, y, z`` (s, m; comma, semicolon, tab or blank separated, decimal mark ``.`` or ``,``: detected,
+  a row that reads two ways refused, :mod:`aruco_abs_orient.table`; an optional header line naming the
   columns ``t``/``time``/``stamp`` and ``x``/``e``/``east``, ``y``/``n``/``north``, ``z``/``h``/``height``);
 - the ``~log`` CSV of ``ms60_driver``: ``t,east,north,height`` (ROS time, full coordinates): a CSV as above;
 - a GSI-16 (or GSI-8) export of a tracking run: one block per fix, easting/northing/height in words 81-83
   and the instrument time in seconds in a remark word (:data:`GSI_TIME_WORD`, set in the format file).
 
 Stamps are the total station's clock. Rows with NaN/inf are skipped and counted; a row that is not
-numbers is an error naming the file and line.
+numbers is an error naming the file and line; a binary file or an unknown encoding, one naming the file.
 """
 
 from __future__ import annotations
 
 import re
-from typing import Dict, List, NamedTuple
+from typing import Dict, List, NamedTuple, Optional, Sequence
 
 import numpy as np
 
 from ..errors import InputFileError
 from ..survey import SurveyError, gsi_blocks, gsi_number
+from ..table import read_table
+from ..tum import read_text
 
 __all__ = ["PrismLogError", "PrismLog", "read_prism", "GSI_TIME_WORD", "PRISM_FORMATS"]
 
@@ -43,16 +46,12 @@ def read_prism(path: str, fmt: str = "auto") -> PrismLog:
     """Read a prism log (``fmt``: auto, csv or gsi; auto: GSI when its first line looks like GSI)."""
     if fmt not in PRISM_FORMATS:
         raise PrismLogError(f"prism format: expected one of {', '.join(PRISM_FORMATS)}, got {fmt!r}")
-    try:
-        with open(path, encoding="utf-8", errors="replace") as f:
-            lines = f.read().splitlines()
-    except OSError as e:
-        raise PrismLogError(f"{path}: cannot read the prism log: {e.strerror}") from None
-    first = next((x.strip() for x in lines if x.strip() and not x.startswith("#")), "")
+    text = read_text(path, PrismLogError, "prism log")
+    first = next((x.strip() for x in text.splitlines() if x.strip() and not x.startswith("#")), "")
     if fmt == "gsi" or (fmt == "auto" and re.match(r"^\*?\d{6}[+-]", first)):
         rows, skipped = _gsi_rows(path)
     else:
-        rows, skipped = _csv_rows(path, lines)
+        rows, skipped = _csv_rows(path, text)
     if len(rows) < 2:
         raise PrismLogError(f"{path}: {len(rows)} prism position(s): expected a tracking log ('t, x, y, z' per line)")
     data = np.array(rows, dtype=float)
@@ -65,25 +64,17 @@ def read_prism(path: str, fmt: str = "auto") -> PrismLog:
     return PrismLog(data[:, 0], data[:, 1:4], skipped, [])
 
 
-def _csv_rows(path: str, lines: List[str]):
+def _columns(header: Sequence[str]) -> Optional[List[int]]:
+    """The indices of the t, x, y, z columns a header names (None when it does not name them all)."""
+    cols = [next((i for i, n in enumerate(header) if n in _COLUMNS[k]), None) for k in "txyz"]
+    return None if None in cols else cols
+
+
+def _csv_rows(path: str, text: str):
+    table = read_table(path, text, (0, 1, 2, 3), 4, PrismLogError, "'t, x, y, z' (s, m, m, m)",
+                       header_columns=_columns)
     rows, skipped = [], {}
-    cols = [0, 1, 2, 3]
-    for lineno, line in enumerate(lines, 1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        fields = [x.strip() for x in re.split(r"[,;\s]+", text) if x.strip()]
-        try:
-            values = [float(fields[c]) for c in cols]
-        except (ValueError, IndexError):
-            if not rows and not skipped:  # a header: find the columns by name
-                names = [f.lower() for f in fields]
-                try:
-                    cols = [next(i for i, n in enumerate(names) if n in _COLUMNS[k]) for k in "txyz"]
-                    continue
-                except StopIteration:
-                    pass
-            raise PrismLogError(f"{path}:{lineno}: expected 't, x, y, z' (s, m, m, m), got {text!r}") from None
+    for _, values in table.rows:
         if not all(np.isfinite(values)):
             skipped["NaN/inf prism position"] = skipped.get("NaN/inf prism position", 0) + 1
             continue

@@ -10,8 +10,13 @@ Outputs in ``out_dir`` (each written atomically: complete or absent):
   positions in full coordinates (the marker map's ``origin`` added back);
 - ``trajectory.csv`` (``full_coordinates``): t, E, N, H, roll, pitch, heading (degrees), for a surveyor;
 - ``observations.csv``: one row per marker observation;
-- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, and
-  the self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too).
+- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, the
+  self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too) and the map check
+  (:mod:`aruco_abs_orient.mapcheck`: does the marker map fit the recording?).
+
+A marker map that does not fit the recording (another site's, rotated, shifted, scaled, a wrong origin) gets
+no trajectory: ``trajectory.tum`` is not written (an older one in ``out_dir`` is removed) unless
+``RunSetup.force``; the summary's ``map_check`` says why.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import numpy as np
 
 from ..calibration import CalibrationParams
 from ..detection import DetectionError, decode_jpeg
+from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, SightingSample, check_map
 from ..markers import MarkerMap
 from ..params import Tunables, parse_params
 from ..pipeline import AbsOrientPipeline, FrameResult
@@ -51,6 +57,7 @@ from .bagio import (
     read_bag_data,
     salvage_bag,
 )
+from .cli import calibrate_command
 
 __all__ = ["ProcessResult", "RunSetup", "process_bag", "OBSERVATION_COLUMNS"]
 
@@ -132,8 +139,7 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
-                "calibrate": f"aruco-abs-orient calibrate {bags} --markers {markers} --time-offset "
-                             f"{summary['time_offset_s']:.4f} --refine-time-offset --every 3 --out calibration.yaml"}
+                "calibrate": calibrate_command(bag, marker_map.source, summary["time_offset_s"])}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     offset = summary["time_offset_s"]
     odometry = Trajectory(data.odom.stamps - offset, data.odom.positions, data.odom.quats)   # the TS clock
@@ -154,7 +160,7 @@ class RunSetup(NamedTuple):
     ``calibration``: ``{"camera": base_T_camera, "prism": base_T_prism}`` (``calibration.load_calibration``)
     used instead of the bag's /tf_static lever arms, with its camera ``"lenses"`` and its rolling-shutter
     ``"readout"`` (s) when it has them. ``full_coordinates``: also write ``trajectory.csv``. ``progress``: show
-    a progress bar.
+    a progress bar. ``force``: write the trajectory even when the marker map does not fit the recording.
     """
 
     time_offset: float = 0.0
@@ -162,6 +168,7 @@ class RunSetup(NamedTuple):
     calibration: Optional[Dict] = None
     full_coordinates: bool = False
     progress: bool = True
+    force: bool = False
 
 
 def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[RunSetup] = None,
@@ -215,7 +222,7 @@ def _salvage(paths: List[str], out_dir: str):
 def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup, tunables: Tunables,
              t_start: tuple) -> ProcessResult:
     """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
-    time_offset, topics, calibration, full_coordinates, progress = setup
+    time_offset, topics, calibration, full_coordinates, progress, force = setup
     params = tunables.pipeline
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
     readout = 0.0
@@ -239,6 +246,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     odom_missing = 0
     timing_sum: Dict[str, float] = {}
     checked: List[tuple] = []  # selfcheck.YawObservation of each marker yaw
+    sighted = SightingSample()  # (t, id, bearing, odom rotation) of the markers seen, evenly thinned: the map check
     modes: Dict[str, int] = {}
     tilt_sources: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
@@ -296,6 +304,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                 checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
                              r.residual, r.accepted, r.yaw, odom_yaw, r.observation.sigma)
                             for r in res.observations if math.isfinite(r.yaw)]
+                for r in res.observations:
+                    sighted.add(res.stamp, r.id, r.observation.centre, T_odom[:3, :3])
                 if res.map_T_base is not None:
                     if not with_pose:
                         first_pose = res.stamp
@@ -303,14 +313,21 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                     stamps.append(res.stamp)
                     poses.append(res.map_T_base)
         stop.set()
-        traj_path = os.path.join(out_dir, "trajectory.tum")
-        traj = Trajectory.from_transforms(stamps, np.array(poses).reshape(-1, 4, 4))
-        traj = traj._replace(positions=marker_map.to_full(traj.positions))
-        origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
-                                                       f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
-        write_tum(traj_path, traj,
-                  header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time")
-        extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
+        map_check = _map_check(sighted, data, marker_map, pipe, params.markers_only)
+        traj_path, extra = os.path.join(out_dir, "trajectory.tum"), []
+        if map_check.status == DOES_NOT_FIT and not force:
+            for stale in (traj_path, os.path.join(out_dir, "trajectory.csv")):  # an older run's: not this map's
+                if os.path.exists(stale):
+                    os.unlink(stale)
+            traj_path = ""
+        else:
+            traj = Trajectory.from_transforms(stamps, np.array(poses).reshape(-1, 4, 4))
+            traj = traj._replace(positions=marker_map.to_full(traj.positions))
+            origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
+                                                           f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
+            write_tum(traj_path, traj,
+                      header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time")
+            extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
         obs_path = os.path.join(out_dir, "observations.csv")
         os.replace(obs_tmp, obs_path)
     except BaseException:
@@ -360,11 +377,26 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
     }
+    summary["map_check"] = map_check.as_dict()
     summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe,
                                       tunables.calibration)
+    if map_check.status == DOES_NOT_FIT:  # first: the self-checks' findings follow from it
+        found = {f["message"] for f in summary["selfcheck"]["findings"]}
+        summary["warnings"] = [map_check.message] + [w for w in summary["warnings"] if w not in found]
     summary_path = os.path.join(out_dir, "summary.json")
     atomic_write_text(summary_path, json.dumps(summary, indent=2, default=float) + "\n")
     return ProcessResult(traj_path, obs_path, summary_path, summary, extra)
+
+
+def _map_check(sighted: SightingSample, data: BagData, marker_map: MarkerMap, pipe: AbsOrientPipeline,
+               markers_only: bool) -> MapVerdict:
+    """Whether the marker map fits what the run saw (:func:`aruco_abs_orient.mapcheck.check_map`): the
+    sightings along the prism track, with the lever arms the pipeline used (markers only: not checked here)."""
+    if markers_only or len(data.prism_stamps) < 2:
+        return MapVerdict(UNDETERMINED, "the marker map is not checked without a prism track", {})
+    return check_map(sighted.sightings(), (data.prism_stamps, data.prism_positions),
+                     {m.id: m.position for m in marker_map}, pipe.base_T_camera, pipe.base_T_prism[:3, 3],
+                     origin=marker_map.origin)
 
 
 def write_full_csv(path: str, traj: Trajectory) -> str:

@@ -43,8 +43,19 @@ replaced, unprocessed image is counted as dropped); the main thread processes th
 
 Bad input never stops the node: a corrupt image, unknown ids, NaN/missing tf, no prism — each is counted,
 logged (throttled) and reported on ``/diagnostics``, and processing carries on with the next message. A
-marker map that does not load → one line (``[FATAL] ... abs_orient: <file>: <field>: <problem>``) and exit
-status 2.
+configuration that cannot work (a marker map or calibration file that does not load, a bad parameter) →
+one line (``[FATAL] ... abs_orient: <file>: <field>: <problem>``); started by roslaunch, the node then stays
+up doing nothing but reporting that line as an ERROR on ``/diagnostics`` (``configuration error: …``), so that
+``respawn`` does not restart it in a loop; started otherwise, it exits with status 2.
+
+The map check (:mod:`aruco_abs_orient.mapcheck`, every 2 s, once it fits every 15 s, in a worker thread, over
+the last 60 s of marker sightings and prism positions): a marker map that does not fit what the camera sees
+(another site's, rotated, shifted, scaled, a wrong origin) is an ERROR on ``/diagnostics`` (the ``pipeline``
+and ``map check`` statuses, naming how the map is off); from then on the node publishes no ``map → odom``, no
+absolute yaw or pose and keeps no state.
+
+``~state_file``: the node's name and the master's port are added to the file name, and the state records
+the node, master and ``/run_id`` that wrote it: a state of another node or run is ignored with the reason.
 """
 
 from __future__ import annotations
@@ -67,6 +78,7 @@ from ..calibration import CalibrationError, load_calibration
 from ..debugview import debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, decode_jpeg
 from ..errors import ConfigurationError
+from ..mapcheck import DOES_NOT_FIT, FITS, MapCheckParams, MapVerdict, RollingMapCheck
 from ..markers import MarkerMap, MarkerMapError
 from ..nodestate import (
     IMAGE_JUMPED_BACK,
@@ -76,6 +88,9 @@ from ..nodestate import (
     NodeHealth,
     NodeSnapshot,
     live_offset_to_apply,
+    state_path,
+    state_record,
+    state_snapshot,
 )
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
@@ -307,6 +322,11 @@ class AbsOrientNode:
         self.selfcheck = self._new_selfcheck()
         self._selfcheck_report: Tuple[str, str, Dict[str, object]] = ("ok", "", {})
         self._selfcheck_wall = -math.inf
+        self.mapcheck: Optional[RollingMapCheck] = None  # made with the pipeline (lever arms)
+        self.map_verdict = MapVerdict("undetermined", "the marker map is not checked yet", {})
+        self.map_refused = ""      # the map check's message once the map does not fit: nothing map-based goes out
+        self._mapcheck_worker: Optional[threading.Thread] = None
+        self._mapcheck_wall = -math.inf
         self._state_saved_wall = -math.inf
         self._param_lock = threading.Lock()
         self._pending_params: Dict[str, object] = {}       # from dynamic_reconfigure (its thread)
@@ -319,6 +339,8 @@ class AbsOrientNode:
         self.health = NodeHealth(config.image_timeout, config.prism_timeout, config.publish_tf, time.monotonic(),
                                  (config.base_frame, config.camera_frame, config.prism_frame))
         self.health.extra_values["tilt source"] = self._tilt_source
+        self.health.extra_values["image topic"] = lambda: self.image_sub.resolved_name
+        self.health.extra_values["marker map"] = lambda: self.map_verdict.status
 
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0), debug=False)
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
@@ -387,6 +409,7 @@ class AbsOrientNode:
         self.updater.setHardwareID(c.camera_frame)
         self.updater.add("pipeline", self._pipeline_task)
         self.updater.add("self-check", self._selfcheck_task)
+        self.updater.add("map check", self._mapcheck_task)
 
         def frequency(name: str, low: float, high: float):
             return du.HeaderlessTopicDiagnostic(name, self.updater, du.FrequencyStatusParam(
@@ -506,6 +529,9 @@ class AbsOrientNode:
     def _feed_selfcheck(self, result: FrameResult, odom_T_base: np.ndarray) -> None:
         """The frame's marker yaws and pose for the rolling self-checks (time offset, tilt, moved marker)."""
         odom_yaw = float(yaw_of(odom_T_base[:3, :3]))
+        if self.mapcheck is not None:
+            for r in result.observations:
+                self.mapcheck.add_sighting(result.stamp, r.id, r.observation.centre, odom_T_base[:3, :3])
         with self._selfcheck_lock:
             for r in result.observations:
                 if math.isfinite(r.yaw):
@@ -573,6 +599,10 @@ class AbsOrientNode:
                                               else calibrated.get("lens_yaw_sigma"))
             with self._selfcheck_lock:  # empty until now: started again with the pipeline's prism lever arm
                 self.selfcheck = self._new_selfcheck()
+            if not c.markers_only:
+                self.mapcheck = RollingMapCheck({m.id: m.position for m in self.marker_map},
+                                                self.pipeline.base_T_camera, self.pipeline.base_T_prism[:3, 3],
+                                                self.marker_map.origin, params=MapCheckParams(max_sightings=1000))
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3],
                                                               params=c.tunables().timesync)
@@ -589,37 +619,88 @@ class AbsOrientNode:
     def _restore_state(self) -> None:
         """Start the filter from ``~state_file`` when it is recent (a respawn while the robot drives)."""
         c = self.config
-        if not c.state_file or not os.path.exists(c.state_file):
+        if not c.state_file or not os.path.exists(self.state_file):
             return
         now = self.rospy.get_time() - self.time_offset
         try:
-            with open(c.state_file) as f:
-                why = self.pipeline.filter.restore(json.load(f), now, c.state_max_age)
+            with open(self.state_file) as f:
+                snap, why = state_snapshot(json.load(f), self._state_writer)
+            why = why or self.pipeline.filter.restore(snap, now, c.state_max_age)
         except (OSError, ValueError) as e:
             why = f"cannot read it: {e}"
         if why:
-            self.rospy.loginfo(f"abs_orient: not starting from {c.state_file}: {why}")
+            self.rospy.loginfo(f"abs_orient: not starting from {self.state_file}: {why}")
             return
         self.initialised = True
         prediction = self._prediction_from(now)  # the state predicted to now: map->odom goes out at once
         with self._tf_lock:
             self._prediction = prediction
-        self.rospy.loginfo(f"abs_orient: started from the map->odom state in {c.state_file} "
+        self.rospy.loginfo(f"abs_orient: started from the map->odom state in {self.state_file} "
                            f"({self.pipeline.filter.stats.restored_age:.2f} s old)")
 
     def _save_state(self, now_wall: float) -> None:
         """Write the filter's state to ``~state_file`` (atomically, at most once a second)."""
         c = self.config
-        if not c.state_file or now_wall - self._state_saved_wall < 1.0:
+        if not c.state_file or now_wall - self._state_saved_wall < 1.0 or self.map_refused:
             return
         snap = self.pipeline.filter.snapshot() if self.pipeline is not None else None
         if snap is None:
             return
         self._state_saved_wall = now_wall
         try:
-            atomic_write_text(c.state_file, json.dumps(snap) + "\n")
+            atomic_write_text(self.state_file, json.dumps(state_record(snap, self._state_writer)) + "\n")
         except OSError as e:
-            self._error("state_file", f"~state_file {c.state_file}: cannot write: {e}")
+            self._error("state_file", f"~state_file {self.state_file}: cannot write: {e}")
+
+    @cached_property
+    def _state_writer(self) -> Dict[str, str]:
+        """Who writes the state: this node's name, its master and the master's /run_id (a new roscore, a new id)."""
+        return {"node": self.rospy.get_name(), "master": self._master_uri,
+                "run_id": str(self.rospy.get_param("/run_id", ""))}
+
+    @cached_property
+    def _master_uri(self) -> str:
+        import rosgraph
+
+        return rosgraph.get_master_uri()
+
+    @cached_property
+    def state_file(self) -> str:
+        """``~state_file`` with the node's name and the master's port in its name (nodes of different masters never
+        share one)."""
+        return state_path(self.config.state_file, self.rospy.get_name(), self._master_uri)
+
+    def _check_map(self, now_wall: float) -> None:
+        """Start the map check in a worker thread every 2 s (wall) until the map fits, then every 15 s (0.1-0.2 s of
+        CPU each on 1000 sightings); take its verdict. A map that does not fit stops everything that depends on it,
+        for good; later checks only say better how it is off (once its markers were seen from different places)."""
+        worker = self._mapcheck_worker
+        if self.mapcheck is None or (worker is not None and worker.is_alive()):
+            return
+        if now_wall - self._mapcheck_wall < (15.0 if self.map_verdict.status == FITS and not self.map_refused
+                                             else 2.0):
+            return
+        self._mapcheck_wall = now_wall
+
+        def check():
+            try:
+                verdict = self.mapcheck.check()
+            except Exception as e:  # a check must never take the node down
+                verdict = MapVerdict("undetermined", f"the map check failed: {type(e).__name__}: {e}", {})
+            if self.map_refused and verdict.status != DOES_NOT_FIT:
+                return  # refused for good: a later window of sightings does not take it back
+            self.map_verdict = verdict
+            if verdict.status == DOES_NOT_FIT:
+                first = not self.map_refused
+                self.map_refused = verdict.message
+                with self._tf_lock:
+                    self._prediction = None  # the timer stops re-publishing map->odom
+                if first:
+                    self.rospy.logerr(f"abs_orient: {verdict.message}: map->odom, the absolute yaw and pose are no "
+                                      f"longer published (check ~markers {self.config.markers})")
+
+        self._mapcheck_worker = threading.Thread(target=check, name="map check", daemon=True)
+        self._mapcheck_worker.start()
 
     def _feed_prisms(self) -> None:
         while self.prism_errors:
@@ -631,6 +712,8 @@ class AbsOrientNode:
             self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
             self.health.count("prisms")
             self.pipeline.add_prism(t, p)
+            if self.mapcheck is not None:
+                self.mapcheck.add_prism(t, p)
             with self._selfcheck_lock:
                 self.selfcheck.add_prism(t, p)
             if self.offset_estimator is not None:
@@ -717,6 +800,7 @@ class AbsOrientNode:
         self.health.add_stages({"debug image": 1e3 * (time.perf_counter() - debug_start)})
         self._save_state(time.monotonic())
         self._feed_selfcheck(result, odom_T_base)
+        self._check_map(time.monotonic())
         self._estimate_time_offset(s, odom_T_base, result)
         self.health.add_stages(result.timings)
         self.health.add_stages({"tf wait": tf_wait_ms})
@@ -757,6 +841,11 @@ class AbsOrientNode:
         cv, c = self.cv, self.config
         self.last_result = result
         self.pub_detections.publish(cv.observations_msg(result.observations, stamp, c.camera_frame))
+        if self.map_refused:  # nothing that depends on the marker map: only the detections (and the prism's pose)
+            prism_pose = cv.prism_pose_msg(result, stamp, c.map_frame)
+            if prism_pose is not None:
+                self.pub_prism_pose.publish(prism_pose)
+            return
         if result.map_T_odom is not None:
             prediction = self._prediction_from(result.stamp)
             with self._tf_lock:
@@ -818,7 +907,7 @@ class AbsOrientNode:
         if stamp_sec is None:
             self.health.count("tf_held_back")
             return
-        if self.config.publish_tf:
+        if self.config.publish_tf and not self.map_refused:
             c = self.config
             self.tf_broadcaster.sendTransform(
                 self.cv.matrix_to_transform_stamped(map_T_odom, self.cv.sec_to_stamp(stamp_sec), c.map_frame,
@@ -860,7 +949,15 @@ class AbsOrientNode:
             images_received=self.images.received, images_dropped=self.images.dropped, time_offset=self.time_offset,
             time_offset_source=self.time_offset_source, pipeline=self.pipeline, offset_estimator=self.offset_estimator,
             map_odom_yaw=float(yaw_of(r.map_T_odom[:3, :3])) if r is not None and r.map_T_odom is not None else None))
+        if self.map_refused:
+            level, message = "error", f"{self.map_refused}; map->odom not published"
         return self.cv.fill_diagnostic(stat, level, message, values)
+
+    def _mapcheck_task(self, stat):
+        """diagnostic_updater task ``map check``: does the marker map fit what the camera sees (error when not)."""
+        v = self.map_verdict
+        values = {k: (json.dumps(x) if isinstance(x, (dict, list)) else x) for k, x in v.details.items()}
+        return self.cv.fill_diagnostic(stat, "error" if v.status == DOES_NOT_FIT else "ok", v.message, values)
 
     def _selfcheck_task(self, stat):
         """diagnostic_updater task ``self-check``: the rolling self-checks (time offset, tilt, moved marker)."""
@@ -873,9 +970,31 @@ def reconfigurable_names() -> Tuple[str, ...]:
     return RECONFIGURABLE_NODE_PARAMS + tuple(name for _, name, _ in all_param_fields())
 
 
+def configuration_error(rospy, message: str, argv) -> int:
+    """The node cannot run with its configuration: one FATAL line. Started by roslaunch (``__log:=`` among its
+    arguments), it stays up reporting ``configuration error: <message>`` as an ERROR on ``/diagnostics`` until it
+    is shut down, so that ``respawn`` does not start it again and again; otherwise it returns 2 at once."""
+    rospy.logfatal(f"abs_orient: {message}")
+    if not any(a.startswith("__log:=") for a in (sys.argv if argv is None else argv)):
+        return 2
+    import diagnostic_updater
+
+    from . import conversions as cv
+
+    updater = diagnostic_updater.Updater()
+    updater.setHardwareID("abs_orient")
+    text = (f"configuration error: {message}; the node does nothing until it is started again with a configuration "
+            "that works (not respawned)")
+    updater.add("pipeline", lambda stat: cv.fill_diagnostic(stat, "error", text, {"configuration error": message}))
+    while not rospy.is_shutdown():
+        updater.force_update()
+        time.sleep(1.0)  # wall clock: a replay's sim clock may not run
+    return 2
+
+
 def main(argv=None) -> int:
     """Entry point of ``scripts/abs_orient``; returns the exit status (1: no ROS master, 2: bad
-    parameters or marker map, each with one line)."""
+    parameters or marker map, each with one line; see :func:`configuration_error`)."""
     import rospy
 
     from . import exit_without_master
@@ -886,12 +1005,10 @@ def main(argv=None) -> int:
         config = NodeConfig.from_params(rospy.get_param)
         marker_map = MarkerMap.load(config.markers)
     except (NodeConfigError, MarkerMapError) as e:
-        rospy.logfatal(f"abs_orient: {e}")
-        return 2
+        return configuration_error(rospy, str(e), argv)
     if config.markers_only and len(marker_map) < 3:
-        rospy.logfatal(f"abs_orient: {config.markers}: ~markers_only needs at least 3 markers in the map for a "
-                       f"resection, it has {len(marker_map)}")
-        return 2
+        return configuration_error(rospy, f"{config.markers}: ~markers_only needs at least 3 markers in the map for "
+                                          f"a resection, it has {len(marker_map)}", argv)
     node = AbsOrientNode(config, marker_map)
     rospy.loginfo(f"abs_orient: {len(marker_map)} markers from {config.markers}; "
                   f"{'publishing' if config.publish_tf else 'NOT publishing (EKF owns it)'} "

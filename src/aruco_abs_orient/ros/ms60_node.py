@@ -4,7 +4,8 @@ Publishes
 - ``ms60/prism`` (geometry_msgs/PointStamped, frame ``~frame_id``, default ``map``): the prism
   position (m); the stamp is the instrument's measurement time mapped to ROS time, never the
   reception time;
-- ``ms60/status`` (std_msgs/String, 1 Hz): a JSON object with the tracker's figures: ``state``
+- ``ms60/status`` (diagnostic_msgs/DiagnosticStatus, latched, 1 Hz: ``rostopic echo`` shows it as it is, no
+  escaped JSON): the ``prism tracking`` status below, whose key/values are the tracker's figures: ``state``
   (connecting/searching/locked/lost/reconnecting/error), ``error`` (why, in the error state),
   ``notice`` (why the prism is not locked), ``program`` and ``search`` (what the instrument
   accepted), ``samples``, ``lost_samples``, ``rate_hz``, ``warnings`` and ``no_position`` (counts
@@ -46,13 +47,12 @@ import diagnostic_updater
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped
-from std_msgs.msg import String
 
 from ..geocom.client import default_byte_timing
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 from . import exit_without_master
 
-__all__ = ["config_from_params", "output_from_params", "log_line", "stats_to_json", "main"]
+__all__ = ["config_from_params", "output_from_params", "log_line", "stats_to_json", "status_values", "main"]
 
 
 def _number(params: Dict[str, Any], name: str, default=None, kind=float, prefix: str = ""):
@@ -170,9 +170,21 @@ def _diagnostics(status: DiagnosticStatus, stats: TrackerStats, rate_hz: float) 
     else:
         status.level, status.message = DiagnosticStatus.OK, f"locked, {stats.rate_hz:.1f} Hz"
     values = json.loads(stats_to_json(stats))
-    status.values = [KeyValue(key=k, value=json.dumps(v) if isinstance(v, dict) else str(v))
+    status.values = [KeyValue(key=k, value=v if isinstance(v, str) else json.dumps(v))
                      for k, v in sorted(values.items())]
     return status
+
+
+def status_values(status) -> dict:
+    """The figures of a ``prism tracking`` status (``ms60/status`` or ``/diagnostics``) as :func:`stats_to_json`'s
+    object: numbers, null and per-code counts parsed back, text as it is."""
+    out = {}
+    for kv in status.values:
+        try:
+            out[kv.key] = json.loads(kv.value)
+        except ValueError:
+            out[kv.key] = kv.value
+    return out
 
 
 SIM_TIME_MESSAGE = ("ms60_driver: /use_sim_time is true on this master (a bag replay such as postprocess.launch "
@@ -201,7 +213,7 @@ def main() -> None:
         rospy.logfatal(f"ms60_driver: ~log: cannot write {log_path}: {e.strerror}")
         sys.exit(2)
     prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
-    status_pub = rospy.Publisher("ms60/status", String, queue_size=5, latch=True)
+    status_pub = rospy.Publisher("ms60/status", DiagnosticStatus, queue_size=5, latch=True)
     updater = diagnostic_updater.Updater()
     updater.setHardwareID(f"MS60 {config.url}")
     positions = diagnostic_updater.HeaderlessTopicDiagnostic(
@@ -237,9 +249,11 @@ def main() -> None:
         stats = tracker.stats()
         if stats.state in ("connecting", "reconnecting"):
             rospy.logwarn_throttle(10.0, f"ms60_driver: no answer from the instrument on {config.url} ({stats.state})")
-        status_pub.publish(String(data=stats_to_json(stats)))
         if stats.instrument:
             updater.setHardwareID(stats.instrument)
+        status_pub.publish(_diagnostics(DiagnosticStatus(name=f"{rospy.get_name().lstrip('/')}: prism tracking",
+                                                         hardware_id=stats.instrument or f"MS60 {config.url}"),
+                                        stats, config.rate_hz))
         updater.force_update()
 
     rospy.loginfo(f"ms60_driver: {config.url} at {config.baud} baud, {config.rate_hz} Hz, frame {frame_id}")

@@ -4,20 +4,30 @@ says in one line how it ended, ends the launch quietly, and leaves a master it d
 - Runs ``rosbag play --clock`` on ``~bag`` (the launch file makes a relative ``bag:=`` absolute against the
   directory roslaunch was started in). A missing bag is one line naming the full path tried, exit status 1.
 - Counts what the ``abs_orient`` node and the EKF publish (``abs_orient/pose``, ``abs_orient/orientation``,
-  ``odometry/filtered``) and keeps the node's newest ``/diagnostics`` status.
+  ``odometry/filtered``), keeps the node's newest ``/diagnostics`` status, and every second asks the master
+  whether the node ``~node`` and the recorder ``~recorder`` (when ``~record`` names its bag) still run.
 - When the bag has played to its end it waits ``~settle`` s (wall clock) for the last frames, logs
 
-      replay: run1.bag played to its end (20.0 s): abs_orient processed 240 of 300 images (60 dropped), ...
+      replay: run1.bag played to its end (20.0 s): abs_orient processed 240 of 300 images on
+      /camera/image/compressed (60 dropped), ...
 
   with the reason from the node's diagnostics when there is no pose, and asks its roslaunch to shut down
   (SIGINT to the parent process, as Ctrl-C does): the normal end is this line, not a red
   ``REQUIRED process has died``.
+- When the run did not do its job, the line says why and the replay exits with status 1 (roslaunch then
+  shows ``REQUIRED process [replay-…] has died … exit code 1``; roslaunch's own exit status is 0 whatever
+  its nodes did, ros_comm #919): the node reports an error (a configuration it cannot run with: the
+  playback stops at once; a marker map that does not fit), the node died or never started, the recorder
+  is not running (its bag incomplete), or no image arrived on the topic the node listens to (the bag's image topics
+  are named).
 - On shutdown (the end, Ctrl-C, a failure) it deletes ``/use_sim_time`` from a master that its roslaunch
   did not start (a ``roscore`` running before): later nodes on that master are back on the wall clock.
+- ``replay --prepare-record PATH`` (the launch file's ``record:=``, before any node starts): creates the bag's
+  directory and prints PATH, or one line and exit status 1 (roslaunch then stops before it starts anything).
 
 Private params: ``~bag`` (path, required), ``~rate`` (1.0), ``~delay`` (2.0 s wall), ``~loop`` (false),
-``~start`` (s into the bag where playback starts, 0),
-``~settle`` (2.0 s wall).
+``~start`` (s into the bag where playback starts, 0), ``~settle`` (2.0 s wall), ``~node`` (``abs_orient``),
+``~record`` (the recorder's bag, empty: none), ``~recorder`` (``recorder``).
 """
 
 from __future__ import annotations
@@ -28,9 +38,9 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Dict, Mapping, Optional
+from typing import Dict, List, Mapping, Optional, Sequence
 
-__all__ = ["main", "summary_line", "parent_is_roslaunch", "process_parent"]
+__all__ = ["main", "summary_line", "parent_is_roslaunch", "process_parent", "prepare_record", "Watch"]
 
 
 def process_parent(pid: int) -> Optional[int]:
@@ -53,31 +63,101 @@ def parent_is_roslaunch(ppid: int) -> bool:
 
 
 def summary_line(bag: str, duration: Optional[float], counts: Mapping[str, int],
-                 diagnostics: Optional[Mapping[str, object]]) -> str:
+                 diagnostics: Optional[Mapping[str, object]], problems: Sequence[str] = (),
+                 image_topics: Sequence[str] = ()) -> str:
     """The one line that ends a replay. ``counts``: messages received on ``pose``, ``orientation``,
-    ``filtered``; ``diagnostics``: the node's newest status (its key/values, and ``message`` as it was
-    while the bag played), None when it never reported."""
+    ``filtered``; ``diagnostics``: the node's newest status (its key/values, ``message`` as it was while the
+    bag played and ``level``), None when it never reported; ``problems``: what went wrong besides (a dead
+    recorder or node); ``image_topics``: the bag's image topics (named when the node received none)."""
     head = f"replay: {os.path.basename(bag)} played to its end" + (f" ({duration:.1f} s)" if duration else "")
     if diagnostics is None:
-        return (f"{head}; abs_orient reported nothing on /diagnostics and published {counts.get('pose', 0)} poses "
+        line = (f"{head}; abs_orient reported nothing on /diagnostics and published {counts.get('pose', 0)} poses "
                 "(did it start? see its lines above)")
+        return "; ".join([line] + list(problems))
     received = diagnostics.get("images received", "?")
     processed = diagnostics.get("images processed", "?")
     dropped = diagnostics.get("images dropped", 0)
-    parts = [f"abs_orient processed {processed} of {received} images"
+    topic = diagnostics.get("image topic")
+    parts = [f"abs_orient processed {processed} of {received} images" + (f" on {topic}" if topic else "")
              + (f" ({dropped} dropped while it was busy: a smaller rate:= gives it more time)"
                 if dropped not in (0, "0", "?") else "")]
     parts.append(f"published {counts.get('pose', 0)} poses and {counts.get('orientation', 0)} marker yaws")
     if counts.get("filtered") is not None:
         parts.append(f"the EKF {counts['filtered']} odometry/filtered")
     line = f"{head}: " + ", ".join(parts)
-    if not counts.get("pose", 0):
+    if str(received) == "0" and topic:
+        line += (f"; no image arrived on {topic}: the bag's images are on "
+                 f"{', '.join(image_topics) or 'no topic (no sensor_msgs/Image or CompressedImage in it)'}"
+                 " (image_topic:= names the base topic)")
+    if diagnostics.get("level") == "error":
+        line += f"; abs_orient reports an error: {diagnostics.get('message')}"
+    elif not counts.get("pose", 0):
         reason = str(diagnostics.get("message") or "")
         last = str(diagnostics.get("last error", "-"))
         if last not in ("", "-") and last not in reason:
             reason = f"{reason}; last error: {last}" if reason else last
         line += f"; no pose because: {reason or 'the node gave no reason'}"
-    return line
+    return "; ".join([line] + list(problems))
+
+
+def prepare_record(path: str) -> int:
+    """``replay --prepare-record PATH``: create the directory of the bag ``record:=`` names, print PATH (the
+    launch file's parameter value); one line and 1 when it cannot be created."""
+    directory = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError as e:
+        print(f"replay: record:={path}: cannot create the directory {directory}: {e.strerror}", file=sys.stderr)
+        return 1
+    if not os.access(directory, os.W_OK):
+        print(f"replay: record:={path}: the directory {directory} is not writable", file=sys.stderr)
+        return 1
+    print(path, end="")
+    return 0
+
+
+class Watch:
+    """Whether the nodes a replay depends on run: ``poll()`` (every second) asks the master for each name and
+    the node itself for its pid. ``problems()``: what to say at the end (died, never started, restarted)."""
+
+    def __init__(self, master, names: Mapping[str, str]):
+        self.master = master
+        self.names = dict(names)                      # role ('abs_orient', 'recorder') → node name
+        self.pids: Dict[str, list] = {role: [] for role in names}
+        self.alive: Dict[str, bool] = {role: False for role in names}
+
+    def _pid(self, name: str) -> Optional[int]:
+        import xmlrpc.client
+
+        class Transport(xmlrpc.client.Transport):  # a node that does not answer within 2 s counts as gone
+            def make_connection(self, host):
+                conn = super().make_connection(host)
+                conn.timeout = 2.0
+                return conn
+
+        try:
+            uri = self.master.lookupNode(name)
+            return int(xmlrpc.client.ServerProxy(uri, transport=Transport()).getPid("/replay")[2])
+        except Exception:  # not registered, or registered but gone (killed without unregistering), or hung
+            return None
+
+    def poll(self) -> None:
+        for role, name in self.names.items():
+            pid = self._pid(name)
+            self.alive[role] = pid is not None
+            if pid is not None and (not self.pids[role] or self.pids[role][-1] != pid):
+                self.pids[role].append(pid)
+
+    def problems(self, record: str = "") -> List[str]:
+        out = []
+        for role, name in self.names.items():
+            what = f"the recorder ({name})" if role == "recorder" else name
+            if not self.alive[role]:
+                out.append(f"{what} is not running: it died or never started (see its lines above)"
+                           + (f": {record} is incomplete or missing" if role == "recorder" else ""))
+            elif len(self.pids[role]) > 1:
+                out.append(f"{what} was restarted {len(self.pids[role]) - 1} time(s): it died (see its lines above)")
+        return out
 
 
 def _master_is_ours(master) -> bool:
@@ -90,7 +170,11 @@ def _master_is_ours(master) -> bool:
 
 
 def main(argv=None) -> int:
-    """Node entry point; returns the exit status (1: no bag or rosbag play failed)."""
+    """Node entry point; returns the exit status (1: no bag, rosbag play failed, or the run did not do its
+    job: the last line says why)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args[:1] == ["--prepare-record"] and len(args) == 2:
+        return prepare_record(args[1])
     import rosgraph
     import rospy
 
@@ -104,6 +188,7 @@ def main(argv=None) -> int:
     loop = bool(rospy.get_param("~loop", False))
     start = float(rospy.get_param("~start", 0.0))
     settle = float(rospy.get_param("~settle", 2.0))
+    record = str(rospy.get_param("~record", ""))
     master = rosgraph.Master(rospy.get_name())
     ours = _master_is_ours(master)
 
@@ -125,13 +210,20 @@ def main(argv=None) -> int:
         restore_clock()
         return 1
 
-    from diagnostic_msgs.msg import DiagnosticArray
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
     lock = threading.Lock()
     counts: Dict[str, Optional[int]] = {"pose": 0, "orientation": 0, "filtered": None}
     diag: Dict[str, object] = {}
+    levels = {DiagnosticStatus.OK: "ok", DiagnosticStatus.WARN: "warn", DiagnosticStatus.ERROR: "error"}
+    node = rospy.resolve_name(rospy.get_param("~node", "abs_orient"))
+    names = {"abs_orient": node}
+    if record:
+        names["recorder"] = rospy.resolve_name(rospy.get_param("~recorder", "recorder"))
+    watch = Watch(master, names)
+    status_name = f"{node.lstrip('/')}: pipeline"
 
     def counter(key):
         def cb(_msg):
@@ -141,11 +233,12 @@ def main(argv=None) -> int:
 
     def on_diagnostics(msg):
         for s in msg.status:
-            if s.name == "abs_orient: pipeline":
+            if s.name == status_name:
                 with lock:
                     diag.clear()
                     diag.update({kv.key: kv.value for kv in s.values})
                     diag["message"] = s.message
+                    diag["level"] = levels.get(s.level, "stale")
 
     subs = [rospy.Subscriber("abs_orient/pose", PoseStamped, counter("pose"), queue_size=100),
             rospy.Subscriber("abs_orient/orientation", PoseWithCovarianceStamped, counter("orientation"),
@@ -155,29 +248,63 @@ def main(argv=None) -> int:
     cmd = (["rosbag", "play", "--clock", f"--rate={rate:g}", f"--delay={delay:g}", f"--start={start:g}", bag]
            + (["--loop"] if loop else []))
     player = subprocess.Popen(cmd)
+    t_play = time.monotonic()
     rospy.on_shutdown(lambda: player.poll() is None and player.send_signal(signal.SIGINT))
+    next_poll = 0.0
+    stopped = ""
     while player.poll() is None and not rospy.is_shutdown():
         time.sleep(0.1)
-    if rospy.is_shutdown():  # Ctrl-C: roslaunch ends everything
+        if time.monotonic() >= next_poll:
+            next_poll = time.monotonic() + 1.0
+            watch.poll()
+            with lock:
+                message = str(diag.get("message", "")) if diag.get("level") == "error" else ""
+            if message.startswith("configuration error"):  # nothing will come of the rest of the bag
+                stopped = f"stopped after {time.monotonic() - t_play:.0f} s: abs_orient cannot run: {message}"
+                player.send_signal(signal.SIGINT)
+                player.wait()
+    if rospy.is_shutdown():  # Ctrl-C, or a REQUIRED node died: roslaunch ends everything
         player.wait()
         return 0
-    if player.returncode != 0:
+    if player.returncode != 0 and not stopped:
         rospy.logfatal(f"replay: rosbag play {bag} failed (exit status {player.returncode}; its message is above)")
         return 1
-    with lock:  # the node's state while the bag played (after it, the node says "no image for ...")
-        playing = str(diag.get("message", ""))
-    time.sleep(settle)  # wall clock: the sim clock stopped with the bag
-    with lock:
-        final = dict(diag, message=playing or diag.get("message", "")) if diag else None
-        line = summary_line(bag, _bag_duration(bag), dict(counts), final)
+    if stopped:
+        line, failed = f"replay: {os.path.basename(bag)} {stopped}", True
+    else:
+        with lock:  # the node's state while the bag played (after it, the node says "no image for ...")
+            playing = {k: diag[k] for k in ("message", "level") if diag.get(k)}
+        time.sleep(settle)  # wall clock: the sim clock stopped with the bag
+        watch.poll()
+        problems = watch.problems(record)
+        with lock:  # an error found in the last frames (the map check's verdict) wins over the state while playing
+            final = (dict(diag) if diag.get("level") == "error" else dict(diag, **playing)) if diag else None
+        line = summary_line(bag, _bag_duration(bag), dict(counts), final, problems, _image_topics(bag))
+        failed = bool(problems) or final is None or final.get("level") == "error" or str(
+            final.get("images received", "")) == "0"
     for s in subs:
         s.unregister()
+    if failed:
+        rospy.logerr(line)
+        return 1  # roslaunch: "REQUIRED process [replay] has died ... exit code 1", then it ends everything
     rospy.loginfo(line)
     ppid = os.getppid()
     if parent_is_roslaunch(ppid):
         os.kill(ppid, signal.SIGINT)  # end the launch as Ctrl-C does: no red "REQUIRED process has died"
         rospy.spin()
     return 0
+
+
+def _image_topics(bag: str) -> List[str]:
+    """The bag's topics of images (CompressedImage, Image); [] when it cannot be read."""
+    try:
+        import rosbag
+
+        with rosbag.Bag(bag) as b:
+            return sorted(t for t, info in b.get_type_and_topic_info().topics.items()
+                          if info.msg_type in ("sensor_msgs/CompressedImage", "sensor_msgs/Image"))
+    except Exception:
+        return []
 
 
 def _bag_duration(bag: str) -> Optional[float]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -45,12 +46,13 @@ def rendered(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def calibrated(rendered, tmp_path_factory):
-    """`calibrate` run once on the rendered recording: (output YAML path, its JSON report line, exit code)."""
+    """`calibrate` run once on the rendered recording, into a directory it creates: (output YAML path, what it
+    printed for people, exit code)."""
     import contextlib
     import io
 
     out, hidden = rendered
-    yaml_path = tmp_path_factory.mktemp("calibrated") / "calibration.yaml"
+    yaml_path = tmp_path_factory.mktemp("calibrated") / "site" / "new" / "calibration.yaml"
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         code = _cli([out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset",
@@ -74,11 +76,18 @@ def test_cli_recovers_the_rendered_boresight(rendered, calibrated):
     _, hidden = rendered
     yaml_path, printed, code = calibrated
     assert code == 0, printed
-    report = json.loads(printed.splitlines()[0])
+    # a few aligned lines with units (--json gives the JSON line), the next step with the user's own paths
+    before, after = (float(x) for x in re.search(r"^bearing residual RMS +([0-9.]+)° before, ([0-9.]+)° after$",
+                                                  printed, re.M).groups())
+    found = re.search(r"^boresight roll, pitch, yaw +(.*)$", printed, re.M).group(1)
+    sigma = np.array([float(x) for x in re.findall(r"± ([0-9.]+)°", found)])
+    assert re.search(r"^marker map +the marker map fits: ", printed, re.M), printed
+    assert re.search(r"^platform model +the VO's ", printed, re.M), printed
+    use = printed.split("use: ", 1)[1].split("   (next step)")[0]
+    assert use.startswith("aruco-abs-orient process ") and f"--calibration {yaml_path}" in use, use
     err = _errors(hidden, yaml_path)
-    assert np.all(np.abs(err) < 3 * np.array(report["boresight_sigma_deg"])) and abs(err[2]) < 0.1, (err, report)
-    assert report["residual_rms_after_deg"] < 0.3 * report["residual_rms_before_deg"]
-    assert "platform model: the VO's" in printed
+    assert np.all(np.abs(err) < 3 * sigma) and abs(err[2]) < 0.1, (err, printed)
+    assert after < 0.3 * before
     np.testing.assert_allclose(load_calibration(str(yaml_path))["prism"], np.array(hidden["base_T_prism"]),
                                atol=1e-5)
 
@@ -116,8 +125,8 @@ def test_cli_bad_input_is_one_line(rendered, tmp_path, capsys):
     cases = [
         ([tmp_path / "missing.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "c.yaml"], "no such bag"),
         ([out / "scenario.bag", "--markers", tmp_path / "none.yaml", "--out", tmp_path / "c.yaml"], "cannot read"),
-        ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "no" / "c.yaml"],
-         "not writable"),
+        ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", out / "scenario.bag" / "c.yaml"],
+         "cannot create the directory"),
         ([out / "scenario.bag", "--markers", out / "markers.yaml", "--out", tmp_path / "c.yaml", "--every", "0"],
          "--every"),
     ]
@@ -155,7 +164,7 @@ def test_cli_heading_models(rendered, tmp_path, capsys):
     out, hidden = rendered
     yaml_path = tmp_path / "calibration.yaml"
     args = [out / "scenario.bag", "--markers", out / "markers.yaml", "--time-offset", hidden["camera_time_offset"],
-            "--out", yaml_path, "--quiet", "--heading-model"]
+            "--out", yaml_path, "--quiet", "--json", "--heading-model"]
     code = _cli(args + ["vo_yaw"])
     printed = capsys.readouterr().out
     assert code == 0, printed
@@ -185,3 +194,21 @@ def test_cli_params_calibration_section_reaches_the_solve(rendered, tmp_path, ca
     assert _cli(args + [bad]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "calibration.knot_spacin" in err[0] and "knot_spacing" in err[0], err
+
+
+def test_cli_refuses_a_map_that_does_not_fit_by_name(rendered, tmp_path, capsys):
+    """The recording's map shifted by 10 m: no calibration from it, one line saying how the map is off."""
+    out, hidden = rendered
+    data = yaml.safe_load((out / "markers.yaml").read_text())
+    for m in data["markers"]:
+        m["position"][0] += 10.0
+    shifted = tmp_path / "shifted.yaml"
+    shifted.write_text(yaml.safe_dump(data))
+    code = _cli([out / "scenario.bag", "--markers", shifted, "--time-offset", hidden["camera_time_offset"], "--out",
+                 tmp_path / "c.yaml", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1, err
+    assert "the marker map does not fit this recording" in err[0], err
+    assert re.search(r"the map looks shifted by \(\+(9\.9\d|10\.0\d), [-+]0\.\d\d, [-+]0\.\d\d\) m", err[0]), err
+    assert "not calibrated" in err[0] and "--force" in err[0]
+    assert not (tmp_path / "c.yaml").exists()

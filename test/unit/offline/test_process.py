@@ -113,12 +113,15 @@ def test_timesync_cli_refines_the_offset_with_the_marker_bearings(ci_run, capsys
     assert code == 0, out
     assert "phase coherence" in out and "refined with the marker bearings" in out
     used = float(re.search(r"--time-offset (-?[0-9.]+)", out).group(1))
+    assert len(re.findall(r"--time-offset", out)) == 1  # one line to take the offset from (tools/demo.sh)
     assert abs(used - _hidden(scen)["camera_time_offset"]) < 0.005, out
-    # the use: line is a whole command: it parses with the CLI's own parser and names the real files
+    # the use: line is the next step (calibrate), a whole command: it parses with the CLI's own parser and names
+    # the user's files, the calibration beside the marker map
     use = shlex.split(out.split("use: ", 1)[1].splitlines()[0])
-    assert use[:2] == ["aruco-abs-orient", "process"]
+    assert use[:2] == ["aruco-abs-orient", "calibrate"]
     args = build_parser().parse_args(use[1:])
-    assert (args.bag, args.markers, args.out) == ([scen.bag], scen.markers, "results/scenario")
+    assert (args.bag, args.markers) == ([scen.bag], scen.markers) and args.refine_time_offset
+    assert args.out == os.path.join(os.path.dirname(scen.markers), "calibration.yaml")
 
 
 def test_evaluate_without_a_reference_reports_what_the_run_shows(ci_run, tmp_path, capsys):
@@ -346,3 +349,81 @@ def test_an_odometry_tilted_as_the_platform_started_is_tracked(scenario_factory,
     assert stats.get("rejected_tracking_gate", 0) <= 0.02 * stats["observations"], stats
     _, _, ape = _heading_errors(str(tmp_path), scen.truth)
     assert math.degrees(ape.stats.rmse) <= 0.05 and math.degrees(ape.stats.p95) <= 0.08, ape.stats
+
+
+WRONG_MAPS = {  # the change of the map, what the refusal must say (the scenario below: 4 markers placed)
+    "rotated 90": (lambda p: [-p[1], p[0], p[2]], None,
+                   r"the map looks rotated by \+(8[89]|9[01])\.\d° about z around its origin \(E and N exchanged"),
+    "rotated 5": (lambda p: [p[0] * math.cos(0.0873) - p[1] * math.sin(0.0873),
+                             p[0] * math.sin(0.0873) + p[1] * math.cos(0.0873), p[2]], None,
+                  r"the map looks rotated by \+[456]\.\d° about z"),
+    "shifted 10 m": (lambda p: [p[0] + 10.0, p[1], p[2]], None,
+                     r"the map looks shifted by \(\+(9\.9\d|10\.0\d), [-+]0\.\d\d, [-+]0\.\d\d\) m"),
+    "mm for m": (lambda p: [1000.0 * v for v in p], None, r"the map looks scaled by (99\d|100\d)(\.\d)? \(millimetres"),
+    "wrong origin": (lambda p: p, [2600000.0, 1200000.0, 400.0],
+                     r"2863\.6 km off: a wrong origin \(the map's, \(2600000, 1200000, 400\), and the MS60 driver's"),
+}
+
+
+@pytest.fixture(scope="module")
+def ten_markers(scenario_factory):
+    """The tiny preset with 10 markers 2-5 m from a 10 s track (960 px, 10 fps): several markers seen while driving."""
+    return scenario_factory("tiny", n_markers=10, marker_distance=(2.0, 5.0), duration=10.0)
+
+
+@pytest.mark.parametrize("kind", sorted(WRONG_MAPS))
+def test_a_map_that_does_not_fit_is_refused_by_name(ten_markers, tmp_path, capsys, kind):
+    """The recording's own map changed as a surveyor's slip would: the run's map check names the change, no
+    trajectory.tum is written, exit status 1."""
+    change, origin, expected = WRONG_MAPS[kind]
+    data = yaml.safe_load(Path(ten_markers.markers).read_text())
+    for m in data["markers"]:
+        m["position"] = [float(v) for v in change(m["position"])]
+    if origin:
+        data["origin"] = origin
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    assert cli_main(["process", ten_markers.bag, "--markers", str(wrong), "--out", str(out), "--time-offset",
+                     str(_hidden(ten_markers)["camera_time_offset"]), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("aruco-abs-orient: error: the marker map does not fit this recording: marker"), err
+    assert re.search(expected, err[-1]), err[-1]
+    assert "no trajectory written" in err[-1] and not (out / "trajectory.tum").exists()
+
+
+def test_a_map_that_does_not_fit_gets_no_trajectory_unless_forced(ten_markers, tmp_path, capsys):
+    """The recording's own map shifted by 10 m: the summary says why, an older trajectory.tum is removed, --force
+    writes it. The right map: a few aligned lines for people, the next step with the user's own output directory."""
+    scen = ten_markers
+    offset = str(_hidden(scen)["camera_time_offset"])
+    data = yaml.safe_load(Path(scen.markers).read_text())
+    for m in data["markers"]:
+        m["position"][0] += 10.0
+    shifted = tmp_path / "shifted.yaml"
+    shifted.write_text(yaml.safe_dump(data))
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "trajectory.tum").write_text("# an older run's\n")
+    assert cli_main(["process", scen.bag, "--markers", str(shifted), "--out", str(out), "--time-offset", offset,
+                     "--quiet"]) == 1
+    printed = capsys.readouterr()
+    assert "--force" in printed.err.strip().splitlines()[-1]
+    assert not (out / "trajectory.tum").exists() and (out / "summary.json").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    check = summary["map_check"]
+    assert check["status"] == "does_not_fit" and summary["warnings"][0] == check["message"]
+    assert re.search(r"^marker map +does not fit", printed.out, re.M), printed.out
+    cli_main(["process", scen.bag, "--markers", str(shifted), "--out", str(out), "--time-offset", offset, "--quiet",
+              "--force", "--json"])
+    line = json.loads(capsys.readouterr().out.splitlines()[0])  # for programs
+    assert line["map_check"] == "does_not_fit" and line["trajectory"] == str(out / "trajectory.tum")
+    assert (out / "trajectory.tum").exists()
+    good = tmp_path / "good"
+    assert cli_main(["process", scen.bag, "--markers", scen.markers, "--out", str(good), "--time-offset", offset,
+                     "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"^images +\d+$", printed, re.M) and re.search(r"^with a pose +\d+ \(\d+\.\d %\), from ", printed,
+                                                                        re.M), printed
+    assert re.search(r"^marker map +the marker map fits: ", printed, re.M), printed
+    assert f"use: aruco-abs-orient evaluate {good}" in printed

@@ -29,7 +29,7 @@ def test_the_realistic_world_through_the_cli_workflow(scenario_factory, tmp_path
     offset = _offset(capsys.readouterr().out)
     cal = tmp_path / "calibration.yaml"
     assert cli_main(["calibrate", scen.bag, "--markers", scen.markers, "--time-offset", str(offset),
-                     "--refine-time-offset", "--every", "3", "--out", str(cal), "--quiet"]) == 0
+                     "--refine-time-offset", "--every", "3", "--out", str(cal), "--quiet", "--json"]) == 0
     out = capsys.readouterr().out
     report = json.loads(next(line for line in out.splitlines() if line.startswith("{")))
     refined = _offset(out)

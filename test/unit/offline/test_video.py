@@ -79,7 +79,7 @@ def test_timesync_finds_an_epoch_sized_offset_and_prints_the_video_command(ci_ru
     out = capsys.readouterr().out
     refined = float(re.search(r"refined with the marker bearings: +([-+0-9.]+) ms", out).group(1)) * 1e-3
     assert abs(refined - VIDEO_OFFSET) < 0.005  # within 5 ms of an offset of 1.7e9 s, searched over the overlap
-    use = re.search(r"use: aruco-abs-orient process (.*)", out).group(1)
+    use = re.search(r"use: aruco-abs-orient calibrate (.*)", out).group(1)  # the next step
     assert f"--video {exp.video} " in use
     assert "--time-offset -1699999999.99" in use or "--time-offset -1700000000.00" in use
 

@@ -41,10 +41,19 @@ def test_bad_parameters_name_themselves(params, name):
         config_from_params(params)
 
 
-def test_status_json():
+def test_status_json_and_the_status_message_that_carries_it():
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from aruco_abs_orient.ros.ms60_node import _diagnostics, status_values
+
     stats = TrackerStats("locked", 10, 2, 19.8, {1284: 1}, {1285: 3}, 1, 0, 0, 0, 1, 5, 1, 1.5, -40e-6, "MS60")
     d = json.loads(stats_to_json(stats))
     assert d["state"] == "locked" and d["warnings"] == {"1284": 1} and d["clock_drift_ppm"] == pytest.approx(-40.0)
+    # ms60/status: a DiagnosticStatus whose key/values read as they are (no escaped JSON) and parse back to the same
+    msg = _diagnostics(DiagnosticStatus(name="ms60_driver: prism tracking"), stats, 20.0)
+    shown = {kv.key: kv.value for kv in msg.values}
+    assert shown["state"] == "locked" and shown["rate_hz"] == "19.8" and shown["warnings"] == '{"1284": 1}'
+    assert status_values(msg) == d and msg.level == DiagnosticStatus.OK and msg.message == "locked, 19.8 Hz"
 
 
 @pytest.fixture
