@@ -168,6 +168,7 @@ def realistic(args) -> int:
             rospy.init_node("bench_node_latency", disable_signals=True)
             watch = Watch()
             seen, load0, t0 = {}, os.getloadavg()[0], time.monotonic()
+            t1 = t0
             while launch.poll() is None and time.monotonic() - t0 < 600:
                 sample_cpu(launch.pid, seen)
                 t1 = time.monotonic()
