@@ -212,9 +212,9 @@ def main() -> int:
             rows.append((d, "video" if video else "bag", run(scen, out, video)))
     print("\noffline processing, 3840x1920 at 30 fps: JPEG bag / mp4v video (this machine, 2 cores)")
     print(f"{'length':>6} {'input':>6} {'frames':>7} {'wall s':>8} {'x real time':>12} {'peak RSS MB':>12}  "
-          "ms/frame (decode/detect/solve)")
+          "ms/frame (decode/track/solve)")
     for d, kind, r in rows:
-        ms = "/".join(f"{r['ms'].get(k, 0.0):.1f}" for k in ("decode", "detect", "solve"))
+        ms = "/".join(f"{r['ms'].get(k, 0.0):.1f}" for k in ("decode", "track", "solve"))
         print(f"{d:>5g}s {kind:>6} {r['frames']:>7} {r['wall_s']:>8.1f} {r['rtf']:>12.2f} {r['peak_rss_mb']:>12.0f}  "
               f"{ms}")
     for kind in ("bag", "video"):

@@ -20,7 +20,9 @@ settings.load_profile("ci" if os.environ.get("CI") else "default")
 def scenario_factory(tmp_path_factory):
     """Generated synthetic scenarios (bag + truth), rendered once per session and shared, between the
     workers of ``-n 2`` too (a lock file per scenario): ``scenario_factory("ci", time_offset=0.2)`` →
-    ``GeneratedScenario``."""
+    ``GeneratedScenario``. With ``$AAO_TEST_SCENARIOS`` (a directory: tools/test.sh makes one per ``make
+    test``) they are shared by every pytest run that names it: the Python 3.8 run of the core tests and the
+    unit tests render each scenario once between them."""
     import fcntl
     import hashlib
     import json
@@ -30,7 +32,9 @@ def scenario_factory(tmp_path_factory):
     from aruco_abs_orient.synthetic.scenario import PRESETS
 
     root = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):  # the workers' base temps share this parent
+    if os.environ.get("AAO_TEST_SCENARIOS"):
+        root = Path(os.environ["AAO_TEST_SCENARIOS"])
+    elif os.environ.get("PYTEST_XDIST_WORKER"):  # the workers' base temps share this parent
         root = root.parent
     cache = {}
 
@@ -65,26 +69,53 @@ def generated_cfg(tmp_path_factory):
     return module
 
 
-# --------------------------------------------------------------------------- two workers (tools/test.sh: -n 2)
+# --------------------------------------------------------------------------- four workers (tools/test.sh: -n 4)
 ROOT = Path(__file__).resolve().parents[1]
-#: groups handed out first, one worker each: the rostests, one after another, and the Python 3.8 run of the
-#: core unit tests (test_noetic.py; mostly it waits on simulated instruments and clocks). A unit test file
-#: with a module or class fixture (computed once) is a group; the other unit tests go one by one to the
-#: worker that is free (tools/test.sh runs them after the first two).
-FIRST_GROUPS = ("rostests", "noetic")
+#: groups handed out first, one worker each: the rostests in two lanes side by side (each lane one rostest
+#: after another; each rostest has its own roscore on a free port), and the Python 3.8 run of the core unit
+#: tests in two parts (test_noetic.py's CORE_PARTS; its quick tests go with the first). A unit test file with
+#: a module or class fixture (computed once) is a group; the other unit tests go one by one to the worker
+#: that is free (a lane that has finished takes unit tests).
+FIRST_GROUPS = ("rostests-1", "rostests-2", "noetic-1", "noetic-2")
+#: about how long each rostest takes (s, this 2-core machine at load 8): the lanes are balanced by it (a
+#: rostest not listed counts 30 s)
+ROSTEST_SECONDS = {"abs_orient_consumer_bad.test": 76, "abs_orient_node.test": 70, "abs_orient_consumer.test": 67,
+                   "abs_orient_loop.test": 52, "abs_orient_markers_only.test": 48, "abs_orient_consumer_ekf.test": 48,
+                   "abs_orient_chaos.test": 43, "abs_orient_calibration.test": 41, "abs_orient_ekf.test": 35,
+                   "ms60_chaos.test": 31, "abs_orient_bad_inputs.test": 26, "ms60.test": 22, "synthetic_bag.test": 18,
+                   "abs_orient_startup.test": 16, "abs_orient_raw.test": 7}
+
+
+def rostest_lanes(names):
+    """{rostest file name: 'rostests-1' or 'rostests-2'}: the longest first, each to the lane with less so far."""
+    lanes, load = {}, {"rostests-1": 0.0, "rostests-2": 0.0}
+    for name in sorted(names, key=lambda n: -ROSTEST_SECONDS.get(n, 30)):
+        lane = min(load, key=load.get)
+        lanes[name] = lane
+        load[lane] += ROSTEST_SECONDS.get(name, 30)
+    return lanes
 
 
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(session, config, items):
     if not config.pluginmanager.hasplugin("xdist"):  # .venv-noetic runs the core tests without it
         return
+    lanes = rostest_lanes([item.callspec.params["name"] for item in items
+                           if Path(str(item.fspath)).name == "test_rostests.py"])
     for item in items:
         path = Path(str(item.fspath))
-        group = {"test_rostests.py": "rostests", "test_noetic.py": "noetic"}.get(path.name)
+        group = (lanes[item.callspec.params["name"]] if path.name == "test_rostests.py"
+                 else _noetic_lane(item) if path.name == "test_noetic.py" else None)
         shared = getattr(item, "_fixtureinfo", None) and any(
             d[-1].scope in ("module", "class", "package") for d in item._fixtureinfo.name2fixturedefs.values())
         if group or shared:
             item.add_marker(pytest.mark.xdist_group(group or path.relative_to(ROOT).as_posix()))
+
+
+def _noetic_lane(item) -> str:
+    """'noetic-2' for the second part of the core tests' Python 3.8 run, 'noetic-1' for the rest of test_noetic.py."""
+    part = getattr(item, "callspec", None) and item.callspec.params.get("part")
+    return f"noetic-{(part or 0) + 1}"
 
 
 try:

@@ -55,6 +55,7 @@ user's run of ``roslaunch aruco_abs_orient postprocess.launch`` on a generated s
 import argparse
 import collections
 import contextlib
+import fcntl
 import hashlib
 import math
 import os
@@ -94,8 +95,22 @@ def scenario(preset: str, duration: float = 0.0) -> Path:
     for p in sorted(pkg.glob("synthetic/*.py")) + [pkg / "camera.py", pkg / "markers.py", pkg / "tum.py"]:
         h.update(p.read_bytes())
     out = ROOT / ".cache" / "rostest" / f"{preset}-{h.hexdigest()[:12]}"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with _locked(out):  # rostests run side by side (make test): one renders, the others wait for it
+        _render(out, preset, duration)
+    return out
+
+
+@contextlib.contextmanager
+def _locked(path: Path):
+    """An exclusive lock on ``path``.lock for the block (between processes)."""
+    with open(str(path) + ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
+def _render(out: Path, preset: str, duration: float) -> None:
     if not all((out / f).exists() for f in ("scenario.bag", "truth.tum", "markers.yaml", "hidden.yaml")):
-        out.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.monotonic()
         extra = ["--duration", str(duration)] if duration else []
         proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"] + extra,
@@ -103,7 +118,6 @@ def scenario(preset: str, duration: float = 0.0) -> Path:
         if proc.returncode != 0:
             raise RuntimeError(f"scenario generation failed:\n{proc.stdout[-3000:]}")
         rospy.loginfo("generated the %s scenario in %.0f s", preset, time.monotonic() - t0)
-    return out
 
 
 def with_odometry_at(directory: Path, hz: float) -> Path:
@@ -112,8 +126,13 @@ def with_odometry_at(directory: Path, hz: float) -> Path:
     (``Scenario.odom_T_base`` of hidden.yaml, as rt_synthetic_tf_check.py checks the bag against), stamped
     on the camera clock like the bag's; everything else copied as it is."""
     out = directory / f"scenario_odom{hz:g}Hz.bag"
-    if out.exists():
-        return out
+    with _locked(out):
+        if not out.exists():
+            _write_with_odometry_at(directory, hz, out)
+    return out
+
+
+def _write_with_odometry_at(directory: Path, hz: float, out: Path) -> None:
     from rosbags.rosbag1 import Reader, Writer
 
     from aruco_abs_orient.synthetic.bag import Messages, make_typestore
@@ -141,7 +160,6 @@ def with_odometry_at(directory: Path, hz: float) -> Path:
                 k += 1
             writer.write(conns[conn.id], t_ns, raw)
     tmp.rename(out)
-    return out
 
 
 def time_offset_of(directory: Path) -> float:

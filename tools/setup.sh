@@ -2,7 +2,8 @@
 # Idempotent set-up of aruco_abs_orient on Debian 12 (run as root, or with passwordless sudo):
 #   1. Debian's ROS 1 packages (apt, only when one is missing),
 #   2. the venv .venv (/usr/bin/python3 --system-site-packages) with the pinned requirements,
-#   3. the real robot_localization, built by ../shared/tools/build-robot-localization into $WS/rl,
+#   3. the real robot_localization, built by ../shared/tools/build-robot-localization into one workspace per
+#      machine (~/.cache/aruco_abs_orient/robot_localization), in the background while steps 2 and 5 install,
 #   4. the catkin workspace $WS (the repository linked as $WS/src/aruco_abs_orient), built with
 #      the venv's python. $WS is outside the repository (tools/paths.sh says why and where).
 #   5. the venv .venv-noetic: a Python 3.8 (pyenv's, or python3.8 on PATH; $AAO_PYTHON38 overrides)
@@ -49,6 +50,28 @@ else
   log "Debian packages: all ${#APT_PKGS[@]} present"
 fi
 
+# --------------------------------------------------------------------------- 3. robot_localization (started)
+# the shared tools next to the repository (../shared), or where $AAO_SHARED says, or this machine's /work/shared
+RL_TOOL=
+for shared in "${AAO_SHARED:-}" "$ROOT/../shared" /work/shared; do
+  if [[ -n $shared && -x $shared/tools/build-robot-localization ]]; then
+    RL_TOOL=$shared/tools/build-robot-localization
+    break
+  fi
+done
+# Built in the background while the venvs install (its C++ build keeps both cores busy for minutes; pip
+# mostly unpacks), into one workspace per machine: it does not depend on the checkout, so another clone or
+# worktree finds it built (the tool keeps it up to date by a fingerprint of its sources and Debian's packages,
+# and locks it while it builds). AAO_RL_WS names another.
+RL_WS=${AAO_RL_WS:-${HOME:-/root}/.cache/aruco_abs_orient/robot_localization}
+RL_OUT=$STAMPS/rl_build.out
+RL_PID=
+if [[ -n $RL_TOOL ]]; then
+  "$RL_TOOL" "$RL_WS" >"$RL_OUT" 2>"$RL_OUT.log" &
+  RL_PID=$!
+fi
+
+
 # --------------------------------------------------------------------------- 2. venv
 VENV=$ROOT/.venv
 if [[ ! -x $VENV/bin/python ]] || ! grep -q '^include-system-site-packages = true' "$VENV/pyvenv.cfg" ||
@@ -72,63 +95,6 @@ else
   log "venv: up to date"
 fi
 
-# --------------------------------------------------------------------------- 3. robot_localization
-# the shared tools next to the repository (../shared), or where $AAO_SHARED says, or this machine's /work/shared
-RL_TOOL=
-for shared in "${AAO_SHARED:-}" "$ROOT/../shared" /work/shared; do
-  if [[ -n $shared && -x $shared/tools/build-robot-localization ]]; then
-    RL_TOOL=$shared/tools/build-robot-localization
-    break
-  fi
-done
-RL_SETUP=
-if [[ -n $RL_TOOL ]]; then
-  RL_SETUP=$("$RL_TOOL" "$WS/rl" | tail -n 1)
-  log "robot_localization: $RL_SETUP"
-else
-  log "robot_localization: no build-robot-localization in \$AAO_SHARED/tools, $ROOT/../shared/tools or" \
-    "/work/shared/tools: not built (the EKF rostest will fail and make demo skips the EKF; on a ROS distro" \
-    "install ros-\$ROS_DISTRO-robot-localization)"
-fi
-echo "$RL_SETUP" >"$STAMPS/rl_setup"
-
-# --------------------------------------------------------------------------- 4. catkin workspace
-mkdir -p "$WS/src"
-if [[ "$(readlink -f "$WS/src/aruco_abs_orient" 2>/dev/null)" != "$ROOT" ]]; then
-  rm -rf -- "$WS/src/aruco_abs_orient"
-  ln -s "$ROOT" "$WS/src/aruco_abs_orient"
-fi
-[[ -f $WS/src/CMakeLists.txt ]] || ln -sf /usr/share/catkin/cmake/toplevel.cmake "$WS/src/CMakeLists.txt"
-want=$( {
-  echo "$RL_SETUP"
-  cat CMakeLists.txt package.xml setup.py msg/*.msg
-  ls scripts test/*.test 2>/dev/null
-  [[ -d cfg ]] && find cfg -name '*.cfg' -exec cat {} +
-} | sha256sum | cut -d' ' -f1)
-if [[ "$(cat "$STAMPS/catkin" 2>/dev/null)" != "$want" || ! -f $WS/devel/setup.bash ]]; then
-  log "building the catkin workspace $WS (log: $WS/build.log)"
-  if [[ -n $RL_SETUP ]]; then
-    # shellcheck disable=SC1090
-    source "$RL_SETUP"
-  else
-    # shellcheck disable=SC1091
-    source /usr/share/catkin/setup.bash 2>/dev/null || true
-  fi
-  CMAKE_ARGS=(-DPYTHON_EXECUTABLE="$VENV/bin/python" -DCMAKE_BUILD_TYPE=Release)
-  # a build/ configured for another python or another underlay is useless: start over
-  if [[ -f $WS/build/CMakeCache.txt ]] && ! grep -qxF "PYTHON_EXECUTABLE:FILEPATH=$VENV/bin/python" \
-    "$WS/build/CMakeCache.txt"; then
-    rm -rf -- "$WS/build" "$WS/devel"
-  fi
-  if ! (cd "$WS" && catkin_make "${CMAKE_ARGS[@]}" </dev/null) >"$WS/build.log" 2>&1; then
-    tail -n 40 "$WS/build.log" >&2
-    log "ERROR: catkin_make failed; full log: $WS/build.log"
-    exit 1
-  fi
-  echo "$want" >"$STAMPS/catkin"
-else
-  log "catkin workspace: up to date"
-fi
 # --------------------------------------------------------------------------- 5. .venv-noetic
 # Every Python 3.8 interpreter we can see, the newest patch release first: $AAO_PYTHON38, pyenv's
 # versions (pyenv root, $PYENV_ROOT, ~/.pyenv), python3.8 on PATH (a pyenv shim only works when pyenv
@@ -178,5 +144,58 @@ import aruco_abs_orient.offline.cli' && "$NVENV/bin/python" -m pip check -q >&2;
       log "WARNING: $NVENV cannot import its requirements (see above): test/test_noetic.py will fail"
     fi
   fi
+fi
+# --------------------------------------------------------------------------- 3. robot_localization (the end)
+RL_SETUP=
+if [[ -n $RL_PID ]]; then
+  rl_status=0
+  wait "$RL_PID" || rl_status=$?
+  cat "$RL_OUT.log" >&2
+  ((rl_status == 0)) || { log "ERROR: building robot_localization failed (exit $rl_status; above)"; exit 1; }
+  RL_SETUP=$(tail -n 1 "$RL_OUT")
+  log "robot_localization: $RL_SETUP"
+else
+  log "robot_localization: no build-robot-localization in \$AAO_SHARED/tools, $ROOT/../shared/tools or" \
+    "/work/shared/tools: not built (the EKF rostest will fail and make demo skips the EKF; on a ROS distro" \
+    "install ros-\$ROS_DISTRO-robot-localization)"
+fi
+echo "$RL_SETUP" >"$STAMPS/rl_setup"
+
+# --------------------------------------------------------------------------- 4. catkin workspace
+mkdir -p "$WS/src"
+if [[ "$(readlink -f "$WS/src/aruco_abs_orient" 2>/dev/null)" != "$ROOT" ]]; then
+  rm -rf -- "$WS/src/aruco_abs_orient"
+  ln -s "$ROOT" "$WS/src/aruco_abs_orient"
+fi
+[[ -f $WS/src/CMakeLists.txt ]] || ln -sf /usr/share/catkin/cmake/toplevel.cmake "$WS/src/CMakeLists.txt"
+want=$( {
+  echo "$RL_SETUP"
+  cat CMakeLists.txt package.xml setup.py msg/*.msg
+  ls scripts test/*.test 2>/dev/null
+  [[ -d cfg ]] && find cfg -name '*.cfg' -exec cat {} +
+} | sha256sum | cut -d' ' -f1)
+if [[ "$(cat "$STAMPS/catkin" 2>/dev/null)" != "$want" || ! -f $WS/devel/setup.bash ]]; then
+  log "building the catkin workspace $WS (log: $WS/build.log)"
+  if [[ -n $RL_SETUP ]]; then
+    # shellcheck disable=SC1090
+    source "$RL_SETUP"
+  else
+    # shellcheck disable=SC1091
+    source /usr/share/catkin/setup.bash 2>/dev/null || true
+  fi
+  CMAKE_ARGS=(-DPYTHON_EXECUTABLE="$VENV/bin/python" -DCMAKE_BUILD_TYPE=Release)
+  # a build/ configured for another python or another underlay is useless: start over
+  if [[ -f $WS/build/CMakeCache.txt ]] && ! grep -qxF "PYTHON_EXECUTABLE:FILEPATH=$VENV/bin/python" \
+    "$WS/build/CMakeCache.txt"; then
+    rm -rf -- "$WS/build" "$WS/devel"
+  fi
+  if ! (cd "$WS" && catkin_make "${CMAKE_ARGS[@]}" </dev/null) >"$WS/build.log" 2>&1; then
+    tail -n 40 "$WS/build.log" >&2
+    log "ERROR: catkin_make failed; full log: $WS/build.log"
+    exit 1
+  fi
+  echo "$want" >"$STAMPS/catkin"
+else
+  log "catkin workspace: up to date"
 fi
 log "done in $(elapsed) s"

@@ -242,6 +242,7 @@ class NodeHealth:
         self.seen_ids: Tuple[int, ...] = ()
         self.extra_values: Dict[str, object] = {}
         self._prev: Dict[str, int] = {}
+        self._prev_images = (0, 0)                    # images received, dropped at the previous report
         self._prev_wall = float(start_wall)           # s (monotonic) of the previous report
 
     def count(self, key: str, n: int = 1) -> None:
@@ -340,6 +341,10 @@ class NodeHealth:
         for key, text in _PROBLEM_TEXTS:
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
+        dropped = images_dropped - self._prev_images[1]
+        if dropped > 0:  # the oldest images went: say what the node achieves
+            problems.append(f"cannot keep up: {dropped} of {images_received - self._prev_images[0]} images dropped "
+                            f"(the oldest), processing {values['rate [Hz]']:.1f} Hz")
         if problems and level == "ok":
             level = "warn"
         if not problems and not initialised:
@@ -348,6 +353,7 @@ class NodeHealth:
             problems.append(f"initialising: {why}")
         message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
         self._prev = dict(self.counts)
+        self._prev_images = (images_received, images_dropped)
         self._prev_wall = now_wall
         self.stage_ms.clear()
         return level, message, values

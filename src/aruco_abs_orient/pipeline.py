@@ -27,7 +27,7 @@ import numpy as np
 
 from .camera import DualFisheye, Equirect
 from .correction import FilterParams, MapOdomFilter
-from .detection import DetectionError, DetectorParams, MarkerObservation, decode_jpeg, to_grey
+from .detection import DetectionError, DetectorParams, MarkerObservation, frame_to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
 from .solver import (
@@ -406,6 +406,9 @@ class AbsOrientPipeline:
     def process_image(self, t: float, image: Union[np.ndarray, bytes], odom_T_base) -> FrameResult:
         """One image at total-station time ``t`` with the odometry pose ``odom_T_base`` (4×4) then.
 
+        ``image``: JPEG bytes (decoded here, reduced by ``jpeg_reduce``) or a numpy frame (grey or BGR) —
+        also a JPEG decoded beforehand, in another thread, by ``detection.frame_to_grey`` with the same
+        ``jpeg_reduce`` (the node does: decoding the next image overlaps processing this one).
         Never raises for bad data: a corrupt image, NaN odometry or a missing prism give a
         FrameResult with ``error`` set (and a counter in ``stats``).
         """
@@ -423,10 +426,7 @@ class AbsOrientPipeline:
             self._count("bad_odometry")
             return res
         try:
-            if isinstance(image, (bytes, bytearray, memoryview)):
-                grey = decode_jpeg(bytes(image), reduce=int(self.params.jpeg_reduce))
-            else:
-                grey = to_grey(image)
+            grey = frame_to_grey(image, int(self.params.jpeg_reduce))
         except DetectionError as e:
             res.error = f"bad image: {e}"
             self._count("bad_images")
@@ -452,7 +452,7 @@ class AbsOrientPipeline:
             res.error = f"bad image: {e}"
             self._count("bad_images")
             return res
-        res.timings["detect"] = 1e3 * (time.perf_counter() - clock)
+        res.timings["track"] = 1e3 * (time.perf_counter() - clock)
         res.tracking = tracked.stats
         self._count("rejected_unknown", tracked.stats.rejected_unknown)
         self._count("rejected_tracking_gate", tracked.stats.rejected_gate)

@@ -122,25 +122,29 @@ def test_health_rates_and_levels_since_the_previous_report():
     h.count("processed", 30)
     h.set_seen([7, 3, 7])
     h.latencies_ms.extend([10.0, 20.0, 30.0, 40.0])
-    h.add_stages({"detect": 60.0})
-    h.add_stages({"detect": 30.0})
+    h.add_stages({"track": 60.0})
+    h.add_stages({"track": 30.0})
     level, message, values = _report(h, 2.0, images_received=40, images_dropped=10)
-    assert (level, message) == ("ok", "tracking 2 marker(s)")
+    assert (level, message) == ("warn", "cannot keep up: 10 of 40 images dropped (the oldest), processing 15.0 Hz")
     assert values["rate [Hz]"] == pytest.approx(15.0)            # 30 processed in 2 s
     assert values["marker ids"] == "3 7" and values["markers seen"] == 2
     assert values["dropped fraction"] == pytest.approx(0.25)
     assert values["latency median [ms]"] == pytest.approx(25.0)
     assert values["latency p95 [ms]"] == pytest.approx(38.5)     # 30 + 0.85 * 10
     assert values["prism age [s]"] == pytest.approx(0.2)
-    assert values["stage detect [ms]"] == pytest.approx(3.0)     # 90 ms over 30 frames
+    assert values["stage track [ms]"] == pytest.approx(3.0)      # 90 ms over 30 frames
     h.error("tf_failures", "tf odom -> base_link: no data")
     h.error("tf_failures", "tf odom -> base_link: no data")
-    level, message, values = _report(h, 3.0)
+    level, message, values = _report(h, 3.0, images_received=40, images_dropped=10)  # none dropped since
     assert (level, message) == ("warn", "2 tf lookups failed")
-    assert values["rate [Hz]"] == 0.0 and values["tf failures"] == 2 and "stage detect [ms]" not in values
+    assert values["rate [Hz]"] == 0.0 and values["tf failures"] == 2 and "stage track [ms]" not in values
     assert values["last error"] == "tf odom -> base_link: no data"
-    level, message, _ = _report(h, 4.0)                           # nothing new: recovered
+    h.count("processed", 27)
+    level, message, _ = _report(h, 4.0, images_received=70, images_dropped=10)   # nothing new: recovered
     assert (level, message) == ("ok", "tracking 2 marker(s)")
+    h.count("processed", 20)
+    level, message, _ = _report(h, 5.0, images_received=100, images_dropped=20)  # 10 more dropped
+    assert (level, message) == ("warn", "cannot keep up: 10 of 30 images dropped (the oldest), processing 20.0 Hz")
 
 
 def test_health_waiting_stale_inputs_and_an_extra_key():

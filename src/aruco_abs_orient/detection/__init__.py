@@ -31,7 +31,7 @@ Python 3.8 compatible; numpy and OpenCV only.
 The package, one module per stage (each says what goes in and what comes out):
 
 - :mod:`.params`: :class:`DetectorParams` (every detection knob) and :class:`DetectionError`;
-- :mod:`.images`: frames in (:func:`to_grey`, :func:`decode_jpeg`);
+- :mod:`.images`: frames in (:func:`to_grey`, :func:`decode_jpeg`, :func:`frame_to_grey`);
 - :mod:`.backend`: the OpenCV adapter (:class:`ArucoBackend`);
 - :mod:`.quads`: corner refinement and cell reading of quads in a perspective image;
 - :mod:`.sphere`: centre geometry on the sphere, and the quad stages run in virtual views;
@@ -41,7 +41,7 @@ The package, one module per stage (each says what goes in and what comes out):
 
 from .backend import ArucoBackend
 from .detector import MarkerDetector, Wanted
-from .images import decode_jpeg, to_grey
+from .images import decode_jpeg, frame_to_grey, to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectionError, DetectorParams
 from .quads import decode_quad, decode_quads, image_sampler, refine_quad, refine_quads
@@ -63,6 +63,7 @@ __all__ = [
     "MarkerDetector",
     "Wanted",
     "decode_jpeg",
+    "frame_to_grey",
     "to_grey",
     "sphere_centre_bearing",
     "pixel_centre_bearing",

@@ -2,7 +2,8 @@
 
 In: a numpy image (grey, BGR or BGRA uint8) or JPEG bytes. Out: a grey uint8 equirect image
 (2:1) for the detector (:func:`to_grey`, :func:`decode_jpeg`, optionally reduced by 2, 4 or 8
-in the DCT); :class:`~.params.DetectionError` naming the frame otherwise.
+in the DCT; :func:`frame_to_grey` takes either); :class:`~.params.DetectionError` naming the
+frame otherwise. Decoding holds no state and releases the GIL: it may run in its own thread.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import numpy as np
 
 from .params import DetectionError
 
-__all__ = ["to_grey", "decode_jpeg"]
+__all__ = ["to_grey", "decode_jpeg", "frame_to_grey"]
 
 
 def to_grey(image, what: str = "image") -> np.ndarray:
@@ -38,6 +39,14 @@ def to_grey(image, what: str = "image") -> np.ndarray:
     if w != 2 * h:
         raise DetectionError(f"{what}: an equirectangular frame is 2:1, got {w}×{h}")
     return image
+
+
+def frame_to_grey(image, reduce: int = 1, what: str = "image") -> np.ndarray:
+    """The grey frame of JPEG bytes (:func:`decode_jpeg`, reduced by ``reduce`` in the DCT) or of a numpy
+    image (:func:`to_grey`: a mono8 array is used as it is, without a copy). Raises DetectionError."""
+    if isinstance(image, (bytes, bytearray, memoryview)):
+        return decode_jpeg(bytes(image), reduce=reduce, what=what)
+    return to_grey(image, what)
 
 
 def decode_jpeg(data, reduce: int = 1, what: str = "jpeg") -> np.ndarray:

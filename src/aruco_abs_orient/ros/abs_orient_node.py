@@ -38,8 +38,12 @@ back by more than ``~time_jump_tolerance`` s (sim time: a bag looped or restarte
 and clears the tf buffer.
 
 Real time. The image callback only drops the message into a one-slot mailbox (the newest wins; a
-replaced, unprocessed image is counted as dropped); the main thread processes the mailbox. Subscriber
-``queue_size=1`` with a large ``buff_size``: no queue can grow. Prism messages go through a bounded deque.
+replaced, unprocessed image is counted as dropped: the oldest goes, nothing queues); a decoder thread turns
+the newest message into its grey frame (JPEG decoded: libjpeg releases the GIL) as soon as the main thread
+has taken the previous frame, so decoding the next image overlaps processing this one; the main thread
+processes the frames. Subscriber ``queue_size=1`` with a large ``buff_size``: no queue can grow. When images
+are dropped, ``/diagnostics`` warns with the rate achieved. Stage times (ms per processed image) in
+``/diagnostics``: decode, track, solve, publish. Prism messages go through a bounded deque.
 
 Bad input never stops the node: a corrupt image, unknown ids, NaN/missing tf, no prism — each is counted,
 logged (throttled) and reported on ``/diagnostics``, and processing carries on with the next message. A
@@ -76,7 +80,7 @@ import numpy as np
 
 from ..calibration import CalibrationError, load_calibration
 from ..debugview import debug_frame, encode_debug_jpeg
-from ..detection import DetectionError, decode_jpeg
+from ..detection import DetectionError, frame_to_grey
 from ..errors import ConfigurationError
 from ..mapcheck import DOES_NOT_FIT, FITS, MapCheckParams, MapVerdict, RollingMapCheck
 from ..markers import MarkerMap, MarkerMapError
@@ -271,7 +275,7 @@ class Mailbox:
             if self._item is not None:
                 self.dropped += 1
             self._item = item
-            self._cond.notify()
+            self._cond.notify_all()
 
     def take(self, timeout: float):
         """The newest item (and empty the slot), or None after ``timeout`` s (wall clock)."""
@@ -279,7 +283,13 @@ class Mailbox:
             if self._item is None:
                 self._cond.wait(timeout)
             item, self._item = self._item, None
+            self._cond.notify_all()
             return item
+
+    def wait_taken(self, timeout: float) -> bool:
+        """Wait until the slot is empty (its item taken), at most ``timeout`` s (wall clock); True when empty."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._item is None, timeout)
 
 
 class _Throttle:
@@ -355,7 +365,6 @@ class AbsOrientNode:
         self.pub_debug_raw = rospy.Publisher("~debug_image", Image, queue_size=1)
         self._debug_wall = -math.inf
         self._rays_shown = False
-        self._debug_reduce = 1  # JPEG DCT reduction for ~debug_image (learnt from the first frame's width)
         self.pub_pose_markers = rospy.Publisher("abs_orient/pose_markers", PoseWithCovarianceStamped, queue_size=10)
         self.imu_tilts: Deque[Tuple[float, float, float, float]] = collections.deque(maxlen=1000)
         if config.imu_topic:
@@ -364,7 +373,8 @@ class AbsOrientNode:
             self.imu_sub = rospy.Subscriber(config.imu_topic, Imu, self._on_imu, queue_size=50)
 
         # counters and state (main thread only, except the mailbox and the prism deque)
-        self.images = Mailbox()
+        self.images = Mailbox()   # messages, from the subscriber callback
+        self.frames = Mailbox()   # (message, receipt wall time, grey frame or why not, decode ms), decoder thread
         self.prisms: Deque[Tuple[float, np.ndarray]] = collections.deque(maxlen=1000)
         self.prism_errors: Deque[str] = collections.deque(maxlen=100)
         self.prism_stamps: Deque[float] = collections.deque(maxlen=1000)  # for the timestamp status
@@ -469,16 +479,37 @@ class AbsOrientNode:
 
     # ------------------------------------------------------------------ main loop
     def run(self) -> None:
-        """Process images until shutdown (the calling thread is the worker)."""
+        """Process images until shutdown (the calling thread is the worker; a second thread decodes)."""
         period = 1.0 / self.config.tf_rate
         timer = self.rospy.Timer(self.rospy.Duration(period / 2), self._republish_map_odom, reset=True)
+        threading.Thread(target=self._decode_loop, name="decode", daemon=True).start()
         while not self.rospy.is_shutdown():
-            item = self.images.take(timeout=period)
+            item = self.frames.take(timeout=period)
             self._apply_params()
             if item is not None:
                 self._process(*item)
             self._update_diagnostics()
         timer.shutdown()
+
+    def _decode_loop(self) -> None:
+        """The decoder thread: once the main thread has taken the previous frame, the newest message becomes
+        its grey frame (a corrupt one: the reason, reported by the main thread). Images that arrive meanwhile
+        replace each other in the message mailbox (the oldest is dropped, counted)."""
+        while not self.rospy.is_shutdown():
+            if not self.frames.wait_taken(timeout=0.1):
+                continue
+            item = self.images.take(timeout=0.1)
+            if item is None:
+                continue
+            msg, received_wall = item
+            start = time.perf_counter()
+            pipeline = self.pipeline  # its params (jpeg_reduce) may change: read once per image
+            reduce = (pipeline.params if pipeline is not None else self.config.tunables().pipeline).jpeg_reduce
+            try:
+                grey = frame_to_grey(self._decode(msg), int(reduce))
+            except (self.cv.ConversionError, DetectionError) as e:
+                grey = str(e)
+            self.frames.put((msg, received_wall, grey, 1e3 * (time.perf_counter() - start)))
 
     def _update_diagnostics(self) -> None:
         """diagnostic_updater's periodic publication; after the clock jumped back (a looped bag) it would wait
@@ -742,7 +773,8 @@ class AbsOrientNode:
             self._error("tf_nan", str(e))
             return None
 
-    def _process(self, msg, received_wall: float) -> None:
+    def _process(self, msg, received_wall: float, image, decode_ms: float) -> None:
+        """One decoded image (``image``: the grey frame, or why the message gave none)."""
         cv = self.cv
         stamp = msg.header.stamp
         s = cv.stamp_to_sec(stamp)
@@ -761,10 +793,8 @@ class AbsOrientNode:
         self._feed_prisms()
         if not self._ensure_pipeline():
             return
-        try:
-            image = self._decode(msg)
-        except cv.ConversionError as e:
-            self._error("bad_images", str(e))
+        if isinstance(image, str):
+            self._error("bad_images", image)
             return
         tf_wait = time.monotonic()
         odom_T_base = self._odom_T_base(stamp)
@@ -793,8 +823,10 @@ class AbsOrientNode:
         unknown = result.tracking.rejected_unknown if result.tracking is not None else 0
         if unknown:
             self.health.count("unknown_ids", unknown)
+        publish_start = time.perf_counter()
         self._publish(result, stamp, odom_T_base)
         self.health.latencies_ms.append(1e3 * (time.monotonic() - received_wall))
+        publish_ms = 1e3 * (time.perf_counter() - publish_start)
         debug_start = time.perf_counter()
         self._publish_debug(msg, image, result)
         self.health.add_stages({"debug image": 1e3 * (time.perf_counter() - debug_start)})
@@ -802,8 +834,8 @@ class AbsOrientNode:
         self._feed_selfcheck(result, odom_T_base)
         self._check_map(time.monotonic())
         self._estimate_time_offset(s, odom_T_base, result)
-        self.health.add_stages(result.timings)
-        self.health.add_stages({"tf wait": tf_wait_ms})
+        self.health.add_stages(result.timings)  # its decode: checking the decoded frame
+        self.health.add_stages({"decode": decode_ms, "publish": publish_ms, "tf wait": tf_wait_ms})
 
     def _estimate_time_offset(self, s: float, odom_T_base: np.ndarray, result: FrameResult) -> None:
         """Feed the live estimator (camera clock ``s``); start an estimate when one is due; switch to a
@@ -881,15 +913,11 @@ class AbsOrientNode:
             return
         self._debug_wall = now
         try:
-            grey = decode_jpeg(image, self._debug_reduce) if isinstance(image, bytes) else image
-            # the next JPEG decoded already reduced in the DCT (2, 4, 8) as far as ~debug_width allows
-            full = grey.shape[1] * self._debug_reduce
-            self._debug_reduce = max((r for r in (1, 2, 4, 8) if full // r >= c.debug_width), default=1)
             map_T_camera = (result.map_T_base @ self.pipeline.base_T_camera if result.map_T_base is not None
                             else None)
-            frame = debug_frame(grey, result.observations, self.marker_map, map_T_camera, int(c.debug_width))
+            frame = debug_frame(image, result.observations, self.marker_map, map_T_camera, int(c.debug_width))
             jpeg = encode_debug_jpeg(frame) if jpeg_wanted else b""
-        except (DetectionError, ValueError) as e:
+        except ValueError as e:
             self._error("debug_image", f"~debug_image: {e}")
             return
         if jpeg_wanted:
@@ -946,7 +974,8 @@ class AbsOrientNode:
         level, message, values = self.health.report(time.monotonic(), self.rospy.get_time(), NodeSnapshot(
             initialised=self.initialised, image_age_wall=time.monotonic() - self.last_image_wall,
             last_prism_stamp=self.last_prism_stamp, prisms_waiting=bool(self.prisms),
-            images_received=self.images.received, images_dropped=self.images.dropped, time_offset=self.time_offset,
+            images_received=self.images.received, images_dropped=self.images.dropped + self.frames.dropped,
+            time_offset=self.time_offset,
             time_offset_source=self.time_offset_source, pipeline=self.pipeline, offset_estimator=self.offset_estimator,
             map_odom_yaw=float(yaw_of(r.map_T_odom[:3, :3])) if r is not None and r.map_T_odom is not None else None))
         if self.map_refused:

@@ -87,6 +87,44 @@ def test_mailbox_keeps_the_newest_and_counts_what_it_replaced():
     assert box.dropped > 100                     # the producer was ~10x faster
 
 
+def test_decoder_between_two_mailboxes_drops_the_oldest_message_and_never_queues():
+    """The node's hand-over: callback → messages → decoder (waits until its frame was taken) → frames →
+    processing. A slow consumer sees the newest images in order; the decoder never replaces an untaken
+    frame (no decoding wasted), so every drop is an older message replaced before it was decoded."""
+    messages, frames = Mailbox(), Mailbox()
+    taken, stop = [], threading.Event()
+
+    def decoder():
+        while not stop.is_set():
+            if frames.wait_taken(timeout=0.05):
+                item = messages.take(timeout=0.05)
+                if item is not None:
+                    time.sleep(0.002)  # decoding
+                    frames.put(item)
+
+    def consumer():  # 8 ms per frame
+        while not stop.is_set():
+            item = frames.take(timeout=0.05)
+            if item is not None:
+                taken.append(item)
+                time.sleep(0.008)
+
+    threads = [threading.Thread(target=f) for f in (decoder, consumer)]
+    for t in threads:
+        t.start()
+    for i in range(300):  # ~ every 0.5 ms: ~16x faster than the consumer
+        messages.put(i)
+        time.sleep(0.0005)
+    time.sleep(0.1)
+    stop.set()
+    for t in threads:
+        t.join()
+    assert taken[-1] == 299 and taken == sorted(taken)
+    assert frames.dropped == 0
+    assert len(taken) + messages.dropped == 300 and messages.dropped > 200
+    assert frames.wait_taken(timeout=0.01)     # empty: returns at once
+
+
 def test_cfg_entries_are_pipeline_tunables_with_their_defaults(generated_cfg):
     tunables = {name: default for _, name, default in all_param_fields()}
     names = set(generated_cfg.defaults)
