@@ -223,6 +223,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "they are estimated, and written to the calibration YAML)")
     p.add_argument("--every", type=int, default=1, metavar="N",
                    help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
+    p.add_argument("--plot", metavar="DIR", help="write DIR/calibration.png: the bearing residuals against azimuth and "
+                   "elevation before and after, per lens, with the fitted mounting (evaluate shows it in the report)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     d = BagTopics()
     g = p.add_argument_group("topics and frames")
@@ -263,6 +265,11 @@ def run(args: argparse.Namespace) -> int:
     if not os.path.isdir(out_dir) or not os.access(out_dir, os.W_OK):
         return _fail(f"{args.out}: the directory {out_dir} does not exist or is not writable")
     try:
+        if args.plot:
+            os.makedirs(args.plot, exist_ok=True)
+    except OSError as e:
+        return _fail(f"--plot {args.plot}: cannot create it: {e.strerror}")
+    try:
         marker_map = MarkerMap.load(args.markers)
         recording = video_recording(args, marker_map) or args.bag
         data = read_bag_data(recording, topics)
@@ -286,6 +293,11 @@ def run(args: argparse.Namespace) -> int:
     launch = launch_path(args.out)
     atomic_write_text(args.out, text)
     atomic_write_text(launch, f"<launch>\n{snippet}</launch>\n")
+    if args.plot:
+        from ..plots import plot_calibration
+
+        plot = plot_calibration(os.path.join(args.plot, "calibration.png"), cal, obs.bearings, data.base_T_camera)
+        print(f"wrote {plot}")
     print(json.dumps(cal.report_dict(), default=float))
     print(f"platform model: {cal.heading_model_reason}")
     for warning in cal.warnings:
