@@ -96,9 +96,10 @@ def _title(fig, answer: str) -> float:
 
 
 def _finish(fig, path: str, answer: str) -> str:
-    """The answer as the figure's title, the axes laid out below it, saved."""
-    top = 1.0 - _title(fig, answer)
-    fig.tight_layout(rect=(0.0, 0.0, 1.0, top))
+    """The answer as the figure's title, the axes laid out below it (room for their own titles), saved."""
+    top = 1.0 - _title(fig, answer) - 0.32 / fig.get_figheight()
+    fig.tight_layout()         # (matplotlib ≥ 3.3 leaves room for the title itself, 3.1 does not)
+    fig.subplots_adjust(top=min(fig.subplotpars.top, top))
     return save_figure(fig, path, answer)
 
 
@@ -111,17 +112,20 @@ def _deg(x: float, digits: int = 3) -> str:
 
 def _offset_answer(best, refined: bool, in_use: Optional[float]) -> Tuple[str, bool]:
     """(title, whether the offset in use is off) for the best estimate ``best`` (OffsetEstimate)."""
-    where = ("the marker bearings agree best" if refined
-             else "the VO heading follows the prism track best (VO heading alone: refine it with timesync --markers)")
     tau, sigma = 1e3 * best.offset, 1e3 * best.sigma
-    if in_use is None:
-        return f"time offset {tau:.1f} ± {sigma:.1f} ms: {where} there", False
-    used = 1e3 * in_use
-    off = abs(used - tau) > max(3.0 * sigma, 0.5)
+    used = None if in_use is None else 1e3 * in_use
+    off = used is not None and abs(used - tau) > max(3.0 * sigma, 0.5)
+    if not refined:
+        head = (f"time offset {tau:.1f} ± {sigma:.1f} ms" if used is None else
+                f"time offset in use {used:.1f} ms ({used - tau:+.1f} ms from {tau:.1f} ± {sigma:.1f} ms)")
+        return (head + ": where the VO heading follows the prism track best; refine it with the marker bearings "
+                "(timesync --markers)"), False   # a coarse σ cannot judge an offset refined elsewhere
+    if used is None:
+        return f"time offset {tau:.1f} ± {sigma:.1f} ms: the marker bearings agree best there", False
     if off:
-        return (f"time offset in use {used:.1f} ms is {used - tau:+.1f} ms off: {where} at "
+        return (f"time offset in use {used:.1f} ms is {used - tau:+.1f} ms off: the marker bearings agree best at "
                 f"{tau:.1f} ± {sigma:.1f} ms"), True
-    return f"time offset in use {used:.1f} ms: {where} there ({tau:.1f} ± {sigma:.1f} ms)", False
+    return f"time offset in use {used:.1f} ms: the marker bearings agree best there ({tau:.1f} ± {sigma:.1f} ms)", False
 
 
 def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.ndarray, np.ndarray]] = None,
@@ -199,39 +203,50 @@ def plot_marker_agreement(path: str, agreement, pairwise=None, size: Optional[Tu
     size = size or (WIDTH, max(380, 160 + 55 * m))
     flagged = set(agreement.flagged)
     if flagged:
-        worst = max(flagged, key=lambda i: abs(agreement.median[ids.index(i)]))
-        k = ids.index(worst)
+        by = ", ".join(f"marker {i} by {math.degrees(agreement.median[ids.index(i)]):+.3f}°"
+                       for i in sorted(flagged, key=lambda i: -abs(agreement.median[ids.index(i)])))
         names = ", ".join(str(i) for i in sorted(flagged))
-        answer = (f"marker{'s' if len(flagged) > 1 else ''} {names} disagree{'' if len(flagged) > 1 else 's'} with "
-                  f"the others: marker {worst} by {math.degrees(agreement.median[k]):+.3f}° (the others' typical "
-                  f"spread {_deg(agreement.typical_spread)}): moved, or surveyed wrong")
+        typical = _deg(agreement.typical_spread)
+        if len(flagged) == 1:
+            off = math.degrees(agreement.median[ids.index(min(flagged))])
+            answer = (f"marker {names} disagrees with the others by {off:+.3f}° (their typical spread {typical}): "
+                      "moved, or surveyed wrong")
+        else:
+            answer = f"markers {names} disagree with the others: {by} (their typical spread {typical}): moved, or " \
+                     "surveyed wrong"
     elif m:
         worst = float(np.nanmax(np.abs(agreement.median))) if np.any(np.isfinite(agreement.median)) else float("nan")
         answer = (f"the markers agree: every marker's median within {_deg(worst)} of the consensus, typical spread "
                   f"{_deg(agreement.typical_spread)}")
     else:
         answer = "no marker yaw had a consensus to compare with (the filter never ran)"
-    finite = np.abs(np.degrees(agreement.median[np.isfinite(agreement.median)]))
+    ok = np.isfinite(agreement.median)
+    finite = np.degrees(np.abs(agreement.median[ok]) + np.nan_to_num(agreement.spread[ok]))
     typical = math.degrees(agreement.typical_spread) if math.isfinite(agreement.typical_spread) else 0.05
-    lim = max(6.0 * typical, 1.2 * float(finite.max()) if finite.size else 0.0, 0.05)
+    lim = max(6.0 * typical, 1.1 * float(finite.max()) if finite.size else 0.0, 0.05)
     with _style():
         fig = _figure(*size)
         height = size[1]
         top = 1.0 - _title(fig, answer) - 34.0 / height            # the legend's row under the title
         bottom = 66.0 / height
-        ax = fig.add_axes([0.12, bottom, 0.46, top - bottom])
+        ax = fig.add_axes([0.12, bottom, 0.4, top - bottom])
         dev = np.degrees(agreement.deviation)
         rng = np.random.RandomState(0)
         for k, mid in enumerate(ids):
             sel = (agreement.ids == mid) & np.isfinite(dev)
             y = k + rng.uniform(-0.22, 0.22, int(sel.sum()))
-            d = np.clip(dev[sel], -lim, lim)
+            d = dev[sel]
             acc = agreement.accepted[sel]
+            inside = np.abs(d) <= lim
             bad = mid in flagged
             if bad:
                 ax.axhspan(k - 0.45, k + 0.45, color=_BAD, alpha=0.12, lw=0)
-            ax.plot(d[acc], y[acc], ".", color=_GOOD, ms=4, alpha=0.6)
-            ax.plot(d[~acc], y[~acc], "x", color=_BAD, ms=5, alpha=0.8)
+            ax.plot(d[acc & inside], y[acc & inside], ".", color=_GOOD, ms=4, alpha=0.6)
+            ax.plot(d[~acc & inside], y[~acc & inside], "x", color=_BAD, ms=5, alpha=0.8)
+            for side, marker in ((-1.0, "<"), (1.0, ">")):     # beyond the axis: at its edge, pointing out
+                out = side * d > lim
+                ax.plot(np.full(int(out.sum()), side * lim * 0.985), y[out], marker, ms=5,
+                        color=_BAD if bad else "0.3")
             med, spread = math.degrees(agreement.median[k]), math.degrees(agreement.spread[k])
             if math.isfinite(med):
                 ax.add_patch(_rectangle((med - spread, k - 0.3), 2 * spread, 0.6))
@@ -240,7 +255,7 @@ def plot_marker_agreement(path: str, agreement, pairwise=None, size: Optional[Tu
             text = f"{med:+.3f}° ± {spread:.3f}°" if math.isfinite(med) else "no consensus"
             if reasons:
                 reason, _ = Counter(reasons).most_common(1)[0]
-                text += f"\n{sum(reasons.values())} rejected: {_short(reason)}" + (" …" if len(reasons) > 1 else "")
+                text += f"\n{sum(reasons.values())} rejected: {_short(reason, 26)}" + (" …" if len(reasons) > 1 else "")
             ax.text(1.02, k, text, transform=ax.get_yaxis_transform(), va="center", fontsize=9.5,
                     color=_BAD if bad else "k")
         ax.set_yticks(range(m))
@@ -255,18 +270,18 @@ def plot_marker_agreement(path: str, agreement, pairwise=None, size: Optional[Tu
         ax.plot([], [], "s", color="0.75", label="median ± robust spread")
         ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=9.5, frameon=False)
         if pairwise is not None and pairwise.per_pair:
-            side = min(0.2 * size[0], (top - bottom) * height - 30.0)
-            _pair_matrix(fig.add_axes([0.8, bottom, side / size[0], side / height]), pairwise, lim)
+            side = min(0.15 * size[0], (top - bottom) * height - 30.0)
+            _pair_matrix(fig.add_axes([0.83, bottom, side / size[0], side / height]), pairwise, lim)
         return save_figure(fig, path, answer)
 
 
-def _short(reason: str) -> str:
+def _short(reason: str, most: int = 32) -> str:
     """A pipeline rejection reason without its explanation (in brackets, or after the colon of a long one), at most
-    32 characters."""
+    ``most`` characters."""
     text = reason.split(" (")[0]
-    if len(text) > 32 and ": " in text:
+    if len(text) > most and ": " in text:
         text = text.split(": ")[0]
-    return text if len(text) <= 32 else text[:31] + "…"
+    return text if len(text) <= most else text[:most - 1] + "…"
 
 
 def _rectangle(xy, width, height):
@@ -354,7 +369,7 @@ def plot_heading_error(path: str, curves: Sequence[HeadingCurve], spans: Sequenc
             ax.axvspan(s.start - t0, s.end - t0, color=c, alpha=0.25, lw=0)
         for r in reasons:
             ax.fill_between([], [], [], color=span_colours[reasons.index(r) % len(span_colours)], alpha=0.25,
-                            label=f"no absolute update: {r}")
+                            label=f"no absolute update: {_short(r, 40)}")
         for k, c in enumerate(curves):
             colour = colours[k % len(colours)]
             t = np.asarray(c.errors.t, dtype=float) - t0
@@ -373,6 +388,14 @@ def plot_heading_error(path: str, curves: Sequence[HeadingCurve], spans: Sequenc
                         alpha=1.0 - 0.25 * j, transform=ax.get_xaxis_transform(),
                         label=f"rejected marker yaw: {_short(r)} ({by_reason[r]})")
         ax.axhline(0.0, color="k", lw=0.6)
+        shown = [np.abs(np.degrees(c.errors.error)) for c in curves if len(c.errors.error)]
+        if curves and curves[0].sigma is not None and len(curves[0].sigma):
+            shown.append(2.0 * np.degrees(np.asarray(curves[0].sigma, dtype=float)))
+        finite = np.concatenate(shown) if shown else np.zeros(0)
+        finite = finite[np.isfinite(finite)]
+        if finite.size:   # the errors and the first curve's band decide the scale; a wider band is cut off
+            lim = 1.15 * max(float(np.percentile(finite, 99.5)), 0.01)
+            ax.set_ylim(-lim, lim)
         ax.set_xlabel("time since the start of the recording [s]")
         ax.set_ylabel("heading − reference [deg]")
         ax.grid(True, alpha=0.3)
@@ -435,33 +458,24 @@ def mounting_turn(rpy, bearings: np.ndarray, base_R_camera: np.ndarray) -> np.nd
     return np.arccos(np.clip(np.sum(w * bearings, axis=1), -1.0, 1.0))
 
 
-def _mounting_band(cal, bearings: np.ndarray, base_R_camera: np.ndarray, samples: int = 200):
-    """:func:`mounting_turn` of the fitted boresight, and its 16th/84th percentiles over boresights drawn from
-    the estimate's covariance (rad, (N,) each)."""
-    rpy = np.asarray(cal.boresight_rpy, dtype=float)
-    draws = np.random.RandomState(1).multivariate_normal(rpy, np.asarray(cal.cov, dtype=float)[:3, :3], samples)
-    spread = np.array([mounting_turn(d, bearings, base_R_camera) for d in draws])
-    return (mounting_turn(rpy, bearings, base_R_camera), np.percentile(spread, 16, axis=0),
-            np.percentile(spread, 84, axis=0))
-
-
 def calibration_answer(cal) -> str:
     """The calibration figure's title: how far the mounting was off, and the residuals before and after."""
     rpy = np.degrees(np.asarray(cal.boresight_rpy, dtype=float))
     sd = np.degrees(np.asarray(cal.boresight_sigma, dtype=float))
     angle = math.degrees(float(np.linalg.norm(cal.boresight_rpy)))
     parts = ", ".join(f"{name} {v:+.2f}° ± {s:.2f}°" for name, v, s in zip(("roll", "pitch", "yaw"), rpy, sd))
-    res = f"bearing residuals {_deg(cal.residual_rms_before)} → {_deg(cal.residual_rms_after)} RMS"
+    before, after = _deg(cal.residual_rms_before), _deg(cal.residual_rms_after)
     if np.all(np.abs(rpy) <= 2.0 * sd):
-        return f"camera mounted as the lever arms say: the fitted turn ({parts}) is within 2σ of none; {res}"
-    return f"camera mounting off by {angle:.2f}° ({parts}): {res} after calibrating"
+        return (f"camera mounted as the lever arms say: no turn beyond 2σ ({parts}); bearing residuals {before} → "
+                f"{after} RMS")
+    return f"camera mounting off by {angle:.2f}° ({parts}): bearing residuals {before} → {after} RMS after calibrating"
 
 
 def plot_calibration(path: str, cal, bearings, base_R_camera=None, size: Tuple[int, int] = (WIDTH, 720)) -> str:
     """Was the camera mounted as the lever arms say? The bearing residuals (deg) of the observations calibrate
     kept, against azimuth (left) and elevation (right), before (the nominal mounting, top) and after (the fitted
     one, bottom), per lens side (front, back), with their binned medians; on top, the turn the fitted mounting
-    gives each bearing (its ±1σ band from the estimate's covariance): a tilted camera shows as residuals that
+    gives each bearing (:func:`mounting_turn`, its σ in the title): a tilted camera shows as residuals that
     rise and fall with azimuth before and vanish after. ``cal``: a ``calibration.Calibration``; ``bearings``
     (N, 3): its observations' camera-frame bearings; ``base_R_camera``: the nominal mounting (default level)."""
     b = np.asarray(bearings, dtype=float).reshape(-1, 3)
@@ -470,11 +484,11 @@ def plot_calibration(path: str, cal, bearings, base_R_camera=None, size: Tuple[i
     az, el = (np.degrees(a) for a in bearing_to_azel(b))
     front = cal.lenses.front_weight(b) >= 0.5
     R = np.eye(3) if base_R_camera is None else np.asarray(base_R_camera, dtype=float)[:3, :3]
-    model, model_lo, model_hi = (np.degrees(x) for x in _mounting_band(cal, b[used], R))
+    model = np.degrees(mounting_turn(cal.boresight_rpy, b[used], R))
     answer = calibration_answer(cal)
     before, after = np.degrees(cal.residuals_before), np.degrees(cal.residuals_after)
     top = float(np.nanpercentile(before[used], 98)) if np.any(used) else 0.1
-    top = max(top, float(np.max(model_hi)) if model_hi.size else 0.0) * 1.15 + 1e-3
+    top = max(top, float(np.max(model)) if model.size else 0.0) * 1.15 + 1e-3
     with _style():
         fig = _figure(*size)
         axes = [[fig.add_subplot(2, 2, 2 * r + c + 1) for c in range(2)] for r in range(2)]
@@ -494,11 +508,7 @@ def plot_calibration(path: str, cal, bearings, base_R_camera=None, size: Tuple[i
                     ax.plot(cx, my, "-o", ms=4, lw=2, color=colour, label=f"{lens}: median ({int(s.sum())})")
                 if r == 0:
                     cx, my = _binned_median(x[used], model, edges)
-                    _, lo = _binned_median(x[used], model_lo, edges)
-                    _, hi = _binned_median(x[used], model_hi, edges)
-                    if np.any(np.isfinite(my)):
-                        ax.fill_between(cx, lo, hi, color="k", alpha=0.12, lw=0)
-                        ax.plot(cx, my, "k--", lw=1.8, label="the fitted mounting's turn (±1σ)")
+                    ax.plot(cx, my, "k--", lw=1.8, label="the turn of the fitted mounting")
                 ax.set_ylim(0.0, top)
                 ax.grid(True, alpha=0.3)
                 ax.set_title(when, loc="left", fontsize=11)

@@ -75,7 +75,7 @@ def test_the_time_offset_title_says_whether_the_offset_in_use_is_right(tmp_path)
     plot_time_offset(path, coarse, refined, cost, in_use=0.3679)             # within 3σ (and 0.5 ms)
     assert png_title(path) == "time offset in use 367.9 ms: the marker bearings agree best there (367.7 ± 0.2 ms)"
     plot_time_offset(path, coarse)                                           # no marker bearings: the coarse one
-    assert png_title(path).startswith("time offset 333.0 ± 13.0 ms: the VO heading follows the prism track best")
+    assert png_title(path).startswith("time offset 333.0 ± 13.0 ms: where the VO heading follows the prism track best")
     assert "timesync --markers" in png_title(path)
 
 
@@ -89,8 +89,8 @@ def test_the_markers_title_names_the_marker_that_disagrees(tmp_path):
     series = {m: (t[ids == m], np.radians(np.where(ids == m, dev, 0.0)[ids == m])) for m in (4, 9, 17)}
     path = str(tmp_path / "markers.png")
     plot_marker_agreement(path, marker_agreement(t, ids, dev, accepted, reasons), pairwise_differences(series))
-    assert png_title(path) == ("marker 9 disagrees with the others: marker 9 by -0.800° (the others' typical "
-                               "spread 0.044°): moved, or surveyed wrong")
+    assert png_title(path) == ("marker 9 disagrees with the others by -0.800° (their typical spread 0.044°): moved, or "
+                               "surveyed wrong")
     assert png_size(path)[0] == WIDTH
     good = np.radians(np.tile([0.03, -0.03], 45))
     plot_marker_agreement(path, marker_agreement(t, ids, good, np.ones(len(t), dtype=bool)))
@@ -150,7 +150,8 @@ def calibration(rpy_deg, sigma_deg, before, after, used):
 
 def test_the_calibration_title_says_how_far_the_mounting_was_off(tmp_path):
     """Observations all around the horizon, before = the turn of a camera rolled by 0.3° (+ noise), after =
-    noise: the title gives the fitted turn and the residuals; a turn within 2σ of none says so."""
+    noise: the title gives the fitted turn and the residuals; a turn within 2σ of none says so. (The noise: |N(0,
+    0.01°)|, RMS 0.010°.)"""
     rng = np.random.default_rng(3)
     az = rng.uniform(-math.pi, math.pi, 600)
     el = rng.uniform(-0.3, 0.3, 600)
@@ -166,5 +167,6 @@ def test_the_calibration_title_says_how_far_the_mounting_was_off(tmp_path):
                                f"+0.00° ± 0.02°): bearing residuals {rms_before:.3f}° → 0.010° RMS after calibrating")
     assert png_size(path) == (WIDTH, 720)
     right = calibration([0.01, -0.015, 0.0], [0.01, 0.01, 0.02], noise, noise, used)
-    assert calibration_answer(right).startswith("camera mounted as the lever arms say: the fitted turn (roll +0.01° "
-                                                "± 0.01°, pitch -0.01° ± 0.01°, yaw +0.00° ± 0.02°) is within 2σ")
+    assert calibration_answer(right) == ("camera mounted as the lever arms say: no turn beyond 2σ (roll +0.01° ± "
+                                         "0.01°, pitch -0.01° ± 0.01°, yaw +0.00° ± 0.02°); bearing residuals "
+                                         "0.010° → 0.010° RMS")
