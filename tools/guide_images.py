@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """The field guide's pictures of a good run and of typical bad ones (doc/field_guide.md, "Check the result").
 
 In: two rendered scenarios of the ``ci`` preset (1920 px, 20 s), rendered into .cache/guide/ when missing: the

@@ -446,12 +446,16 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     return results
 
 
-def _overview_answer(found, expected, when: float) -> str:
-    """The overview's title: how many of the map's markers were found and used in the frame, and why not the
-    others (grouped by their reason)."""
+def _overview_answer(found, expected, when: Optional[float]) -> str:
+    """The overview's title: how many of the map's markers were found and used in the frame (at ``when`` s since
+    the start; None: a video's middle frame), and why not the others (grouped by their reason)."""
+    markers = f"{len(found)} marker{'s' if len(found) != 1 else ''}"
+    if when is None:
+        return (f"{markers} found in the middle frame of the video (where the map's markers should be is drawn for "
+                "bags: their lever arms are in the bag)")
     if not expected:
-        return (f"{len(found)} marker{'s' if len(found) != 1 else ''} found in this frame ({when:.1f} s); no pose "
-                "then, so where the map's markers should be is not drawn")
+        return f"{markers} found in this frame ({when:.1f} s); no pose then, so where the map's markers should be is " \
+               "not drawn"
     ok = [e for e in expected if e.status == "found"]
     text = f"{len(ok)} of the map's {len(expected)} markers found and used in this frame ({when:.1f} s)"
     odd = [f"marker {e.id} {e.status}" for e in expected if e.status != "found" and e.status.startswith("found")]
@@ -515,12 +519,12 @@ def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str],
     if grey is None:
         raise EvaluateError(f"{bag}: no decodable image from the middle of the bag on")
     found = MarkerTracker(marker_map).process(grey).observations
-    expected, where, when = [], None, 0.0
+    expected, where, when = [], None, None
     t0 = float(summary.get("recording_start_s", est.stamps[0] if len(est.stamps) else 0.0))
-    if stamp is not None and len(est.stamps):
+    if stamp is not None:
         t = stamp - offset
         when = t - t0
-        T, valid = est.transforms_at(t)
+        T, valid = est.transforms_at(t) if len(est.stamps) else (None, False)
         if bool(valid):
             where = T[:2, 3].copy()
             T[:3, 3] -= marker_map.to_full(np.zeros(3))          # full coordinates back to the map's
