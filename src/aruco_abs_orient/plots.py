@@ -103,8 +103,9 @@ def _finish(fig, path: str, answer: str) -> str:
     return save_figure(fig, path, answer)
 
 
-def _deg(x: float, digits: int = 3) -> str:
-    return f"{math.degrees(x):.{digits}f}°"
+def _deg(x: float) -> str:
+    """An angle (rad) in degrees, 3 decimals."""
+    return f"{math.degrees(x):.3f}°"
 
 
 # --------------------------------------------------------------------------- time offset
@@ -138,7 +139,10 @@ def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.nd
     ``OffsetEstimate`` (None: the coarse one is the answer). Offsets in ms, camera stamp − total-station time."""
     best = refined if refined is not None else coarse
     answer, off = _offset_answer(best, refined is not None, in_use)
-    ms = lambda s: 1e3 * np.asarray(s, dtype=float)  # noqa: E731
+
+    def ms(seconds):
+        return 1e3 * np.asarray(seconds, dtype=float)
+
     spans = [ms(coarse.offset) + ms(coarse.sigma) * np.array([-2.0, 2.0]), ms(best.offset) + np.array([-30.0, 30.0])]
     have_cost = cost is not None and len(cost[0]) >= 2
     if have_cost:
@@ -381,8 +385,7 @@ def plot_heading_error(path: str, curves: Sequence[HeadingCurve], spans: Sequenc
                     label=f"{c.label} (RMSE {_deg(c.errors.stats.rmse)})")
         if len(rejected):
             by_reason = Counter(r for _, r in rejected)
-            top = [r for r, _ in by_reason.most_common(3)]
-            for j, r in enumerate(top):
+            for j, (r, _) in enumerate(by_reason.most_common(3)):
                 ts = [t - t0 for t, why in rejected if why == r]
                 ax.plot(ts, np.full(len(ts), 0.02 + 0.035 * j), "|", ms=10, mew=1.5, color=_BAD,
                         alpha=1.0 - 0.25 * j, transform=ax.get_xaxis_transform(),
