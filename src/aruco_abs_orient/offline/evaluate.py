@@ -54,10 +54,10 @@ def _doc(anchor: str, text: str, out_dir: str) -> str:
     return f"[{text}]({target}#{anchor})"
 
 
-def read_observations(path: str) -> Dict[str, np.ndarray]:
-    """Columns of an ``observations.csv`` written by ``process``, one entry per row (angles converted to
-    radians; ``yaw``, ``yaw_sigma`` and ``residual`` NaN where empty; ``reason`` the pipeline's, '' when
-    accepted)."""
+def read_observations(path: str, every_row: bool = False) -> Dict[str, np.ndarray]:
+    """Columns of an ``observations.csv`` written by ``process``: the rows with a marker yaw, or with
+    ``every_row`` all of them (angles converted to radians; ``yaw``, ``yaw_sigma`` and ``residual`` NaN where
+    empty; ``reason`` the pipeline's, '' when accepted)."""
     cols: Dict[str, list] = {"time": [], "id": [], "azimuth": [], "elevation": [], "yaw": [], "yaw_sigma": [],
                              "residual": [], "accepted": [], "reason": []}
 
@@ -67,6 +67,8 @@ def read_observations(path: str) -> Dict[str, np.ndarray]:
     try:
         with open(path, newline="") as f:
             for row in csv.DictReader(f):
+                if not (every_row or row.get("yaw_deg")):
+                    continue
                 cols["time"].append(float(row["time"]))
                 cols["id"].append(int(row["id"]))
                 cols["azimuth"].append(math.radians(float(row["azimuth_deg"])))
@@ -286,7 +288,7 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     rep.headline.append(("coverage", cover, "–", _doc("no-markers-found", "no markers found", out_dir)))
 
     obs_path = os.path.join(run_dir, "observations.csv")
-    rows = read_observations(obs_path) if os.path.exists(obs_path) else None
+    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
     obs = None if rows is None else {k: v[np.isfinite(rows["yaw"])] for k, v in rows.items()}   # with a marker yaw
     series, pw = {}, None
     if obs is not None and len(obs["time"]):
@@ -497,7 +499,7 @@ def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str],
     offset = float(summary.get("time_offset_s", 0.0))
     est = read_tum(os.path.join(run_dir, "trajectory.tum"))
     obs_path = os.path.join(run_dir, "observations.csv")
-    rows = read_observations(obs_path) if os.path.exists(obs_path) else None
+    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
     grey, stamp = None, None
     if os.path.splitext(bag)[1].lower() in VIDEO_EXTENSIONS:
         middle = video_summary(bag)[0] // 2

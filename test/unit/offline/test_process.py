@@ -259,7 +259,8 @@ def test_truncated_bag_is_salvaged_up_to_the_cut(scenario_factory, tmp_path, cap
     full = read_bag_data(tiny.bag).image_count
     assert 0.4 * full < summary["frames"] < 0.8 * full
     assert summary["frames_with_pose"] > 0
-    assert sorted(p.name for p in out.iterdir()) == ["observations.csv", "summary.json", "trajectory.tum"]
+    assert sorted(p.name for p in out.iterdir()) == ["heading_sigma.csv", "observations.csv", "summary.json",
+                                                     "trajectory.tum"]
 
     from aruco_abs_orient.offline.bagio import salvage_bag
 
