@@ -168,9 +168,9 @@ def main(argv=None) -> int:
             print(f"{1e3 * tau:9.1f} | {1e3 * ours[-1]:13.2f} {1e3 * est.sigma:6.2f} {est.confidence:5.2f} | "
                   f"{1e3 * base[-1]:14.2f} {1e3 * base_s[-1]:14.2f}")
             if args.plot and i == 0 and noise_mm == args.noise_mm[0]:
-                from aruco_abs_orient.evaluation import plot_coherence
+                from aruco_abs_orient.plots import plot_time_offset
 
-                plot_coherence(args.plot, est, baseline=ref)
+                plot_time_offset(args.plot, est, baseline=ref)
         o = 1e3 * np.abs(ours)
         rms_o = float(np.sqrt(np.mean(o**2)))
         print(f"ours                 : RMS {rms_o:7.2f} ms, max {o.max():7.2f} ms, ≤ 5 ms in {np.mean(o <= 5):4.0%} "

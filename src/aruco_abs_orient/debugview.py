@@ -10,6 +10,10 @@
   ``map`` (the great circle level in map, a curve when the camera is tilted; the image's middle row
   without a pose).
 
+:func:`expected_markers` says, for a frame with a known camera pose, where each of the map's markers should be
+and, for each one not found or not used, why (facing away, seen edge-on, too small to find, off where the map
+puts it, rejected by the pipeline, missed by its tracker, or hidden): the report's overview draws it.
+
 All pixel positions come from bearings through :class:`aruco_abs_orient.camera.Equirect` (the only
 pixel↔bearing code), at the output size, so nothing here depends on the input's resolution. Colours are
 BGR. Unit-tested on a rendered frame (``test/unit/test_debugview.py``).
@@ -18,15 +22,16 @@ BGR. Unit-tested on a rendered frame (``test/unit/test_debugview.py``).
 from __future__ import annotations
 
 import math
-from typing import Iterable, Optional, Tuple
+from typing import Iterable, List, Mapping, NamedTuple, Optional, Tuple
 
 import cv2
 import numpy as np
 
-from .camera import Equirect
+from .camera import Equirect, angle_between
 from .markers import MarkerMap
 
-__all__ = ["COLOURS", "debug_frame", "encode_debug_jpeg", "predicted_bearings", "horizon_bearings"]
+__all__ = ["COLOURS", "debug_frame", "encode_debug_jpeg", "predicted_bearings", "horizon_bearings", "ExpectedMarker",
+           "expected_markers"]
 
 COLOURS = {"accepted": (0, 200, 0), "rejected": (0, 0, 255), "predicted": (0, 220, 255),
            "seam": (255, 0, 255), "horizon": (255, 160, 0)}
@@ -42,6 +47,61 @@ def predicted_bearings(marker_map: MarkerMap, map_T_camera: np.ndarray) -> Tuple
         return ids, np.zeros((0, 3))
     d = (np.array([m.position for m in marker_map], dtype=float) - T[:3, 3]) @ T[:3, :3]
     return ids, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+class ExpectedMarker(NamedTuple):
+    """A map marker in a frame: ``id``; ``u``, ``v`` (px of the frame) where the map puts it; ``range`` (m);
+    ``side_px`` (its side there if it faced the camera, px); ``status``: "found" (found and used), or why not."""
+
+    id: int
+    u: float
+    v: float
+    range: float
+    side_px: float
+    status: str
+
+
+def expected_markers(marker_map: MarkerMap, map_T_camera: np.ndarray, width: int, found: Mapping[int, np.ndarray],
+                     used: Mapping[int, str], min_side_px: float = 6.0, gate: float = math.radians(1.0),
+                     edge_on: float = math.radians(75.0)) -> List[ExpectedMarker]:
+    """Each marker of ``marker_map`` in a ``width`` px wide frame taken from ``map_T_camera`` (4×4, m), nearest
+    first, and what became of it. ``found``: id → centre bearing (camera frame) of the markers a search of the
+    whole frame found; ``used``: id → the pipeline's outcome for it in that frame ('' accepted, else its reason;
+    ids it did not see are absent). A status other than "found" says why: "faces away" / "seen edge-on (80°)"
+    (a surveyed face normal), "found, rejected: <reason>", "found here, missed by the tracker (outside its
+    window)", "found 1.4° off the map's position" (beyond ``gate`` rad, with the pipeline's reason), "too small
+    to find (4 px)" (below ``min_side_px``), or "not found: hidden or blurred"."""
+    cam = Equirect(int(width), int(width) // 2)
+    ids, bearings = predicted_bearings(marker_map, map_T_camera)
+    centre = np.asarray(map_T_camera, dtype=float)[:3, 3]
+    out = []
+    for mid, b in zip(ids, bearings):
+        m = marker_map[int(mid)]
+        rng = float(np.linalg.norm(m.position - centre))
+        side = 2.0 * math.atan(m.size / (2.0 * max(rng, 1e-6))) / cam.rad_per_px
+        u, v = cam.bearing_to_pixel(b)
+        tilt = (math.acos(min(1.0, abs(float(np.dot(m.normal, centre - m.position))) / max(rng, 1e-9)))
+                if m.normal is not None else 0.0)
+        if m.normal is not None and not m.visible_from(centre):
+            status = "faces away"
+        elif int(mid) in found:
+            off = float(angle_between(found[int(mid)], b))
+            reason = used.get(int(mid))
+            why = reason.split(" (")[0] if reason else ""
+            why = why.split(": ")[0] if len(why) > 32 and ": " in why else why
+            status = ("found" if reason == "" else "found here, missed by the tracker (outside its window)"
+                      if reason is None else f"found, rejected: {why}")
+            if off > gate:
+                status = f"found {math.degrees(off):.1f}° off the map's position" + (
+                    f", rejected: {why}" if why else "")
+        elif tilt > edge_on:
+            status = f"seen edge-on ({math.degrees(tilt):.0f}°)"
+        elif side < min_side_px:
+            status = f"too small to find ({side:.0f} px)"
+        else:
+            status = "not found: hidden or blurred"
+        out.append(ExpectedMarker(int(mid), float(u), float(v), rng, float(side), status))
+    return sorted(out, key=lambda e: e.range)
 
 
 def horizon_bearings(map_R_camera: Optional[np.ndarray], n: int = 721) -> np.ndarray:

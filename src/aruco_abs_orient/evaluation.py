@@ -1,5 +1,5 @@
-"""Yaw-only evaluation: APE/RPE against a reference, per-marker agreement, frame-position bias, plots
-and a Markdown + JSON report (DESIGN §4.9; the paper's figs. 11–13).
+"""Yaw-only evaluation: APE/RPE against a reference, per-marker agreement, frame-position bias and a
+Markdown + JSON report (DESIGN §4.9; the paper's figs. 11–13); the pictures are :mod:`.plots`'.
 
 Angles are radians everywhere in this module except in ``report_dict()`` results, the plots and the
 report files, which are in degrees (the edge). Yaw differences are always wrapped to [−π, π), and
@@ -10,13 +10,11 @@ Statistics (``ErrorStats``) follow evo and the paper: ``rmse`` of the error, ``m
 samples with |error| under each threshold (the paper's 0.5/1/2°), and ``coverage`` = the fraction of
 the estimate's samples that had a reference to compare with.
 
-matplotlib is imported only inside the plotting functions (Agg canvas, no pyplot state).
-Python 3.8 compatible; numpy only otherwise.
+Python 3.8 compatible; numpy only.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
@@ -27,13 +25,13 @@ import numpy as np
 
 from .errors import InputFileError
 from .paramcheck import Validated, check_non_negative
+from .plots import png_title
 from .transforms import wrap_angle
-from .tum import atomic_write_bytes, atomic_write_text, sorted_series
+from .tum import atomic_write_text, sorted_series
 
 __all__ = [
     "EvaluationParams",
     "EvaluationError",
-    "save_figure",
     "ErrorStats",
     "YawErrors",
     "PairwiseDifferences",
@@ -45,10 +43,8 @@ __all__ = [
     "per_marker_series",
     "pairwise_differences",
     "error_by_frame_position",
-    "plot_yaw_errors",
-    "plot_marker_yaws",
-    "plot_frame_position",
-    "plot_coherence",
+    "MarkerAgreement",
+    "marker_agreement",
     "fmt_angle",
     "normalised_residuals",
     "gaps",
@@ -317,130 +313,69 @@ def error_by_frame_position(az, el, error, az_bins: int = 12, el_bins: int = 6,
     return FramePositionBias(az_edges, el_edges, mean, count, by_el, min_count, max_abs)
 
 
-# --------------------------------------------------------------------------- plots
+@dataclass(frozen=True)
+class MarkerAgreement:
+    """Each marker's yaw against the frame's consensus (the filtered heading, which the other markers, the
+    odometry and the prism made): per observation ``t`` (s), ``ids``, ``deviation`` (rad, wrapped; NaN without
+    a consensus) and ``accepted``; per marker (``markers``, sorted ids) ``n`` (observations with a deviation),
+    ``median`` and ``spread`` (rad; 1.4826 × the median absolute deviation: a robust σ; NaN when none),
+    ``rejected``: id → {the pipeline's reason: count}; ``typical_spread`` (rad): the median of the spreads of
+    the markers seen ``min_count`` times or more; ``flagged``: the markers whose median deviation exceeds
+    ``flag_factor`` × the typical spread and ``min_flag`` (rad): moved or wrongly surveyed."""
+
+    markers: Tuple[int, ...]
+    n: np.ndarray
+    median: np.ndarray
+    spread: np.ndarray
+    rejected: Dict[int, Dict[str, int]]
+    typical_spread: float
+    flagged: Tuple[int, ...]
+    t: np.ndarray
+    ids: np.ndarray
+    deviation: np.ndarray
+    accepted: np.ndarray
+
+    def report_dict(self) -> Dict[str, Any]:
+        return {"typical_spread_deg": math.degrees(self.typical_spread), "flagged": list(self.flagged),
+                "markers": {str(m): {"n": int(n), "median_deg": math.degrees(med), "spread_deg": math.degrees(sp),
+                                     "rejected": dict(self.rejected.get(m, {}))}
+                            for m, n, med, sp in zip(self.markers, self.n, self.median, self.spread)}}
 
 
-def _figure(width_px: int, height_px: int, dpi: int = 100):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width_px / dpi, height_px / dpi), dpi=dpi)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def save_figure(fig, path: str) -> str:
-    """Write the figure as PNG atomically (never a half-written plot)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=fig.dpi)
-    atomic_write_bytes(path, buf.getvalue())
-    return path
-
-
-def _time_axis(ax, times, t0: Optional[float] = None) -> float:
-    """Label ``ax``'s x axis as seconds since ``t0`` (s; the start of the recording, so every plot of a
-    report shares it), or since the earliest of ``times`` (arrays of stamps, s) when None; return it."""
-    if t0 is not None:
-        ax.set_xlabel("time since the start of the recording [s]")
-        return float(t0)
-    t0 = min((float(np.min(t)) for t in times if len(t)), default=0.0)
-    ax.set_xlabel(f"time since {t0:.3f} s [s]")
-    return t0
-
-
-def plot_yaw_errors(path: str, errors: Mapping[str, YawErrors], title: str = "Heading error",
-                    size: Tuple[int, int] = (1200, 500), t0: Optional[float] = None) -> str:
-    """Heading error (deg) over time (s since ``t0``) for each labelled ``YawErrors``; PNG of ``size`` pixels."""
-    fig = _figure(*size)
-    ax = fig.add_subplot(1, 1, 1)
-    t0 = _time_axis(ax, [e.t for e in errors.values()], t0)
-    for label, e in errors.items():
-        ax.plot(e.t - t0, np.degrees(e.error), ".", ms=2, label=f"{label} (RMSE {math.degrees(e.stats.rmse):.3f}°)")
-    ax.axhline(0.0, color="k", lw=0.5)
-    ax.set_ylabel("yaw error [deg]")
-    ax.set_title(title)
-    ax.grid(True, alpha=0.3)
-    if errors:
-        ax.legend(loc="upper right", fontsize="small", markerscale=4)
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def plot_marker_yaws(path: str, series: Mapping[int, Tuple[np.ndarray, np.ndarray]],
-                     pairwise: Optional[PairwiseDifferences] = None, size: Tuple[int, int] = (1200, 800),
-                     t0: Optional[float] = None) -> str:
-    """Per-marker yaw trajectories (deg; paper fig. 11) and, below, their pairwise differences
-    (deg; figs. 11–12), over s since ``t0``; PNG of ``size`` pixels."""
-    fig = _figure(*size)
-    ax1 = fig.add_subplot(2, 1, 1)
-    ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
-    t0 = _time_axis(ax2, [t for t, _ in series.values()], t0)
-    for mid, (t, yaw) in sorted(series.items()):
-        ax1.plot(t - t0, np.degrees(yaw), ".", ms=2, label=f"marker {mid}")
-    ax1.set_ylabel("yaw [deg]")
-    ax1.set_title("Yaw from each marker alone")
-    ax1.grid(True, alpha=0.3)
-    if series:
-        ax1.legend(loc="upper right", fontsize="small", markerscale=4)
-    if pairwise is not None:
-        for (a, b), (t, d) in sorted(pairwise.pairs.items()):
-            ax2.plot(t - t0, np.degrees(d), ".", ms=2, label=f"{a} − {b}")
-        st = pairwise.stats
-        ax2.set_title(f"Pairwise differences: median {math.degrees(st.median):.3f}°, "
-                      f"mean {math.degrees(st.mean):.3f}°, std {math.degrees(st.std):.3f}°")
-        if pairwise.pairs:
-            ax2.legend(loc="upper right", fontsize="small", markerscale=4, ncol=3)
-    ax2.axhline(0.0, color="k", lw=0.5)
-    ax2.set_ylabel("difference [deg]")
-    ax2.grid(True, alpha=0.3)
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def plot_frame_position(path: str, bias: FramePositionBias, size: Tuple[int, int] = (1200, 600)) -> str:
-    """Heatmap of the mean signed yaw error (deg) over the marker's azimuth × elevation in the frame
-    (paper fig. 13); bins with fewer than ``min_count`` samples are blank. PNG of ``size`` pixels."""
-    fig = _figure(*size)
-    ax = fig.add_subplot(1, 1, 1)
-    shown = np.where(bias.count >= bias.min_count, np.degrees(bias.mean), np.nan)
-    finite = shown[np.isfinite(shown)]
-    lim = max(float(np.max(np.abs(finite))) if finite.size else 0.0, 0.05)
-    mesh = ax.pcolormesh(np.degrees(bias.az_edges), np.degrees(bias.el_edges), np.ma.masked_invalid(shown),
-                         cmap="coolwarm", vmin=-lim, vmax=lim, shading="flat")
-    fig.colorbar(mesh, ax=ax, label="mean yaw error [deg]")
-    ax.set_xlabel("azimuth in the frame [deg] (0 = image centre, + = left)")
-    ax.set_ylabel("elevation [deg]")
-    ax.set_title(f"Yaw error by position in the frame (max |bias| {math.degrees(bias.max_abs_bias):.3f}°)")
-    ax.invert_xaxis()  # as in the image: azimuth grows to the left
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def plot_coherence(path: str, estimate, baseline=None, size: Tuple[int, int] = (1000, 500)) -> str:
-    """The time-sync curve of an ``OffsetEstimate`` (coherence vs offset, ms) with its optimum and
-    σ, and the baseline's correlation curve on a second axis if given. PNG of ``size`` pixels."""
-    fig = _figure(*size)
-    ax = fig.add_subplot(1, 1, 1)
-    ax.plot(1e3 * np.asarray(estimate.taus), estimate.curve, "-", color="C0", label="phase coherence")
-    ax.axvline(1e3 * estimate.offset, color="C0", ls="--",
-               label=f"τ = {1e3 * estimate.offset:.1f} ± {1e3 * estimate.sigma:.1f} ms "
-                     f"(confidence {estimate.confidence:.2f})")
-    ax.set_xlabel("offset τ: camera stamp − total-station time [ms]")
-    ax.set_ylabel("coherence")
-    ax.grid(True, alpha=0.3)
-    handles, labels = ax.get_legend_handles_labels()
-    if baseline is not None:
-        ax2 = ax.twinx()
-        ax2.plot(1e3 * np.asarray(baseline.taus), baseline.curve, ".", color="C1", ms=3,
-                 label="heading cross-correlation (paper)")
-        ax2.axvline(1e3 * baseline.offset, color="C1", ls=":", label=f"baseline τ = {1e3 * baseline.offset:.1f} ms")
-        ax2.set_ylabel("correlation")
-        h2, l2 = ax2.get_legend_handles_labels()
-        handles, labels = handles + h2, labels + l2
-    ax.legend(handles, labels, loc="lower center", fontsize="small")
-    ax.set_title("Camera ↔ total-station time offset")
-    fig.tight_layout()
-    return save_figure(fig, path)
+def marker_agreement(t, ids, deviation, accepted, reasons=None, flag_factor: float = 4.0,
+                     min_flag: float = math.radians(0.05), min_count: int = 5) -> MarkerAgreement:
+    """:class:`MarkerAgreement` of marker observations: stamps ``t`` (s), ``ids``, ``deviation`` = each yaw −
+    the frame's consensus (rad; ``observations.csv``'s residual: the yaw − the filtered yaw; NaN: none),
+    ``accepted`` (bool) and the pipeline's ``reasons`` for the rejected ones (strings; '' when accepted)."""
+    t = np.asarray(t, dtype=float).ravel()
+    ids = np.asarray(ids).astype(int).ravel()
+    dev = np.asarray(deviation, dtype=float).ravel()
+    acc = np.asarray(accepted, dtype=bool).ravel()
+    why = [""] * len(t) if reasons is None else [str(r) for r in reasons]
+    if not (len(t) == len(ids) == len(dev) == len(acc) == len(why)):
+        raise EvaluationError(f"marker agreement: {len(t)} stamps, {len(ids)} ids, {len(dev)} deviations, "
+                              f"{len(acc)} flags, {len(why)} reasons")
+    dev = np.where(np.isfinite(dev), wrap_angle(np.nan_to_num(dev)), np.nan)
+    markers = tuple(int(m) for m in np.unique(ids))
+    n, med, spread, rejected = [], [], [], {}
+    for m in markers:
+        sel = ids == m
+        d = dev[sel & np.isfinite(dev)]
+        n.append(len(d))
+        centre = float(np.median(d)) if len(d) else float("nan")
+        med.append(centre)
+        spread.append(1.4826 * float(np.median(np.abs(d - centre))) if len(d) else float("nan"))
+        counts: Dict[str, int] = {}
+        for k in np.flatnonzero(sel & ~acc):
+            counts[why[k] or "rejected"] = counts.get(why[k] or "rejected", 0) + 1
+        if counts:
+            rejected[m] = counts
+    n_a, med_a, spread_a = np.array(n, dtype=int), np.array(med), np.array(spread)
+    seen = (n_a >= min_count) & np.isfinite(spread_a)
+    typical = float(np.median(spread_a[seen])) if np.any(seen) else float("nan")
+    limit = max(flag_factor * typical, min_flag) if math.isfinite(typical) else float("inf")
+    flagged = tuple(m for m, k, c in zip(markers, n_a, med_a) if k >= min_count and abs(c) > limit)
+    return MarkerAgreement(markers, n_a, med_a, spread_a, rejected, typical, flagged, t, ids, dev, acc)
 
 
 # --------------------------------------------------------------------------- report
@@ -532,8 +467,9 @@ class Report:
 
 def write_report(out_dir: str, report: Report, name: str = "report") -> Tuple[str, str]:
     """Write ``<out_dir>/<name>.md`` (one page of headline figures, the findings and the plots inline,
-    then the detail tables) and ``<out_dir>/<name>.json`` (``report.data`` with the headline and the
-    plots' paths) atomically; returns their paths. Plot paths are made relative to ``out_dir``."""
+    then the detail tables) and ``<out_dir>/<name>.json`` (``report.data`` with the headline, the plots'
+    paths and their titles: each plot's answer) atomically; returns their paths. Plot paths are made relative
+    to ``out_dir``."""
     os.makedirs(out_dir, exist_ok=True)
     rel = {caption: os.path.relpath(os.path.abspath(p), os.path.abspath(out_dir))
            for caption, p in report.plots.items()}
@@ -549,8 +485,9 @@ def write_report(out_dir: str, report: Report, name: str = "report") -> Tuple[st
         lines += ["## Details", ""]
         for heading, columns, rows in report.tables:
             lines += [f"### {heading}", ""] + md_table(columns, rows)
+    titles = {rel[caption]: png_title(p) for caption, p in report.plots.items()}
     data = {"title": report.title, "headline": [list(r) for r in report.headline], "notes": list(report.notes),
-            **{k: _jsonable(v) for k, v in report.data.items()}, "plots": rel}
+            **{k: _jsonable(v) for k, v in report.data.items()}, "plots": rel, "plot_titles": titles}
     md_path = os.path.join(out_dir, name + ".md")
     json_path = os.path.join(out_dir, name + ".json")
     atomic_write_text(json_path, json.dumps(data, indent=2, allow_nan=False) + "\n")

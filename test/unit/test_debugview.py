@@ -11,12 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.camera import azel_to_bearing
-from aruco_abs_orient.debugview import COLOURS, debug_frame, encode_debug_jpeg, horizon_bearings
+from aruco_abs_orient.debugview import COLOURS, debug_frame, encode_debug_jpeg, expected_markers, horizon_bearings
 from aruco_abs_orient.detection import MarkerDetector, decode_jpeg
 from aruco_abs_orient.markers import Marker, MarkerMap
 from aruco_abs_orient.pipeline import ObservationResult
 from aruco_abs_orient.synthetic.render import facing_marker, render_equirect
-from aruco_abs_orient.transforms import make_T, rpy_to_matrix
+from aruco_abs_orient.transforms import make_T, rot_z, rpy_to_matrix
 
 
 def near(img, u, v, colour, radius=3):
@@ -102,3 +102,35 @@ def test_small_frames_stay_and_bad_frames_are_refused(scene):
         debug_frame(image[:, :100], results)
     jpeg = encode_debug_jpeg(debug_frame(small, results))
     assert decode_jpeg(jpeg).shape == (480, 960)
+
+
+def test_expected_markers_say_why_each_one_was_not_found_or_not_used(scene):
+    """The scene's map and five more markers, the camera at the origin: each status against what was made
+    true by hand (found and used; found, rejected; found by the frame search only; found 2° off the map's
+    position; facing away; seen edge-on; too small; in view, unseen), and the pixel of marker 5 worked from
+    the DESIGN §2 formula."""
+    image, results, marker_map = scene
+    found = {o.observation.id: o.observation.centre for o in results}           # 7 and 3, detected in the frame
+    extra = [Marker(9, np.array([80.0, 0.0, 0.0]), 0.30, 0.0),                  # 0.3 m at 80 m: 2.3 px at 3840
+             Marker(11, np.array([-3.0, 0.0, 0.0]), 0.30, 0.0, np.array([-1.0, 0.0, 0.0])),   # its back to us
+             Marker(12, np.array([0.0, -3.0, 0.0]), 0.30, 0.0,                  # turned 80° from the view
+                    np.array([math.sin(math.radians(80.0)), math.cos(math.radians(80.0)), 0.0])),
+             Marker(13, np.array([0.0, 2.0, 2.0]), 0.30, 0.0),                   # found by a search, not used
+             Marker(14, np.array([2.0, -2.0, 0.0]), 0.30, 0.0)]                  # found 2° from the map's position
+    full = MarkerMap(list(marker_map) + extra)
+    found.update({13: np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0),
+                  14: rot_z(math.radians(2.0)) @ np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)})
+    used = {7: "", 3: "elevation disagrees with the map (wrong id or moved marker)",
+            14: "tracking gate: far from its predicted bearing (moved marker, or the filter is off)"}
+    out = {e.id: e for e in expected_markers(full, np.eye(4), 3840, found, used)}
+    assert {k: e.status for k, e in out.items()} == {
+        7: "found", 3: "found, rejected: elevation disagrees with the map",
+        13: "found here, missed by the tracker (outside its window)",
+        14: "found 2.0° off the map's position, rejected: tracking gate",
+        11: "faces away", 12: "seen edge-on (80°)", 9: "too small to find (2 px)",
+        5: "not found: hidden or blurred"}
+    el = math.atan2(1.0, 4.0)                                   # marker 5: az −90°, el 14.04°
+    assert (out[5].u, out[5].v) == pytest.approx((3840 * 0.75 - 0.5, 1920 * (0.5 - el / math.pi) - 0.5), abs=1e-6)
+    assert out[5].range == pytest.approx(math.sqrt(17.0))
+    assert out[9].side_px == pytest.approx(2 * math.atan(0.15 / 80.0) / (2 * math.pi / 3840))
+    assert [e.id for e in expected_markers(full, np.eye(4), 3840, found, used)][:2] == [7, 13]   # nearest first

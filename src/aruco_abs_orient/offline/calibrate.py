@@ -241,6 +241,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="calibrate even when the marker map does not fit the recording (the map check)")
     p.add_argument("--json", action="store_true", help="print the estimate as one JSON line (for programs)")
+    p.add_argument("--plot", metavar="DIR", help="write DIR/calibration.png: the bearing residuals against azimuth and "
+                   "elevation before and after, per lens, with the fitted mounting (evaluate shows it in the report)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     d = BagTopics()
     g = p.add_argument_group("topics and frames")
@@ -285,6 +287,11 @@ def run(args: argparse.Namespace) -> int:
     if not os.access(out_dir, os.W_OK):
         return _fail(f"{args.out}: the directory {out_dir} is not writable")
     try:
+        if args.plot:
+            os.makedirs(args.plot, exist_ok=True)
+    except OSError as e:
+        return _fail(f"--plot {args.plot}: cannot create it: {e.strerror}")
+    try:
         marker_map = MarkerMap.load(args.markers)
         recording = video_recording(args, marker_map) or args.bag
         data = read_bag_data(recording, topics)
@@ -314,6 +321,11 @@ def run(args: argparse.Namespace) -> int:
     launch = launch_path(args.out)
     atomic_write_text(args.out, text)
     atomic_write_text(launch, f"<launch>\n{snippet}</launch>\n")
+    if args.plot:
+        from ..plots import plot_calibration
+
+        plot = plot_calibration(os.path.join(args.plot, "calibration.png"), cal, obs.bearings, data.base_T_camera)
+        print(f"wrote {plot}")
     report = cal.report_dict()
     offset = args.time_offset + (cal.time_offset_delta if cal.time_offset_estimated else 0.0)
     if args.json:

@@ -177,7 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--search", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="offsets searched, seconds (default -1 1 for a bag; for a video every offset at which the "
                         "trajectory and the prism log overlap by 10 s or more)")
-    p.add_argument("--plot", metavar="DIR", help="write the coherence curve to DIR/timesync.png")
+    p.add_argument("--plot", metavar="DIR", help="write DIR/timesync.png (the offset and what it rests on: with "
+                   "--markers the marker bearings' residual against the offset) and DIR/timesync.json (its curves)")
     p.add_argument("--min-confidence", type=float, default=0.3, metavar="C",
                    help="refuse an estimate whose confidence (0-1) is below C (default 0.3)")
     add_params_option(p, "timesync section (the estimate's smoothing, windows and limits) and, with --markers, "

@@ -6,7 +6,11 @@ trajectory and the pairwise differences between markers, the residuals and their
 coverage and gaps, the run's self-checks. With a reference TUM file of base_link in map (the synthetic
 truth, or any better trajectory) it adds yaw-only APE and RPE of the filtered heading, the per-marker
 yaw error, the error by position in the frame and the position error. Writes ``report.md`` (a page of
-headline figures beside the paper's, the plots, then tables), ``report.json`` and the plots.
+headline figures beside the paper's, the plots, then tables), ``report.json`` and the plots (:mod:`..plots`:
+each answers its question in its title): ``marker_yaws.png``, ``heading_error.png`` (with the filter's own σ
+from ``heading_sigma.csv`` and the stretches without absolute updates, with why), ``frame_position.png``, and
+``timesync.png`` drawn again with the run's offset when ``timesync --plot`` left ``timesync.json`` in the run's
+directory; ``calibration.png`` (``calibrate --plot``) is shown when it is there.
 """
 
 from __future__ import annotations
@@ -16,17 +20,19 @@ import csv
 import json
 import math
 import os
-from typing import Dict, Optional, Tuple
+from collections import Counter
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from .. import evaluation as ev
+from .. import plots
 from ..errors import InputFileError
 from ..transforms import wrap_angle, yaw_of
 from ..tum import TumError, read_tum
 
 __all__ = ["EvaluateError", "read_observations", "read_summary", "parse_after", "evaluate_run", "odometry_from_bag",
-           "first_stamp", "fused_errors", "overview_figure"]
+           "topic_stamps", "fused_errors", "no_update_spans", "overview_figure"]
 
 
 class EvaluateError(InputFileError, ValueError):
@@ -48,11 +54,12 @@ def _doc(anchor: str, text: str, out_dir: str) -> str:
     return f"[{text}]({target}#{anchor})"
 
 
-def read_observations(path: str) -> Dict[str, np.ndarray]:
-    """Columns of an ``observations.csv`` written by ``process`` with a marker yaw (angles converted to
-    radians; ``yaw_sigma`` and ``residual`` NaN where empty)."""
+def read_observations(path: str, every_row: bool = False) -> Dict[str, np.ndarray]:
+    """Columns of an ``observations.csv`` written by ``process``: the rows with a marker yaw, or with
+    ``every_row`` all of them (angles converted to radians; ``yaw``, ``yaw_sigma`` and ``residual`` NaN where
+    empty; ``reason`` the pipeline's, '' when accepted)."""
     cols: Dict[str, list] = {"time": [], "id": [], "azimuth": [], "elevation": [], "yaw": [], "yaw_sigma": [],
-                             "residual": [], "accepted": []}
+                             "residual": [], "accepted": [], "reason": []}
 
     def rad(text: str) -> float:
         return math.radians(float(text)) if text else math.nan
@@ -60,21 +67,52 @@ def read_observations(path: str) -> Dict[str, np.ndarray]:
     try:
         with open(path, newline="") as f:
             for row in csv.DictReader(f):
-                if not row.get("yaw_deg"):
+                if not (every_row or row.get("yaw_deg")):
                     continue
                 cols["time"].append(float(row["time"]))
                 cols["id"].append(int(row["id"]))
                 cols["azimuth"].append(math.radians(float(row["azimuth_deg"])))
                 cols["elevation"].append(math.radians(float(row["elevation_deg"])))
-                cols["yaw"].append(math.radians(float(row["yaw_deg"])))
+                cols["yaw"].append(rad(row["yaw_deg"]))
                 cols["yaw_sigma"].append(rad(row.get("yaw_sigma_deg", "")))
                 cols["residual"].append(rad(row.get("residual_deg", "")))
                 cols["accepted"].append(row["accepted"] == "1")
+                cols["reason"].append(row.get("reason") or "")
     except OSError as e:
         raise EvaluateError(f"{path}: cannot read: {e.strerror}") from None
     except (KeyError, ValueError) as e:
         raise EvaluateError(f"{path}: not an observations.csv of `aruco-abs-orient process` ({e})") from None
     return {k: np.asarray(v) for k, v in cols.items()}
+
+
+def read_heading_sigma(run_dir: str) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """(stamps s, the filter's heading 1-σ rad) of ``heading_sigma.csv`` (None when the run has none)."""
+    path = os.path.join(run_dir, "heading_sigma.csv")
+    if not os.path.exists(path):
+        return None
+    try:
+        data = np.atleast_2d(np.genfromtxt(path, delimiter=",", skip_header=1, usecols=(0, 2)))
+    except (OSError, ValueError) as e:
+        raise EvaluateError(f"{path}: not a heading_sigma.csv of `aruco-abs-orient process` ({e})") from None
+    if data.size == 0:
+        return np.empty(0), np.empty(0)
+    return data[:, 0], np.radians(data[:, 1])
+
+
+def no_update_spans(obs: Dict[str, np.ndarray], start: float, end: float, min_gap: float) -> List[plots.Span]:
+    """The stretches from ``start`` to ``end`` (s) longer than ``min_gap`` s without an accepted marker yaw (the
+    filter coasted on the odometry), each with why: the most common reason the pipeline gave for the markers it
+    saw then, or "no marker seen"."""
+    accepted = np.unique(obs["time"][obs["accepted"]])
+    edges = np.concatenate([[start], accepted[(accepted > start) & (accepted < end)], [end]])
+    out = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        if b - a <= min_gap:
+            continue
+        inside = (obs["time"] > a) & (obs["time"] < b)
+        why = Counter(r.split(" (")[0] for r in obs["reason"][inside] if r)
+        out.append(plots.Span(float(a), float(b), why.most_common(1)[0][0] if why else "no marker seen"))
+    return out
 
 
 def read_summary(run_dir: str) -> Dict[str, object]:
@@ -106,14 +144,15 @@ def parse_after(text: str) -> Tuple[str, float]:
 
 
 def odometry_from_bag(bag: str, topic: str = "/odometry/filtered", clock_offset: float = 0.0):
-    """The poses of a nav_msgs/Odometry topic of a bag as a TUM trajectory, stamps minus
-    ``clock_offset`` (s; e.g. the camera offset when the outputs carry camera-clock stamps)."""
+    """The poses of a nav_msgs/Odometry topic of a bag as a TUM trajectory, stamps minus ``clock_offset`` (s;
+    e.g. the camera offset when the outputs carry camera-clock stamps), and their yaw 1-σ (rad, (N,); from the
+    pose covariance, NaN where it is not positive)."""
     from ..transforms import make_T, quat_to_matrix
     from ..tum import Trajectory
     from .bagio import BagError, open_reader
 
     reader = open_reader(bag)
-    stamps, poses = [], []
+    stamps, poses, sigmas = [], [], []
     try:
         conns = [c for c in reader.connections if c.topic == topic]
         if not conns:
@@ -124,27 +163,30 @@ def odometry_from_bag(bag: str, topic: str = "/odometry/filtered", clock_offset:
             p, q = msg.pose.pose.position, msg.pose.pose.orientation
             stamps.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec - clock_offset)
             poses.append(make_T(quat_to_matrix([q.x, q.y, q.z, q.w]), [p.x, p.y, p.z]))
+            var = float(msg.pose.covariance[35])
+            sigmas.append(math.sqrt(var) if var > 0 else math.nan)
     finally:
         reader.close()
     order = np.argsort(stamps, kind="stable")
-    return Trajectory.from_transforms(np.asarray(stamps)[order], np.asarray(poses).reshape(-1, 4, 4)[order])
+    traj = Trajectory.from_transforms(np.asarray(stamps)[order], np.asarray(poses).reshape(-1, 4, 4)[order])
+    return traj, np.asarray(sigmas)[order]
 
 
-def first_stamp(bag: str, topic: str = "/abs_orient/orientation", clock_offset: float = 0.0) -> Optional[float]:
-    """Header stamp (s) minus ``clock_offset`` of the first message on ``topic`` of ``bag`` (None: none)."""
+def topic_stamps(bag: str, topic: str = "/abs_orient/orientation", clock_offset: float = 0.0) -> np.ndarray:
+    """Header stamps (s) minus ``clock_offset`` of the messages on ``topic`` of ``bag``, sorted (none: empty)."""
     from .bagio import open_reader
 
     reader = open_reader(bag)
+    stamps = []
     try:
         conns = [c for c in reader.connections if c.topic == topic]
-        if not conns:  # (no connections would read every topic)
-            return None
-        for c, _, raw in reader.messages(connections=conns):
-            h = reader.deserialize(raw, c.msgtype).header.stamp
-            return h.sec + 1e-9 * h.nanosec - clock_offset
+        if conns:  # (no connections would read every topic)
+            for c, _, raw in reader.messages(connections=conns):
+                h = reader.deserialize(raw, c.msgtype).header.stamp
+                stamps.append(h.sec + 1e-9 * h.nanosec - clock_offset)
     finally:
         reader.close()
-    return None
+    return np.sort(np.asarray(stamps, dtype=float))
 
 
 def fused_errors(trajectory, reference: str, after: float = 0.0, max_gap: float = 0.2) -> Dict[str, object]:
@@ -160,6 +202,28 @@ def fused_errors(trajectory, reference: str, after: float = 0.0, max_gap: float 
     d = np.linalg.norm(T[ok, :3, 3] - p_ref[ok], axis=1)
     return {"heading_ape": ape, "position": {"rmse_m": float(np.sqrt(np.mean(d * d))), "n": int(ok.sum())},
             "after_s": float(after)}
+
+
+def _timesync_and_calibration(run_dir: str, out_dir: str, offset: float) -> Dict[str, str]:
+    """caption → path of the plots ``timesync --plot`` and ``calibrate --plot`` left in the run's directory (or
+    the report's): ``timesync.png`` drawn again from its ``timesync.json`` with the run's ``offset`` (s) on it."""
+    found = {}
+    for d in (out_dir, run_dir):
+        data = os.path.join(d, "timesync.json")
+        if "sync" not in found and os.path.exists(data):
+            from .sync import plot_offset_file
+
+            try:
+                found["sync"] = plot_offset_file(data, os.path.join(out_dir, "timesync.png"), in_use=offset)
+            except (OSError, ValueError, KeyError, TypeError) as e:
+                raise EvaluateError(f"{data}: not a timesync.json of `aruco-abs-orient timesync --plot` ({e})") \
+                    from None
+        for key, name in (("sync", "timesync.png"), ("calibration", "calibration.png")):
+            if key not in found and os.path.exists(os.path.join(d, name)):
+                found[key] = os.path.join(d, name)
+    captions = {"sync": "is the time offset right? the marker bearings against the offset, the offset in use",
+                "calibration": "was the camera mounted as the lever arms say? residuals before and after calibrate"}
+    return {captions[k]: v for k, v in found.items()}
 
 
 def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optional[str] = None,
@@ -225,7 +289,8 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     rep.headline.append(("coverage", cover, "–", _doc("no-markers-found", "no markers found", out_dir)))
 
     obs_path = os.path.join(run_dir, "observations.csv")
-    obs = read_observations(obs_path) if os.path.exists(obs_path) else None
+    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
+    obs = None if rows is None else {k: v[np.isfinite(rows["yaw"])] for k, v in rows.items()}   # with a marker yaw
     series, pw = {}, None
     if obs is not None and len(obs["time"]):
         series = ev.per_marker_series(obs["time"], obs["id"], obs["yaw"])
@@ -253,20 +318,24 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
             rep.headline.append(("σ consistency (RMS of residual/σ; 1 = honest σ)",
                                  f"{z['rms']:.2f}; {100 * z['share_within_2_sigma']:.0f} % within 2σ", "–",
                                  _doc("time-offset", "time offset, calibration", out_dir)))
-        rows = []
+        table = []
         for mid in sorted(series):
             sel = obs["id"] == mid
             good = sel & res_ok
             z_m = ev.normalised_residuals(obs["residual"][good], obs["yaw_sigma"][good]) if np.any(good) else None
             r = obs["residual"][good]
-            rows.append([mid, int(sel.sum()), f"{100 * float(np.mean(acc[sel])):.0f} %",
+            table.append([mid, int(sel.sum()), f"{100 * float(np.mean(acc[sel])):.0f} %",
                          ev.fmt_angle(float(np.mean(r))) if len(r) else "–",
                          ev.fmt_angle(float(np.std(r))) if len(r) else "–",
                          f"{z_m['rms']:.2f}" if z_m else "–"])
         per_marker_cols = ["marker", "observations", "accepted", "residual mean", "residual std", "RMS residual/σ"]
-        per_marker_rows = rows
-        rep.plots["yaw from each marker alone and their pairwise differences (paper figs. 11–12)"] = \
-            ev.plot_marker_yaws(os.path.join(out_dir, "marker_yaws.png"), series, pw, t0=t0)
+        per_marker_rows = table
+        judged = np.array([not r.startswith("filter: buffered") for r in obs["reason"]], dtype=bool)  # not before
+        agreement = ev.marker_agreement(obs["time"][judged], obs["id"][judged], obs["residual"][judged],
+                                        acc[judged], obs["reason"][judged])                       # the filter ran
+        results["marker_agreement"] = agreement
+        rep.plots["do the markers agree? each marker's yaw against the frame's consensus, the pairs"] = \
+            plots.plot_marker_agreement(os.path.join(out_dir, "marker_yaws.png"), agreement, pw)
     else:
         per_marker_cols, per_marker_rows = [], []
 
@@ -283,7 +352,11 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                                 f"({100 * ape.stats.coverage:.1f} % of the poses compared)", "–",
                                 _doc("time-offset", "time offset", out_dir) + ", "
                                 + _doc("heading-wrong-by-180", "180°", out_dir)))
-        errors = {"processed heading": ape}
+        own = read_heading_sigma(run_dir)
+        curves = [plots.HeadingCurve("processed heading", ape,
+                                     None if own is None or not len(own[0]) else np.interp(ape.t, *own))]
+        spans = [] if rows is None else no_update_spans(rows, float(est.stamps[0]), float(est.stamps[-1]),
+                                                        params.min_gap)
         p_ref, _, ok = ref.interpolate(est.stamps)
         if np.any(ok):
             d = np.linalg.norm(est.positions[ok] - p_ref[ok], axis=1)
@@ -294,8 +367,9 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                                     _doc("no-markers-found", "prism, lever arms", out_dir)))
         if fused:
             clock = offset if fused_clock_offset is None else fused_clock_offset
-            traj = odometry_from_bag(fused, clock_offset=clock)
-            first = first_stamp(fused, clock_offset=clock)
+            traj, ekf_sigma = odometry_from_bag(fused, clock_offset=clock)
+            fed = topic_stamps(fused, clock_offset=clock)   # the absolute yaws the node gave the EKF
+            first = float(fed[0]) if len(fed) else None
             link = "[robot_localization.md](" + os.path.relpath(os.path.join(DOC_DIR, "robot_localization.md"),
                                                                 os.path.abspath(out_dir)) + ")"
             if after is None and first is None:
@@ -314,12 +388,18 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
                 f = fused_errors(traj, reference, after=start, max_gap=max_gap)
                 f["clock_offset_s"] = clock
                 results["fused_ekf"] = f
-                errors["robot_localization EKF"] = f["heading_ape"]
+                curves.append(plots.HeadingCurve("robot_localization EKF", f["heading_ape"],
+                                                 np.interp(f["heading_ape"].t, traj.stamps, ekf_sigma)))
+                spans += [plots.Span(a, b, "the node gave the EKF no absolute yaw")
+                          for a, b in ev.gaps(fed[fed >= start], params.min_gap, start, float(traj.stamps[-1]))]
                 rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)",
                                         f"heading RMSE {ev.fmt_angle(f['heading_ape'].stats.rmse)}, position RMSE "
                                         f"{1e3 * f['position']['rmse_m']:.1f} mm ({how})", "–", link))
-        rep.plots["heading error vs reference"] = ev.plot_yaw_errors(os.path.join(out_dir, "heading_error.png"),
-                                                                     errors, t0=t0)
+        rejected = [] if obs is None else [
+            (float(t), str(r)) for t, r, a in zip(obs["time"], obs["reason"], obs["accepted"])
+            if not a and r and not r.startswith("filter: buffered")]
+        rep.plots["is the heading right? its error, the filter's own ±2σ, the stretches without updates"] = \
+            plots.plot_heading_error(os.path.join(out_dir, "heading_error.png"), curves, spans, rejected, t0=t0)
         if obs is not None and len(obs["time"]):
             truth_at, ok = ev.interp_yaw(obs["time"], ref.stamps, yaw_ref, max_gap)
             err = wrap_angle(obs["yaw"] - truth_at)
@@ -334,12 +414,9 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
             if np.any(ok):
                 bias = ev.error_by_frame_position(obs["azimuth"][ok], obs["elevation"][ok], err[ok])
                 results["error_by_frame_position"] = bias
-                rep.plots["yaw error by position in the frame (paper fig. 13)"] = ev.plot_frame_position(
+                rep.plots["yaw error by position in the frame (paper fig. 13)"] = plots.plot_frame_position(
                     os.path.join(out_dir, "frame_position.png"), bias)
-    sync_png = next((os.path.join(d, "timesync.png") for d in (out_dir, run_dir)
-                     if os.path.exists(os.path.join(d, "timesync.png"))), None)
-    if sync_png:  # written by `timesync --plot` into the run's directory
-        rep.plots["camera ↔ total-station time offset (timesync)"] = sync_png
+    rep.plots.update(_timesync_and_calibration(run_dir, out_dir, offset))
     rep.headline.append(("time offset in use (camera − total station)", f"{1e3 * offset:+.1f} ms", PAPER["time_offset"],
                          _doc("time-offset", "time offset", out_dir)))
     if per_marker_rows:
@@ -372,68 +449,95 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     return results
 
 
-def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str], marker_map, topics=None) -> str:
-    """One picture of a run (the README's): the 360° frame from the middle of the bag (or of a video:
-    ``bag`` with a video file's extension) with the markers found in it outlined and labelled, above the
-    corrected trajectory of base_link vs the reference (when given), with its absolute heading and the
-    markers, in the trajectory's coordinates (full ones with a map origin). Returns ``path`` (PNG)."""
-    from matplotlib.figure import Figure
+def _overview_answer(found, expected, when: Optional[float]) -> str:
+    """The overview's title: how many of the map's markers were found and used in the frame (at ``when`` s since
+    the start; None: a video's middle frame), and why not the others (grouped by their reason)."""
+    markers = f"{len(found)} marker{'s' if len(found) != 1 else ''}"
+    if when is None:
+        return (f"{markers} found in the middle frame of the video (where the map's markers should be is drawn for "
+                "bags: their lever arms are in the bag)")
+    if not expected:
+        return f"{markers} found in this frame ({when:.1f} s); no pose then, so where the map's markers should be is " \
+               "not drawn"
+    ok = [e for e in expected if e.status == "found"]
+    text = f"{len(ok)} of the map's {len(expected)} markers found and used in this frame ({when:.1f} s)"
+    odd = [f"marker {e.id} {e.status}" for e in expected if e.status != "found" and e.status.startswith("found")]
+    missed = Counter(e.status.split(" (")[0] for e in expected if not e.status.startswith("found"))
+    parts = odd + [f"{n} {why}" for why, n in missed.most_common()]
+    return text + ("; " + "; ".join(parts) if parts else "")
 
+
+def _busiest_stamp(rows: Optional[Dict[str, np.ndarray]], poses) -> Optional[float]:
+    """The total-station time of the image whose markers the pipeline saw most of (with a pose; the one nearest
+    the middle of the run among equals), or None without observations."""
+    if rows is None or not len(rows["time"]) or not len(poses):
+        return None
+    times, counts = np.unique(rows["time"], return_counts=True)
+    keep = (times >= poses[0]) & (times <= poses[-1])
+    if not np.any(keep):
+        return None
+    times, counts = times[keep], counts[keep]
+    middle = 0.5 * (poses[0] + poses[-1])
+    best = np.lexsort((np.abs(times - middle), -counts))[0]
+    return float(times[best])
+
+
+def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str], marker_map, topics=None) -> str:
+    """One picture of a run (the README's): a 360° frame of the bag (the one in which the pipeline saw the most
+    markers; of a video, ``bag`` with a video file's extension: the middle one) with the markers a search of
+    the whole frame found outlined, and the map's markers where the run's pose puts them, each one not found
+    or not used marked with why (:func:`aruco_abs_orient.debugview.expected_markers`); below, the corrected
+    trajectory of base_link vs the reference (when given), with its absolute heading, the markers and where
+    the frame was taken, in the trajectory's coordinates (full ones with a map origin). Returns ``path``."""
+    from ..debugview import expected_markers
     from ..detection import decode_jpeg
     from ..tracking import MarkerTracker
-    from .bagio import BagTopics, iter_images, open_reader
+    from .bagio import BagTopics, iter_images, open_reader, read_bag_data
     from .video import VIDEO_EXTENSIONS, video_frames, video_summary
 
     topics = topics or BagTopics()
-    grey = None
+    summary = read_summary(run_dir)
+    offset = float(summary.get("time_offset_s", 0.0))
+    est = read_tum(os.path.join(run_dir, "trajectory.tum"))
+    obs_path = os.path.join(run_dir, "observations.csv")
+    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
+    grey, stamp = None, None
     if os.path.splitext(bag)[1].lower() in VIDEO_EXTENSIONS:
         middle = video_summary(bag)[0] // 2
         video = video_frames(bag)
         grey = next((image for k, _, image in video if k >= middle), None)
         video.close()
     else:
+        busiest = _busiest_stamp(rows, est.stamps)
         reader = open_reader(bag)
         middle = sum(c.msgcount for c in reader.connections if c.topic == topics.image) // 2
         reader.close()
         frames = iter_images(bag, topics)
-        for i, (_, payload) in enumerate(frames):
-            if i >= middle and isinstance(payload, bytes):
-                grey = decode_jpeg(payload)
+        for i, (t, payload) in enumerate(frames):
+            wanted = i >= middle if busiest is None else t - offset >= busiest - 1e-4
+            if wanted and isinstance(payload, bytes):
+                grey, stamp = decode_jpeg(payload), t
                 break
         frames.close()
     if grey is None:
         raise EvaluateError(f"{bag}: no decodable image from the middle of the bag on")
-    obs = MarkerTracker(marker_map).process(grey).observations
-    est = read_tum(os.path.join(run_dir, "trajectory.tum"))
-
-    fig = Figure(figsize=(12, 10), dpi=100)
-    ax = fig.add_axes([0.03, 0.52, 0.94, 0.45])
-    ax.imshow(grey, cmap="gray", vmin=0, vmax=255)
-    for o in obs:
-        u, v = o.corners_px[:, 0], o.corners_px[:, 1]
-        ax.plot(np.append(u, u[0]), np.append(v, v[0]), "-", color="lime", lw=1.5)
-        ax.text(o.pixel[0], o.pixel[1] - 0.02 * grey.shape[0], f"id {o.id}", color="yellow", fontsize=9,
-                ha="center", bbox={"facecolor": "black", "alpha": 0.5, "pad": 1, "lw": 0})
-    ax.set_title(f"360° frame from the middle of the recording: {len(obs)} marker{'s' if len(obs) != 1 else ''} "
-                 "found (outlined, with ids)")
-    ax.set_axis_off()
-    ax2 = fig.add_axes([0.08, 0.05, 0.88, 0.42])
-    if reference:
-        ref = read_tum(reference)
-        ax2.plot(ref.positions[:, 0], ref.positions[:, 1], "-", color="0.6", lw=3, label="reference")
-    ax2.plot(est.positions[:, 0], est.positions[:, 1], "-", color="C0", lw=1, label="corrected base_link")
-    step = max(len(est.stamps) // 25, 1)
-    yaw = yaw_of(est.rotations[::step])
-    ax2.quiver(est.positions[::step, 0], est.positions[::step, 1], np.cos(yaw), np.sin(yaw), color="C0",
-               scale=30, width=0.003, label="absolute heading")
-    pos = marker_map.to_full(marker_map.positions())
-    ax2.plot(pos[:, 0], pos[:, 1], "s", color="k", ms=6, label="markers")
-    for m in marker_map:
-        ax2.annotate(str(m.id), marker_map.to_full(m.position)[:2], xytext=(4, 4), textcoords="offset points",
-                     fontsize=8)
-    ax2.set_aspect("equal")
-    ax2.set_xlabel("map x [m]")
-    ax2.set_ylabel("map y [m]")
-    ax2.legend(loc="best", fontsize=8)
-    ax2.grid(True, alpha=0.3)
-    return ev.save_figure(fig, path)
+    found = MarkerTracker(marker_map).process(grey).observations
+    expected, where, when = [], None, None
+    t0 = float(summary.get("recording_start_s", est.stamps[0] if len(est.stamps) else 0.0))
+    if stamp is not None:
+        t = stamp - offset
+        when = t - t0
+        T, valid = est.transforms_at(t) if len(est.stamps) else (None, False)
+        if bool(valid):
+            where = T[:2, 3].copy()
+            T[:3, 3] -= marker_map.to_full(np.zeros(3))          # full coordinates back to the map's
+            map_T_camera = T @ read_bag_data(bag, topics).base_T_camera
+            near = np.abs(rows["time"] - t) < 1e-4 if rows is not None else np.zeros(0, dtype=bool)
+            used = {int(i): ("" if a else r) for i, a, r in zip(rows["id"][near], rows["accepted"][near],
+                                                                 rows["reason"][near])} if rows is not None else {}
+            expected = expected_markers(marker_map, map_T_camera, grey.shape[1], {o.id: o.centre for o in found},
+                                        used)
+    ref_xy = read_tum(reference).positions[:, :2] if reference else None
+    marker_xy = {m.id: marker_map.to_full(m.position)[:2] for m in marker_map}
+    return plots.plot_overview(path, grey, found, expected, (est.positions[:, :2], yaw_of(est.rotations)),
+                               marker_xy, where, ref_xy, _overview_answer(found, expected, when))

@@ -10,6 +10,8 @@ Outputs in ``out_dir`` (each written atomically: complete or absent):
   positions in full coordinates (the marker map's ``origin`` added back);
 - ``trajectory.csv`` (``full_coordinates``): t, E, N, H, roll, pitch, heading (degrees), for a surveyor;
 - ``observations.csv``: one row per marker observation;
+- ``heading_sigma.csv``: ``time, heading_deg, sigma_deg`` of each pose: the filter's heading of base_link and
+  its own 1-σ (what the report's heading-error plot draws as the filter's band);
 - ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, the
   self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too) and the map check
   (:mod:`aruco_abs_orient.mapcheck`: does the marker map fit the recording?).
@@ -240,6 +242,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     os.fchmod(fd, RESULT_FILE_MODE)
     stamps: List[float] = []
     poses: List[np.ndarray] = []
+    sigmas: List[float] = []   # the filter's yaw 1-σ of each pose, rad
     errors: Dict[str, int] = {}
     frames = with_pose = 0
     first_pose = None
@@ -312,6 +315,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                     with_pose += 1
                     stamps.append(res.stamp)
                     poses.append(res.map_T_base)
+                    sigmas.append(math.nan if res.yaw_sigma is None else res.yaw_sigma)
         stop.set()
         map_check = _map_check(sighted, data, marker_map, pipe, params.markers_only)
         traj_path, extra = os.path.join(out_dir, "trajectory.tum"), []
@@ -328,6 +332,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
             write_tum(traj_path, traj,
                       header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time")
             extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
+            atomic_write_text(os.path.join(out_dir, "heading_sigma.csv"), "time,heading_deg,sigma_deg\n" + "".join(
+                f"{t:.6f},{_deg(float(yaw_of(T[:3, :3])))},{_deg(s)}\n" for t, T, s in zip(stamps, poses, sigmas)))
         obs_path = os.path.join(out_dir, "observations.csv")
         os.replace(obs_tmp, obs_path)
     except BaseException:

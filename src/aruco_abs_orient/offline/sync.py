@@ -9,10 +9,16 @@ camera along its track by speed × offset, which turns the bearing of every mark
 depends on its range and direction; the least squares of :func:`aruco_abs_orient.calibration.calibrate`
 with the offset as an unknown (beside the boresight, which it must not absorb) find it to a fraction
 of a millisecond, where the heading alone is limited by the VO's yaw drift and random walk.
+
+The plot (``timesync.png``, :func:`aruco_abs_orient.plots.plot_time_offset`) shows what the answer rests on:
+the marker bearings' residual with the offset held at offsets around it (:func:`marker_offset_cost`), the
+coarse estimate's coherence as context; ``timesync.json`` beside it keeps those curves, so that ``evaluate``
+draws them again with the offset a run was processed with (:func:`plot_offset_file`).
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from typing import Dict, Optional, Tuple
@@ -24,9 +30,10 @@ from ..calibration import Calibration, CalibrationError, CalibrationParams, Unkn
 from ..markers import MarkerMap
 from ..params import Tunables, parse_params
 from ..transforms import yaw_of
+from ..tum import atomic_write_text
 from .bagio import BagData, BagTopics, bag_name, read_bag_data
 
-__all__ = ["estimate_bag_offset", "marker_offset_estimate"]
+__all__ = ["estimate_bag_offset", "marker_offset_estimate", "marker_offset_cost", "plot_offset_file"]
 
 # σ (s) at which the confidence of a marker-bearing estimate has fallen to 1/2
 MARKER_SIGMA_REF = 0.005
@@ -42,6 +49,78 @@ def marker_offset_estimate(coarse: float, cal: Calibration) -> timesync.OffsetEs
                                    coherence=float("nan"), taus=np.empty(0), curve=np.empty(0),
                                    method="marker bearings", n_samples=cal.n_used, overlap=cal.moving_time,
                                    extra={"boresight_rpy_deg": [math.degrees(float(a)) for a in cal.boresight_rpy]})
+
+
+def marker_offset_cost(bag: str, marker_map: MarkerMap, observations, cal: Calibration, offset: float, coarse,
+                       topics: Optional[BagTopics] = None, n: int = 15) -> Tuple[np.ndarray, np.ndarray]:
+    """The marker bearings against the time offset: (offsets s, RMS rad) of the bearing residuals of the
+    observations ``cal`` (a refinement at ``offset`` s) kept, the boresight fitted again with the offset held at
+    each of ``n`` offsets spanning ``offset`` ± 60 ms and the ``coarse`` estimate ± 2σ; offsets the recording
+    cannot be calibrated at are left out."""
+    lo = min(offset - 0.06, coarse.offset - 2.0 * coarse.sigma)
+    hi = max(offset + 0.06, coarse.offset + 2.0 * coarse.sigma)
+    lo, hi = max(lo, offset - 0.5), min(hi, offset + 0.5)   # a loose coarse σ: the bowl, not the whole search
+    params = CalibrationParams(max_boresight_sigma_deg=1.0, heading_model=cal.heading_model)
+    offsets, rms = [], []
+    for tau in np.unique(np.append(np.linspace(lo, hi, n), offset)):
+        from .calibrate import calibrate_bag
+
+        try:
+            res = calibrate_bag(bag, marker_map, float(tau), topics, observations=observations, params=params)
+        except CalibrationError:
+            continue
+        r = res.residuals_after[cal.used]
+        r = r[np.isfinite(r)]
+        if len(r):
+            offsets.append(float(tau))
+            rms.append(float(np.sqrt(np.mean(r * r))))
+    return np.asarray(offsets), np.asarray(rms)
+
+
+def _estimate_dict(est) -> Optional[dict]:
+    if not isinstance(est, timesync.OffsetEstimate):
+        return None
+    return {"offset_s": est.offset, "sigma_s": est.sigma, "confidence": est.confidence, "method": est.method,
+            "peak": None if not math.isfinite(est.coherence) else est.coherence, "samples": est.n_samples,
+            "overlap_s": est.overlap, "taus_s": [float(x) for x in est.taus], "curve": [float(x) for x in est.curve]}
+
+
+def _estimate(d: Optional[dict]):
+    if not d:
+        return None
+    return timesync.OffsetEstimate(offset=d["offset_s"], sigma=d["sigma_s"], confidence=d["confidence"],
+                                   coherence=float("nan") if d["peak"] is None else d["peak"],
+                                   taus=np.asarray(d["taus_s"]), curve=np.asarray(d["curve"]), method=d["method"],
+                                   n_samples=d["samples"], overlap=d["overlap_s"])
+
+
+def _write_plot(plot_dir: str, out: Dict[str, object]) -> str:
+    """``timesync.png`` and ``timesync.json`` (the curves it draws) of :func:`estimate_bag_offset`'s results."""
+    from ..plots import plot_time_offset
+
+    os.makedirs(plot_dir, exist_ok=True)
+    cost = out.get("cost")
+    data = {"coarse": _estimate_dict(out["timesync"]), "baseline": _estimate_dict(out.get("timesync_baseline")),
+            "refined": _estimate_dict(out.get("timesync_markers")),
+            "cost": None if cost is None else {"offsets_s": [float(x) for x in cost[0]],
+                                               "rms_rad": [float(x) for x in cost[1]]}}
+    atomic_write_text(os.path.join(plot_dir, "timesync.json"), json.dumps(data) + "\n")
+    return plot_time_offset(os.path.join(plot_dir, "timesync.png"), out["timesync"], _estimate(data["refined"]),
+                            cost, baseline=_estimate(data["baseline"]))
+
+
+def plot_offset_file(json_path: str, png_path: str, in_use: Optional[float] = None) -> str:
+    """``timesync.png`` drawn again from the ``timesync.json`` that ``timesync --plot`` wrote, with the offset
+    ``in_use`` (s) by a processed run judged against it; returns ``png_path``. Raises ValueError (or OSError)
+    for a file that is not one."""
+    from ..plots import plot_time_offset
+
+    with open(json_path) as f:
+        data = json.load(f)
+    cost = data.get("cost")
+    return plot_time_offset(png_path, _estimate(data["coarse"]), _estimate(data.get("refined")),
+                            None if not cost else (np.asarray(cost["offsets_s"]), np.asarray(cost["rms_rad"])),
+                            in_use=in_use, baseline=_estimate(data.get("baseline")))
 
 
 def default_search(data: BagData, min_overlap: float = 10.0) -> Tuple[float, float]:
@@ -87,13 +166,6 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
                                                                      track_heading="smoothed")
     except timesync.TimeSyncError as e:
         out["timesync_baseline"] = {"not_available": str(e)}
-    if plot_dir:
-        from ..evaluation import plot_coherence
-
-        os.makedirs(plot_dir, exist_ok=True)
-        base = out["timesync_baseline"]
-        out["plot"] = plot_coherence(os.path.join(plot_dir, "timesync.png"), est,
-                                     baseline=base if isinstance(base, timesync.OffsetEstimate) else None)
     if marker_map is not None:
         from .calibrate import calibrate_bag, collect_observations
 
@@ -103,7 +175,12 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
             cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs,
                                 unknowns=Unknowns(time_offset=True),
                                 params=CalibrationParams(max_boresight_sigma_deg=1.0))
-            out["timesync_markers"] = marker_offset_estimate(est.offset, cal)
+            refined = marker_offset_estimate(est.offset, cal)
+            out["timesync_markers"] = refined
+            if plot_dir:
+                out["cost"] = marker_offset_cost(bag, marker_map, obs, cal, refined.offset, est, topics)
         except CalibrationError as e:
             out["timesync_markers"] = {"not_available": str(e)}
+    if plot_dir:
+        out["plot"] = _write_plot(plot_dir, out)
     return out

@@ -78,3 +78,20 @@ def test_a_bad_key_is_one_line_naming_it(run, tmp_path, capsys):
     assert code == 2 and len(err) == 1
     assert "bad.yaml: evaluation.min_gaps: unknown parameter; did you mean 'min_gap'" in err[0]
     assert not (tmp_path / "o" / "report.json").exists()
+
+
+def test_the_stretches_without_an_absolute_update_say_why():
+    """Accepted marker yaws every 0.1 s over 0-2 s and 5-6 s; in between, rejected ones (tracking gate, and one
+    gated by the filter) up to 3.5 s, then nothing; the run ends at 8 s: two stretches, each with its reason."""
+    from aruco_abs_orient.offline.evaluate import no_update_spans
+
+    acc_t = np.round(np.concatenate([np.arange(0.0, 2.05, 0.1), np.arange(5.0, 6.05, 0.1)]), 3)
+    rej_t = np.round(np.arange(2.5, 3.55, 0.1), 3)
+    gate = "tracking gate: far from its predicted bearing (moved marker, or the filter is off)"
+    reasons = [""] * len(acc_t) + [gate] * (len(rej_t) - 1) + ["filter: gated"]
+    obs = {"time": np.concatenate([acc_t, rej_t]), "accepted": np.array([True] * len(acc_t) + [False] * len(rej_t)),
+           "reason": np.array(reasons)}
+    spans = no_update_spans(obs, 0.0, 8.0, min_gap=0.5)
+    assert [(round(s.start, 3), round(s.end, 3), s.reason) for s in spans] == [
+        (2.0, 5.0, "tracking gate: far from its predicted bearing"), (6.0, 8.0, "no marker seen")]
+    assert no_update_spans(obs, 0.0, 8.0, min_gap=3.5) == []
