@@ -63,13 +63,14 @@ fi
 step "3/5 calibrate the boresight and refine the time offset with the marker bearings, then process the bag"
 CAL=()
 CALFILE=
-# the camera's rolling shutter is a property its user knows: its readout is estimated when it has one; the
-# platform wanders (steering corrections): calibrate takes the boresight yaw against the VO's own track (its default)
+# the camera's rolling shutter is a property its user knows: its readout is estimated when it has one; calibrate
+# also estimates the camera's two lenses and chooses the platform model by the data (its defaults), and draws its
+# residuals before and after (calibration.png, in the report)
 READOUT=()
 python -c "import yaml,sys; sys.exit(not yaml.safe_load(open(sys.argv[1]))['config'].get('rolling_shutter_readout'))" \
   "$SCEN/hidden.yaml" && READOUT=(--readout)
 if aruco-abs-orient calibrate "$SCEN/scenario.bag" --markers "$SCEN/markers.yaml" --time-offset "$OFFSET" \
-  --refine-time-offset "${READOUT[@]}" --every 3 --out "$RUN/calibration.yaml" \
+  --refine-time-offset "${READOUT[@]}" --every 3 --out "$RUN/calibration.yaml" --plot "$RUN" \
   | tee "$RUN/calibration.txt"; then
   CALFILE=$RUN/calibration.yaml
   CAL=(--calibration "$CALFILE")
