@@ -37,6 +37,10 @@ What it models (all times are host ``time.time()`` seconds; the truth log uses t
 - the prism: a TUM trajectory (positions interpolated, looped) or a built-in smooth track; the
   simulator assumes a correct set-up, so coordinates are the track's whatever station and
   orientation a client sets (it keeps and reports them);
+- measurement noise (``accuracy``, an :class:`~.accuracy.InstrumentAccuracy`; None: exact): the slope
+  distance, Hz and V of every reported coordinate are the true ones plus independent normal errors of
+  the class's σ (the distance's shared by a coordinate's distance and continuous parts), and a prism
+  centring error of ``prism_mm`` per axis; the truth log keeps the true positions;
 - motorised procedures: AUT_FineAdjust ``fine_adjust_s``, AUT_LockIn ``lock_in_s``, AUT_Search
   ``search_s`` and AUT_PS_SearchNext ``power_search_s`` (both end ``found_s`` after the prism is
   in view); the instrument answers nothing else meanwhile. A hidden prism loses the lock at once;
@@ -70,6 +74,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple, 
 import numpy as np
 
 from ..errors import InstrumentError
+from .accuracy import ARCSEC, InstrumentAccuracy
 from .protocol import (
     AUT_ANTICLOCKWISE,
     AUT_CLOCKWISE,
@@ -134,8 +139,8 @@ class SimConfig(NamedTuple):
     spike, s), ``late_s`` (delay of a late reply, s), instrument clock ``clock_offset_ms`` (ms),
     ``clock_drift`` (dimensionless, 1e-6 = 1 ppm), ``wrap_ms`` (counter modulus), ``faults``,
     ``profile`` (strict/lenient), ``model`` (MS60/TPS1200), ``edm_rate_hz`` (tracking distances
-    per second), durations of the motorised procedures (s), identity (name, serial number,
-    firmware and GeoCOM versions)."""
+    per second), durations of the motorised procedures (s), ``accuracy`` (measurement noise, None: exact),
+    identity (name, serial number, firmware and GeoCOM versions)."""
 
     baud: int = 115200
     latency_s: float = 0.012
@@ -154,6 +159,7 @@ class SimConfig(NamedTuple):
     search_s: float = 3.0
     power_search_s: float = 5.0
     found_s: float = 0.2
+    accuracy: Optional[InstrumentAccuracy] = None
     name: str = "MS60"
     serial_number: int = 1234567
     firmware: Tuple[int, int, int] = (7, 10, 2)
@@ -458,6 +464,26 @@ class Ms60Simulator:
         v = math.acos(max(-1.0, min(1.0, d[2] / dist))) if dist > 0 else 0.0
         return hz, v, dist
 
+    def _from_polar(self, hz: float, v: float, slope: float) -> np.ndarray:
+        """The point (m) at Hz, V (rad) and slope distance (m) from the station."""
+        e0, n0, h0, hi = self.station
+        return np.array([e0 + slope * math.sin(v) * math.sin(hz), n0 + slope * math.sin(v) * math.cos(hz),
+                         h0 + hi + slope * math.cos(v)])
+
+    def _noise(self, kind: str, distance: float = 0.0) -> float:
+        """A random error of the accuracy class: of an angle (rad) or of the slope distance ``distance`` (m)."""
+        a = self.config.accuracy
+        if a is None:
+            return 0.0
+        return self._rng.gauss(0.0, a.distance_sigma(distance) if kind == "distance" else a.angle_arcsec * ARCSEC)
+
+    def _centring(self) -> np.ndarray:
+        """The prism's centring error (m, per axis) of one measurement."""
+        a = self.config.accuracy
+        if a is None or a.prism_mm == 0:
+            return np.zeros(3)
+        return np.array([self._rng.gauss(0.0, 1e-3 * a.prism_mm) for _ in range(3)])
+
     def _measure(self, tick: int) -> Tuple[int, Optional[Tuple[int, np.ndarray]], np.ndarray]:
         """Angles at counter ``tick``: (rc, the distance they combine with or None, true prism
         position at the tick). rc is 0 or 1285 TMC_ANGLE_OK (no valid distance)."""
@@ -482,12 +508,14 @@ class Ms60Simulator:
                 if forced_rc is not None:
                     rc = forced_rc
                 d_ms, p = dist
-                _, _, slope = self._polar(p)
+                hz_d, v_d, slope = self._polar(p)
                 hz, v, _ = self._polar(now_p)
-                e0, n0, h0, hi = self.station
-                cont = (e0 + slope * math.sin(v) * math.sin(hz), n0 + slope * math.sin(v) * math.cos(hz),
-                        h0 + hi + slope * math.cos(v))
-                values = (float(p[0]), float(p[1]), float(p[2]), int(d_ms) % c.wrap_ms) + cont + (t_ms,)
+                slope_error = self._noise("distance", slope)
+                measured = self._from_polar(hz_d + self._noise("angle"), v_d + self._noise("angle"),
+                                            slope + slope_error) + self._centring()
+                cont = tuple(self._from_polar(hz + self._noise("angle"), v + self._noise("angle"),
+                                              slope + slope_error) + self._centring())
+                values = tuple(float(x) for x in measured) + (int(d_ms) % c.wrap_ms,) + cont + (t_ms,)
                 truth = TruthRecord(self.host_time_of(d_ms), int(d_ms) % c.wrap_ms,
                                     (float(p[0]), float(p[1]), float(p[2])), int(rc), request.trid, True,
                                     self.host_time_of(tick), t_ms)
@@ -501,7 +529,7 @@ class Ms60Simulator:
         hz, v, _ = self._polar(now_p)
         slope = self._polar(dist[1])[2] if dist is not None else 0.0
         t_ms = int(tick) % c.wrap_ms
-        acc = 1.0 / 206265.0  # 1" (MS60 angle accuracy), rad
+        acc = (1.0 if c.accuracy is None else c.accuracy.angle_arcsec) * ARCSEC  # the class's angle σ, rad
         if rpc == Rpc.TMC_GetAngle5:
             return RC.OK, (hz, v)
         if rpc == Rpc.TMC_GetAngle1:

@@ -56,7 +56,10 @@ import threading
 import time
 from typing import Callable, Deque, Dict, NamedTuple, Optional, Tuple
 
+import numpy as np
+
 from ..errors import InstrumentError
+from .accuracy import MS60_TRACKING, InstrumentAccuracy, polar_covariance
 from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout, rpc_name
 from .clock import InstrumentClock
 from .protocol import (
@@ -121,7 +124,8 @@ class TrackerConfig(NamedTuple):
     time (s) for the clock; ``warmup_samples`` positions that only feed the clock before the
     first one is published; ``byte_timing`` whether replies cross a serial line byte by byte
     (None: all ports but socket://); ``no_distance_s`` how long a lock without a new distance is
-    tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s)."""
+    tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s);
+    ``accuracy`` the instrument's accuracy class, each position's covariance (:mod:`.accuracy`)."""
 
     url: str
     baud: int = 115200
@@ -139,6 +143,7 @@ class TrackerConfig(NamedTuple):
     byte_timing: Optional[bool] = None
     no_distance_s: float = 2.0
     error_retry_s: float = 5.0
+    accuracy: InstrumentAccuracy = MS60_TRACKING
 
     def validate(self) -> None:
         """Raise TrackerError naming the first bad setting."""
@@ -154,12 +159,17 @@ class TrackerConfig(NamedTuple):
                 raise TrackerError(f"{name}: value out of range")
         if self.prism_constant_m is not None and not abs(self.prism_constant_m) < 1.0:
             raise TrackerError(f"prism_constant: {self.prism_constant_m} m is not within ±1 m")
+        try:
+            self.accuracy.validate()
+        except ValueError as e:
+            raise TrackerError(f"accuracy: {e}") from None
 
 
 class PrismSample(NamedTuple):
     """One prism position: ``stamp_s`` host time of its distance measurement (s), ``east``,
     ``north``, ``height`` (m, instrument frame = map), ``instrument_ms`` (raw counter of the
-    distance, ms), ``rc`` (0 or a warning code 1283/1284)."""
+    distance, ms), ``rc`` (0 or a warning code 1283/1284), ``cov`` its covariance (3×3 m², east, north,
+    height: the accuracy class carried from the station's polar measurement, :func:`.accuracy.polar_covariance`)."""
 
     stamp_s: float
     east: float
@@ -167,6 +177,7 @@ class PrismSample(NamedTuple):
     height: float
     instrument_ms: int
     rc: int
+    cov: Optional[np.ndarray] = None
 
     @property
     def warning(self) -> bool:
@@ -231,6 +242,7 @@ class Ms60Tracker:
         self._motion_pending = False             # a motorised call timed out: its reply may still come
         self._retry_at = 0.0
         self._power_search: Optional[bool] = None
+        self.station_axis = np.zeros(3)          # E, N, H of the instrument's tilting axis (m), read at connect
         self.instrument = ""
         self.error = ""
         self.notice = ""
@@ -373,6 +385,8 @@ class Ms60Tracker:
         if c.orientation_rad is not None:
             self._required("orientation", lambda: client.set_orientation(c.orientation_rad),
                            "check station/orientation_deg")
+        e0, n0, h0, hi = client.get_station()  # the tilting axis, where each position's covariance is seen from
+        self.station_axis = np.array([e0, n0, h0 + hi])
         self._required("target type", lambda: client.set_target_type(BAP_REFL_USE),
                        "the instrument cannot measure to a reflector")
         if c.prism_type is not None:
@@ -542,7 +556,8 @@ class Ms60Tracker:
                 self.out_of_order += 1
             return self._next_poll_s()
         self._last_stamp = stamp
-        sample = PrismSample(stamp, r.east, r.north, r.height, r.time_ms, r.rc)
+        cov = polar_covariance(self.station_axis, (r.east, r.north, r.height), self.config.accuracy)
+        sample = PrismSample(stamp, r.east, r.north, r.height, r.time_ms, r.rc, cov)
         with self._stats_lock:
             self.samples += 1
             if r.rc != 0:

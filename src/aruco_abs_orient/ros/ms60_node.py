@@ -4,6 +4,10 @@ Publishes
 - ``ms60/prism`` (geometry_msgs/PointStamped, frame ``~frame_id``, default ``map``): the prism
   position (m); the stamp is the instrument's measurement time mapped to ROS time, never the
   reception time;
+- ``ms60/prism_with_covariance`` (geometry_msgs/PoseWithCovarianceStamped, same frame and stamp): the same
+  position with its covariance from the instrument's accuracy class and the station's polar geometry
+  (:mod:`aruco_abs_orient.geocom.accuracy`: the distance σ along the line of sight, the angle σ times the
+  distance across it); the orientation is not measured (identity, variance 1e6);
 - ``ms60/status`` (std_msgs/String, 1 Hz): a JSON object with the tracker's figures: ``state``
   (connecting/searching/locked/lost/reconnecting/error), ``error`` (why, in the error state),
   ``notice`` (why the prism is not locked), ``program`` and ``search`` (what the instrument
@@ -28,7 +32,9 @@ instrument's shortest measurement-to-reply time, 0), ``~station/x``, ``~station/
 ``~station/orientation_deg`` (optional), ``~origin`` ([E, N, H], default [0, 0, 0]: subtracted from every
 published position, the marker map's ``origin``, so that nothing in ROS carries national-grid coordinates),
 ``~log`` (optional path: every fix appended as ``t,east,north,height`` in full coordinates, the prism
-log ``aruco-abs-orient process --prism`` reads).
+log ``aruco-abs-orient process --prism`` reads), ``~accuracy/distance_mm``, ``~accuracy/distance_ppm``,
+``~accuracy/angle_arcsec``, ``~accuracy/prism_mm`` (the accuracy class in the measurement mode used; default
+the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
 
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
@@ -45,14 +51,15 @@ from typing import Any, Dict, Optional, Tuple
 import diagnostic_updater
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 from std_msgs.msg import String
 
+from ..geocom.accuracy import MS60_TRACKING, InstrumentAccuracy
 from ..geocom.client import default_byte_timing
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 from . import exit_without_master
 
-__all__ = ["config_from_params", "output_from_params", "log_line", "stats_to_json", "main"]
+__all__ = ["config_from_params", "output_from_params", "prism_with_covariance", "log_line", "stats_to_json", "main"]
 
 
 def _number(params: Dict[str, Any], name: str, default=None, kind=float, prefix: str = ""):
@@ -98,6 +105,7 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     min_latency_ms = _number(params, "min_latency_ms", 0.0)
     if not 0 <= min_latency_ms <= 1000:
         raise TrackerError(f"~min_latency_ms: {min_latency_ms} ms is not in [0, 1000]")
+    accuracy = _accuracy(params.get("accuracy", {}))
     station_params = params.get("station", {})
     if not isinstance(station_params, dict):
         raise TrackerError(f"~station: expected a dictionary with x, y, z, instrument_height, orientation_deg, "
@@ -118,9 +126,24 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
         byte_timing=byte_timing,
         prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
         orientation_rad=None if orientation_deg is None else math.radians(orientation_deg),
-        min_latency_s=min_latency_ms / 1000.0)
+        min_latency_s=min_latency_ms / 1000.0, accuracy=accuracy)
     config.validate()
     return config, frame_id.strip()
+
+
+def _accuracy(params) -> InstrumentAccuracy:
+    """``~accuracy/*`` → InstrumentAccuracy (defaults: the MS60's). Raises TrackerError naming the parameter."""
+    if not isinstance(params, dict):
+        raise TrackerError(f"~accuracy: expected a dictionary with {', '.join(MS60_TRACKING._fields)}, got {params!r}")
+    unknown = set(params) - set(MS60_TRACKING._fields)
+    if unknown:
+        raise TrackerError(f"~accuracy: unknown key(s) {', '.join(sorted(unknown))}; expected "
+                           f"{', '.join(MS60_TRACKING._fields)}")
+    accuracy = MS60_TRACKING._replace(**{k: _number(params, k, prefix="accuracy/") for k in params})
+    try:
+        return accuracy.validate()
+    except ValueError as e:
+        raise TrackerError(f"~accuracy/{e}") from None
 
 
 def output_from_params(params: Dict[str, Any]) -> Tuple[Tuple[float, float, float], Optional[str]]:
@@ -134,6 +157,17 @@ def output_from_params(params: Dict[str, Any]) -> Tuple[Tuple[float, float, floa
     if not isinstance(log, str):
         raise TrackerError(f"~log: expected a file path, got {log!r}")
     return (float(origin[0]), float(origin[1]), float(origin[2])), (log.strip() or None)
+
+
+def prism_with_covariance(point: PointStamped, cov) -> PoseWithCovarianceStamped:
+    """The position of ``point`` with its covariance ``cov`` (3×3 m²); the orientation unobserved."""
+    from .conversions import pose_covariance
+
+    msg = PoseWithCovarianceStamped(header=point.header)
+    msg.pose.pose.position = point.point
+    msg.pose.pose.orientation.w = 1.0
+    msg.pose.covariance = pose_covariance(position_cov=cov)
+    return msg
 
 
 LOG_HEADER = "t,east,north,height\n"
@@ -201,6 +235,7 @@ def main() -> None:
         rospy.logfatal(f"ms60_driver: ~log: cannot write {log_path}: {e.strerror}")
         sys.exit(2)
     prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
+    cov_pub = rospy.Publisher("ms60/prism_with_covariance", PoseWithCovarianceStamped, queue_size=50)
     status_pub = rospy.Publisher("ms60/status", String, queue_size=5, latch=True)
     updater = diagnostic_updater.Updater()
     updater.setHardwareID(f"MS60 {config.url}")
@@ -220,6 +255,7 @@ def main() -> None:
         msg.point.x, msg.point.y, msg.point.z = (sample.east - origin[0], sample.north - origin[1],
                                                  sample.height - origin[2])
         prism_pub.publish(msg)
+        cov_pub.publish(prism_with_covariance(msg, sample.cov))
         positions.tick()
         stamp_offset.tick(sample.stamp_s)
         if log is not None:
