@@ -528,8 +528,9 @@ class AbsOrientPipeline:
             res.map_T_odom, res.map_T_odom_cov = self.filter.map_T_odom(t)
             map_T_base = res.map_T_odom @ odom_T_base
             R = map_T_base[:3, :3]
-            if res.prism_position is not None:
-                map_T_base[:3, 3] = res.prism_position - R @ self.base_T_prism[:3, 3]
+            if res.prism_position is not None:  # the lever arm turned by the tilt in use (a tilted odometry corrected)
+                R_tilt = rpy_to_matrix(tilt.roll, tilt.pitch, float(yaw_of(R)))
+                map_T_base[:3, 3] = res.prism_position - R_tilt @ self.base_T_prism[:3, 3]
                 res.base_position_cov = res.prism_cov
             res.map_T_base = map_T_base
             res.yaw = float(yaw_of(R))

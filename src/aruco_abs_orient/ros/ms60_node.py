@@ -49,6 +49,7 @@ import sys
 from typing import Any, Dict, Optional, Tuple
 
 import diagnostic_updater
+import numpy as np
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
@@ -160,13 +161,14 @@ def output_from_params(params: Dict[str, Any]) -> Tuple[Tuple[float, float, floa
 
 
 def prism_with_covariance(point: PointStamped, cov) -> PoseWithCovarianceStamped:
-    """The position of ``point`` with its covariance ``cov`` (3×3 m²); the orientation unobserved."""
-    from .conversions import pose_covariance
-
+    """The position of ``point`` with its covariance ``cov`` (3×3 m²); the orientation unobserved (variance 1e6,
+    conversions.UNOBSERVED_VARIANCE: that module needs the package's messages, this node does not)."""
     msg = PoseWithCovarianceStamped(header=point.header)
     msg.pose.pose.position = point.point
     msg.pose.pose.orientation.w = 1.0
-    msg.pose.covariance = pose_covariance(position_cov=cov)
+    C = np.diag([0.0] * 3 + [1.0e6] * 3)
+    C[:3, :3] = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+    msg.pose.covariance = [float(x) for x in C.ravel()]
     return msg
 
 
