@@ -16,7 +16,11 @@ How. With pyproj importable, PROJ's own factors (``Proj.get_factors``) at the po
 closed form: Karney's Krüger series (order n⁶, nanometre-exact) for UTM and Gauss-Krüger, swisstopo's
 rigorous formulas of the Swiss oblique Mercator (double projection via the sphere) for LV95 / LV03, γ
 from the derivative of the projection along the meridian. Both agree within 10⁻⁸ rad (a test holds
-them to it); pure Python (math only), Python 3.8.
+them to it); Python 3.8.
+
+:meth:`NorthReference.turn_map` and :meth:`NorthReference.turn_point` put the marker map and the prism positions
+into the heading's frame: the node with ``~north: true`` works there, so everything it publishes in ``map`` is
+referred to true north at the origin.
 """
 
 from __future__ import annotations
@@ -25,7 +29,10 @@ import math
 import re
 from typing import Callable, NamedTuple, Optional, Tuple
 
+import numpy as np
+
 from .errors import ConfigurationError
+from .markers import MarkerMap
 
 __all__ = ["NorthError", "Grid", "parse_grid", "convergence", "convergence_closed_form", "NorthReference",
            "NORTHS"]
@@ -252,6 +259,27 @@ class NorthReference(NamedTuple):
     def turn(self) -> float:
         """rad about z from the grid frame to the heading's frame: −γ for true north, 0 for grid north."""
         return -self.gamma if self.north == "true" else 0.0
+
+    def turn_map(self, marker_map: MarkerMap) -> MarkerMap:
+        """``marker_map`` in the heading's frame: positions (relative to the origin) and face normals turned by
+        :attr:`turn` about z (the map itself for grid north)."""
+        if self.turn == 0.0:
+            return marker_map
+        from .transforms import rot_z
+
+        R = rot_z(self.turn)
+        markers = [m._replace(position=R @ m.position, normal=None if m.normal is None else R @ m.normal)
+                   for m in marker_map]
+        return MarkerMap(markers, marker_map.dictionary, marker_map.frame_id, marker_map.source, marker_map.origin,
+                         marker_map.grid)
+
+    def turn_point(self, p, cov=None):
+        """A map point (3,) m relative to the origin, and its covariance (3×3 m² or None), in the heading's frame."""
+        from .transforms import rot_z
+
+        R = rot_z(self.turn)
+        p = R @ np.asarray(p, dtype=float)
+        return p, (None if cov is None else R @ np.asarray(cov, dtype=float) @ R.T)
 
     def describe(self) -> str:
         """One line: which north, and the convergence when the grid is known."""

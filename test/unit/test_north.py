@@ -3,6 +3,7 @@ against the geodesic azimuth of a grid-north step (an independent truth: no conv
 NorthReference's contract."""
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -86,3 +87,43 @@ def test_north_reference():
     assert math.degrees(true.turn) == pytest.approx(-2.2235, abs=1e-4)
     assert "true north (UTM32N, meridian convergence at the origin +2.2235°" in true.describe()
     assert "true heading = grid heading - 2.2235°" in grid.describe()
+
+
+@pytest.mark.parametrize("grid, origin", [("LV95", [2820000.0, 1180000.0, 450.0]),     # far east of Bern: +2.0°
+                                          ("UTM32N", [750000.0, 5350000.0, 300.0]),   # 3.4° east of 9°E: +2.5°
+                                          ("UTM33S", [230000.0, 6200000.0, 50.0])])   # west of 15°E, south: +1.9°
+def test_heading_referred_to_true_north_agrees_with_a_geodesic_truth(grid, origin):
+    """The node's ~north: true path (NorthReference.turn_map for the marker map, turn_point for each prism position)
+    in front of the real pipeline on an exact world (test_pipeline's: base_link 3-5 m from four markers, the map
+    written in full grid coordinates around ``origin``): the heading it gives is the true one, within 0.01°. The
+    truth: base_link's forward direction, a 1 m step from its grid position, turned into latitude and longitude by
+    PROJ and measured on the ellipsoid (pyproj.Geod): its azimuth α, true ENU yaw 90° − α."""
+    import pyproj
+
+    from aruco_abs_orient.markers import MarkerMap
+    from aruco_abs_orient.pipeline import AbsOrientPipeline, PipelineParams
+
+    from .test_pipeline import BASE, BASE_T_CAMERA, BASE_T_PRISM, MARKERS, ODOM_T_BASE, PRISM, YAW, observation
+
+    o = np.array(origin)
+    data = {"size": 0.19, "origin": origin, "grid": grid,
+            "markers": [{"id": i, "position": (o + p).tolist()} for i, p in MARKERS.items()]}
+    north = NorthReference.make("true", grid, origin)
+    pipe = AbsOrientPipeline(north.turn_map(MarkerMap.from_dict(data)), BASE_T_CAMERA, BASE_T_PRISM, PipelineParams())
+    for t in np.arange(0.0, 3.01, 0.1):
+        pipe.add_prism(float(t), *north.turn_point(PRISM, np.eye(3) * 1e-6))
+    for t in (1.0, 1.1, 1.2):  # the bearings are the camera's, whatever the map's frame
+        res = pipe.process_observations(t, [observation(i) for i in MARKERS], ODOM_T_BASE)
+    assert res.initialised
+    heading = float(res.yaw)
+    proj = pyproj.Proj(f"EPSG:{parse_grid(grid).epsg}")
+    e, n = o[0] + BASE[0], o[1] + BASE[1]
+    lon0, lat0 = proj(e, n, inverse=True)
+    lon1, lat1 = proj(e + math.cos(YAW), n + math.sin(YAW), inverse=True)
+    azimuth, _, _ = pyproj.CRS(f"EPSG:{parse_grid(grid).epsg}").get_geod().inv(lon0, lat0, lon1, lat1)
+    true_yaw = math.radians(90.0 - azimuth)
+    assert abs(math.degrees(north.gamma)) > 1.5  # far from the central meridian
+    assert abs(math.degrees(math.remainder(heading - true_yaw, 2 * math.pi))) < 0.01
+    assert abs(math.degrees(math.remainder(heading - YAW, 2 * math.pi))) > 1.5  # grid north would be this far off
+    # and the position, in the turned frame, is base_link's turned about the origin
+    np.testing.assert_allclose(res.map_T_base[:3, 3], north.turn_point(BASE)[0], atol=1e-6)

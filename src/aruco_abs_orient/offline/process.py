@@ -10,8 +10,10 @@ Outputs in ``out_dir`` (each written atomically: complete or absent):
   positions in full coordinates (the marker map's ``origin`` added back);
 - ``trajectory.csv`` (``full_coordinates``): t, E, N, H, roll, pitch, heading (degrees), for a surveyor;
 - ``observations.csv``: one row per marker observation;
-- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, and
-  the self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too).
+- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, which north
+  the headings are referred to (``north``: the map's grid north; with its ``grid`` and ``origin`` the meridian
+  convergence, ``meridian_convergence_deg``, that turns them to true north), and the self-checks
+  (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 from ..calibration import CalibrationParams
 from ..detection import DetectionError, decode_jpeg
 from ..markers import MarkerMap
+from ..north import NorthReference
 from ..params import Tunables, parse_params
 from ..pipeline import AbsOrientPipeline, FrameResult
 from ..selfcheck import ModelContext, RunContext, check_run, observation_columns
@@ -176,6 +179,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[
     topics = setup.topics or BagTopics()
     setup = setup._replace(topics=topics)
     tunables = tunables or parse_params({})
+    north = NorthReference.make("grid", marker_map.grid, marker_map.origin, f"{marker_map.source}: ")
     t_start = (time.perf_counter(), time.process_time(), time.thread_time())  # wall, CPU, this thread's CPU
     os.makedirs(out_dir, exist_ok=True)
     readable, salvaged, notes = (bag if hasattr(bag, "iter_images") else bag_paths(bag)), [], []
@@ -187,7 +191,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[
             data = read_bag_data(readable, topics)
             data.warnings.extend(notes)
     try:
-        return _process(bag, readable, data, marker_map, out_dir, setup, tunables, t_start)
+        return _process(bag, readable, data, marker_map, out_dir, setup, tunables, t_start, north)
     finally:
         for path in salvaged:
             if os.path.exists(path):
@@ -213,8 +217,9 @@ def _salvage(paths: List[str], out_dir: str):
 
 
 def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup, tunables: Tunables,
-             t_start: tuple) -> ProcessResult:
-    """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
+             t_start: tuple, north: NorthReference) -> ProcessResult:
+    """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's;
+    ``north`` what the headings are referred to (the map's grid north)."""
     time_offset, topics, calibration, full_coordinates, progress = setup
     params = tunables.pipeline
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
@@ -309,7 +314,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
                                                        f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
         write_tum(traj_path, traj,
-                  header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time")
+                  header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time; "
+                         f"headings referred to {north.describe()}")
         extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
         obs_path = os.path.join(out_dir, "observations.csv")
         os.replace(obs_tmp, obs_path)
@@ -359,6 +365,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         # free cores the wall time would be about max(pipeline, all / N)
         "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
+        "north": north.describe(),
+        "meridian_convergence_deg": math.degrees(north.gamma),
     }
     summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe,
                                       tunables.calibration)

@@ -82,6 +82,7 @@ from ..nodestate import (
     NodeSnapshot,
     live_offset_to_apply,
 )
+from ..north import NORTHS, NorthError, NorthReference
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import ModelContext, RollingSelfCheck, YawObservation
@@ -140,6 +141,9 @@ class NodeConfig:
     - ``markers_only``: no total station: each frame's pose from a resection on its markers, published on
       ``abs_orient/pose_markers`` (a map of fewer than 3 markers is refused at start-up).
     - ``imu_topic``: ``sensor_msgs/Imu`` for roll and pitch (empty: none; tilt from the markers and odometry).
+    - ``north``: what ``map``'s headings are referred to: ``grid`` (the marker map's y axis, the survey grid's north)
+      or ``true`` (geographic north at the map's origin: the marker map and the prism positions are turned by the
+      grid's meridian convergence, :mod:`aruco_abs_orient.north`; needs the map's ``grid`` and ``origin``).
     - frames: ``map_frame``, ``odom_frame``, ``base_frame``, ``camera_frame``, ``prism_frame``.
     """
 
@@ -173,6 +177,7 @@ class NodeConfig:
     prism_frame: str = "prism"
     markers_only: bool = False
     imu_topic: str = ""
+    north: str = "grid"
 
     @classmethod
     def from_params(cls, get_param) -> NodeConfig:
@@ -197,6 +202,8 @@ class NodeConfig:
             raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
         config.calibrated_lever_arms()  # read here, once: a file that does not load is one clear line at start-up
         config.tunables()
+        if config.north not in NORTHS:
+            raise NodeConfigError(f"~north: expected 'grid' or 'true', got {config.north!r}")
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
@@ -287,7 +294,7 @@ class _Throttle:
 class AbsOrientNode:
     """The node's state and its main loop; constructed after ``rospy.init_node``."""
 
-    def __init__(self, config: NodeConfig, marker_map: MarkerMap):
+    def __init__(self, config: NodeConfig, marker_map: MarkerMap, north: Optional[NorthReference] = None):
         import diagnostic_updater
         import rospy
         import tf2_ros
@@ -322,6 +329,9 @@ class AbsOrientNode:
         self.health = NodeHealth(config.image_timeout, config.prism_timeout, config.publish_tf, time.monotonic(),
                                  (config.base_frame, config.camera_frame, config.prism_frame))
         self.health.extra_values["tilt source"] = self._tilt_source
+        self.north = north = north or NorthReference()  # the map and the prism positions are turned to it
+        self.health.extra_values["north"] = north.describe
+        self.health.extra_values["meridian convergence deg"] = lambda: math.degrees(north.gamma)
 
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(30.0), debug=False)
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
@@ -396,6 +406,7 @@ class AbsOrientNode:
         self._prism_in(t, p, cov)
 
     def _prism_in(self, t: float, p: np.ndarray, cov: Optional[np.ndarray]) -> None:
+        p, cov = self.north.turn_point(p, cov)
         self.prisms.append((t, p, cov))
         self.diag_prisms.tick()
         self.diag_prism_offset.tick(t)
@@ -925,14 +936,16 @@ def main(argv=None) -> int:
     try:
         config = NodeConfig.from_params(rospy.get_param)
         marker_map = MarkerMap.load(config.markers)
-    except (NodeConfigError, MarkerMapError) as e:
+        north = NorthReference.make(config.north, marker_map.grid, marker_map.origin, "~")
+    except (NodeConfigError, MarkerMapError, NorthError) as e:
         rospy.logfatal(f"abs_orient: {e}")
         return 2
     if config.markers_only and len(marker_map) < 3:
         rospy.logfatal(f"abs_orient: {config.markers}: ~markers_only needs at least 3 markers in the map for a "
                        f"resection, it has {len(marker_map)}")
         return 2
-    node = AbsOrientNode(config, marker_map)
+    node = AbsOrientNode(config, north.turn_map(marker_map), north)
+    rospy.loginfo(f"abs_orient: headings referred to {north.describe()}")
     rospy.loginfo(f"abs_orient: {len(marker_map)} markers from {config.markers}; "
                   f"{'publishing' if config.publish_tf else 'NOT publishing (EKF owns it)'} "
                   f"{config.map_frame} -> {config.odom_frame}")
