@@ -41,9 +41,15 @@ What it models (all times are host ``time.time()`` seconds; the truth log uses t
   distance, Hz and V of every reported coordinate are the true ones plus independent normal errors of
   the class's σ (the distance's shared by a coordinate's distance and continuous parts), and a prism
   centring error of ``prism_mm`` per axis; the truth log keeps the true positions;
-- motorised procedures: AUT_FineAdjust ``fine_adjust_s``, AUT_LockIn ``lock_in_s``, AUT_Search
-  ``search_s`` and AUT_PS_SearchNext ``power_search_s`` (both end ``found_s`` after the prism is
-  in view); the instrument answers nothing else meanwhile. A hidden prism loses the lock at once;
+- where the telescope points (Hz, V): at the prism while locked; where the prism was when the lock
+  was lost (a hidden prism loses it at once); where AUT_MakePositioning turned it (``positioning_s`` plus
+  the angle at ``slew_rad_s``). The motorised procedures take their time and the instrument answers
+  nothing else meanwhile: AUT_FineAdjust (``fine_adjust_s``) finds the prism only within its search
+  window around that direction when it starts; AUT_Search (``search_s``) only within its area around
+  it; AUT_PS_SearchNext (PowerSearch, a fan sweeping the horizon in ``power_search_s`` per turn from that
+  direction) when the sweep passes the prism's Hz while it is in view; a search ends ``found_s`` after
+  it found the prism (pointing at it), else with AUT_NO_TARGET; AUT_LockIn (``lock_in_s``) needs a fine
+  adjustment onto the prism;
 - faults: garbage bytes before a reply, dropped replies, late replies (after the client's
   timeout), warnings 1283/1284 (position kept), lost lock for a while, link outages (TCP: the
   connection is closed and refused; pty: the line goes silent), latency spikes.
@@ -159,6 +165,8 @@ class SimConfig(NamedTuple):
     search_s: float = 3.0
     power_search_s: float = 5.0
     found_s: float = 0.2
+    positioning_s: float = 0.1
+    slew_rad_s: float = math.pi / 2
     accuracy: Optional[InstrumentAccuracy] = None
     name: str = "MS60"
     serial_number: int = 1234567
@@ -182,7 +190,9 @@ class SimConfig(NamedTuple):
             (f"profile in {PROFILES}", self.profile in PROFILES),
             (f"model in {MODELS}", self.model in MODELS),
             ("0 < edm_rate_hz ≤ 100", 0 < self.edm_rate_hz <= 100),
+            ("slew_rad_s > 0", self.slew_rad_s > 0),
             ("motion times ≥ 0", min(self.lock_in_s, self.fine_adjust_s, self.search_s, self.power_search_s,
+                                     self.positioning_s,
                                      self.found_s) >= 0),
         ]
         for what, ok in checks:
@@ -269,6 +279,8 @@ _SIGNATURES: Dict[int, Tuple[_Check, ...]] = {
     Rpc.CSV_GetDateTimeCentiSec: (),
     Rpc.MOT_ReadLockStatus: (),
     Rpc.AUT_LockIn: (),
+    Rpc.AUT_MakePositioning: (("f", lambda v: abs(v) <= 4 * math.pi), ("f", lambda v: abs(v) <= 4 * math.pi),
+                              ("i", lambda v: v in (0, 1)), ("i", lambda v: v == 0), _BOOL),
     Rpc.AUT_Search: (_WINDOW, _WINDOW, _BOOL),
     Rpc.AUT_FineAdjust: (_WINDOW, _WINDOW, _BOOL),
     Rpc.AUT_PS_SearchNext: (("i", lambda v: v in (AUT_CLOCKWISE, AUT_ANTICLOCKWISE)), _BOOL),
@@ -283,7 +295,7 @@ _SIGNATURES: Dict[int, Tuple[_Check, ...]] = {
     Rpc.AUS_SetUserLockState: (_BOOL,),
     Rpc.AUS_GetUserLockState: (),
 }
-_MOTIONS = (Rpc.AUT_LockIn, Rpc.AUT_FineAdjust, Rpc.AUT_Search, Rpc.AUT_PS_SearchNext)
+_MOTIONS = (Rpc.AUT_LockIn, Rpc.AUT_FineAdjust, Rpc.AUT_Search, Rpc.AUT_PS_SearchNext, Rpc.AUT_MakePositioning)
 #: settings the instrument only stores and reports back: RPC → (attribute, type, True for the setter)
 _STORED = {rpc: (name, kind, is_set) for set_rpc, get_rpc, name, kind in (
     (Rpc.COM_SetDoublePrecision, Rpc.COM_GetDoublePrecision, "precision", int),
@@ -356,6 +368,7 @@ class Ms60Simulator:
         self.prism_visible = True
         self.locked = False
         self.adjusted = False          # the telescope points at the prism (AUT_FineAdjust succeeded)
+        self._aim: Optional[Tuple[float, float]] = None  # (Hz, V) rad where the telescope points; None: at the prism
         self.user_lock = False         # LOCK mode (AUS_SetUserLockState)
         self.user_atr = False
         self.tracking = False          # the EDM measures continuously
@@ -429,10 +442,26 @@ class Ms60Simulator:
             if self._edm_sees_prism() and not saw:
                 self._edm_from_ms = now_ms
 
+    def _prism_direction(self, t: Optional[float] = None) -> Tuple[float, float]:
+        """(Hz, V) rad of the prism at host time ``t`` (now)."""
+        hz, v, _ = self._polar(self.track((time.time() if t is None else t) - self.t_boot))
+        return hz, v
+
+    def aim(self) -> Tuple[float, float]:
+        """(Hz, V) rad where the telescope points now: at the prism while locked (or before anything turned it)."""
+        if self._aim is None or (self.locked and self.prism_visible):
+            return self._prism_direction()
+        return self._aim
+
+    def _point_at_prism(self) -> None:
+        self._aim = None
+
     def set_prism_visible(self, visible: bool) -> None:
-        """Hide (the lock and the fine adjustment are lost at once) or show the prism (the lock
-        needs AUT_FineAdjust and AUT_LockIn again)."""
+        """Hide (the lock and the fine adjustment are lost at once, the telescope stays where the prism was)
+        or show the prism (the lock needs AUT_FineAdjust and AUT_LockIn again)."""
         def change() -> None:
+            if not visible and self.prism_visible:
+                self._aim = self.aim()
             self.prism_visible = bool(visible)
             if not visible:
                 self.locked = self.adjusted = False
@@ -643,6 +672,7 @@ class Ms60Simulator:
         link went down or the simulator stopped meanwhile."""
         c = self.config
         rpc = motion.request.rpc
+        params = _decode(motion.request)
         if rpc == Rpc.AUT_LockIn:
             if c.strict and not self.user_lock:
                 return RC.AUT_NOT_ENABLED
@@ -651,28 +681,64 @@ class Ms60Simulator:
             duration = c.lock_in_s if c.strict else 0.0
         elif rpc == Rpc.AUT_FineAdjust:
             duration = c.fine_adjust_s
+        elif rpc == Rpc.AUT_MakePositioning:
+            target = (float(params[0]) % (2 * math.pi), float(params[1]))
+            hz0, v0 = self.aim()
+            turn = max(abs(math.remainder(target[0] - hz0, 2 * math.pi)), abs(target[1] - v0))
+            duration = c.positioning_s + turn / c.slew_rad_s
         else:
             if rpc == Rpc.AUT_PS_SearchNext and c.model == "TPS1200":
                 return RC.NOT_IMPL   # no PowerSearch on this instrument
             duration = c.power_search_s if rpc == Rpc.AUT_PS_SearchNext else c.search_s
-        searching = rpc in (Rpc.AUT_Search, Rpc.AUT_PS_SearchNext)
+        start_aim = self.aim()
+        in_window = rpc == Rpc.AUT_FineAdjust and self.prism_visible and self._within(start_aim, params[0] / 2,
+                                                                                       params[1] / 2)
         end = motion.start_s + duration
         seen: Optional[float] = None
         while True:
             now = time.time()
-            if searching and self.prism_visible and seen is None:
+            if seen is None and self.prism_visible and self._finds(rpc, params, start_aim, now - motion.start_s):
                 seen = now
             if now >= end or (seen is not None and now >= seen + c.found_s):
                 break
             if self._stop.wait(min(0.01, max(0.0, end - now))) or not self.link_up:
                 return None
-        if not self.prism_visible:
+        if rpc == Rpc.AUT_MakePositioning:
+            self._change(lambda: self._turn_to(target))
+            return RC.OK
+        if rpc == Rpc.AUT_FineAdjust:  # the ATR looks where the telescope points, then centres the prism
+            seen = now if in_window else None
+        if not self.prism_visible or (rpc != Rpc.AUT_LockIn and seen is None):
             return RC.AUT_NO_TARGET
         if rpc == Rpc.AUT_LockIn:
             self._change(lambda: setattr(self, "locked", True))
         elif rpc == Rpc.AUT_FineAdjust:
-            self._change(lambda: setattr(self, "adjusted", True))
-        return RC.OK   # a search leaves the prism in the ATR's field; AUT_FineAdjust centres it
+            self._change(lambda: (setattr(self, "adjusted", True), self._point_at_prism()))
+        else:
+            self._change(self._point_at_prism)  # a search leaves the prism in the ATR's field
+        return RC.OK
+
+    def _turn_to(self, target: Tuple[float, float]) -> None:
+        self._aim = target
+        self.locked = self.adjusted = False
+
+    def _within(self, aim: Tuple[float, float], hz_window: float, v_window: float) -> bool:
+        """The prism is within ±``hz_window``, ±``v_window`` (rad) of ``aim`` (Hz, V) now."""
+        hz, v = self._prism_direction()
+        return abs(math.remainder(hz - aim[0], 2 * math.pi)) <= hz_window and abs(v - aim[1]) <= v_window
+
+    def _finds(self, rpc: int, params, aim: Tuple[float, float], elapsed: float) -> bool:
+        """A search ``rpc`` started pointing at ``aim`` ``elapsed`` s ago finds the visible prism now: AUT_Search
+        within its area (its Hz and V widths), PowerSearch when its fan (full height) has swept past the prism's
+        Hz (clockwise or not); AUT_FineAdjust is judged at its end, within its window."""
+        if rpc == Rpc.AUT_Search:
+            return self._within(aim, params[0] / 2, params[1] / 2)
+        if rpc == Rpc.AUT_PS_SearchNext:
+            turned = 2 * math.pi * elapsed / self.config.power_search_s
+            sign = 1.0 if params[0] == AUT_CLOCKWISE else -1.0
+            ahead = (sign * (self._prism_direction()[0] - aim[0])) % (2 * math.pi)
+            return ahead <= turned or turned >= 2 * math.pi
+        return False
 
     # --- requests ------------------------------------------------------------------------------
     def _refusal_reply(self, line: bytes) -> Optional[bytes]:
