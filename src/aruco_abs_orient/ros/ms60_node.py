@@ -36,6 +36,12 @@ log ``aruco-abs-orient process --prism`` reads), ``~accuracy/distance_mm``, ``~a
 ``~accuracy/angle_arcsec``, ``~accuracy/prism_mm`` (the accuracy class in the measurement mode used; default
 the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
 
+Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is
+predicted to be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf
+``~frame_id`` → ``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever
+arm), its two newest poses extrapolated to now, plus ``~origin``; none when tf has no such chain or its newest
+pose is older than ``~predict_max_age`` (s, 1.0): then the search as before.
+
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
 a live instrument's stamps are wall-clock times.
@@ -60,7 +66,8 @@ from ..geocom.client import default_byte_timing
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 from . import exit_without_master
 
-__all__ = ["config_from_params", "output_from_params", "prism_with_covariance", "log_line", "stats_to_json", "main"]
+__all__ = ["config_from_params", "output_from_params", "prediction_from_params", "extrapolate", "prism_with_covariance",
+           "log_line", "stats_to_json", "main"]
 
 
 def _number(params: Dict[str, Any], name: str, default=None, kind=float, prefix: str = ""):
@@ -172,6 +179,33 @@ def prism_with_covariance(point: PointStamped, cov) -> PoseWithCovarianceStamped
     return msg
 
 
+def prediction_from_params(params: Dict[str, Any]) -> Tuple[bool, str, float]:
+    """``(predict, prism frame, max age s)`` from ``~predict``, ``~prism_frame``, ``~predict_max_age``. Raises
+    TrackerError naming the parameter."""
+    predict = params.get("predict", True)
+    if not isinstance(predict, bool):
+        raise TrackerError(f"~predict: expected true or false, got {predict!r}")
+    frame = params.get("prism_frame", "prism")
+    if not isinstance(frame, str) or not frame.strip():
+        raise TrackerError(f"~prism_frame: expected a frame name, got {frame!r}")
+    max_age = _number(params, "predict_max_age", 1.0)
+    if not 0 < max_age <= 10:
+        raise TrackerError(f"~predict_max_age: {max_age} s is not in (0, 10]")
+    return predict, frame.strip(), max_age
+
+
+def extrapolate(older: Tuple[float, np.ndarray], newer: Tuple[float, np.ndarray], now: float,
+                max_age: float) -> Optional[np.ndarray]:
+    """The position at ``now`` (s) from two (stamp s, position (3,) m) poses, linearly; None when the newer is
+    more than ``max_age`` s old (a stale pose), or from the future."""
+    (t0, p0), (t1, p1) = older, newer
+    age = now - t1
+    if not 0.0 <= age <= max_age:
+        return None
+    rate = (np.asarray(p1) - np.asarray(p0)) / (t1 - t0) if t1 > t0 else np.zeros(3)
+    return np.asarray(p1, dtype=float) + rate * age
+
+
 LOG_HEADER = "t,east,north,height\n"
 
 
@@ -216,6 +250,33 @@ SIM_TIME_MESSAGE = ("ms60_driver: /use_sim_time is true on this master (a bag re
                     "`rosparam set /use_sim_time false` and start the driver again")
 
 
+def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
+    """``predict()`` for the tracker: the prism's position now (instrument coordinates) from tf, or None."""
+    import tf2_ros
+
+    buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
+    tf2_ros.TransformListener(buffer)
+
+    def position(stamp) -> Tuple[float, np.ndarray]:
+        tr = buffer.lookup_transform(frame_id, prism_frame, stamp)
+        p = tr.transform.translation
+        return tr.header.stamp.to_sec(), np.array([p.x, p.y, p.z])
+
+    def predict() -> Optional[Tuple[float, float, float]]:
+        try:
+            newer = position(rospy.Time(0))
+        except tf2_ros.TransformException:  # no pose of the robot (yet)
+            return None
+        try:
+            older = position(rospy.Time.from_sec(newer[0] - 0.2))
+        except tf2_ros.TransformException:  # one pose only: no velocity
+            older = newer
+        p = extrapolate(older, newer, rospy.get_time(), max_age)
+        return None if p is None else tuple(float(x) for x in p + np.asarray(origin))
+
+    return predict
+
+
 def main() -> None:
     exit_without_master("ms60_driver", "ms60.launch")
     rospy.init_node("ms60_driver")
@@ -225,6 +286,7 @@ def main() -> None:
     try:
         config, frame_id = config_from_params(rospy.get_param("~", {}))
         origin, log_path = output_from_params(rospy.get_param("~", {}))
+        predict, prism_frame, max_age = prediction_from_params(rospy.get_param("~", {}))
         log = None
         if log_path:
             log = open(log_path, "a", buffering=1)  # noqa: SIM115 (open while the node spins, closed after)
@@ -269,7 +331,8 @@ def main() -> None:
         else:
             rospy.loginfo(f"ms60_driver: {state.value} ({config.url})")
 
-    tracker = Ms60Tracker(config, on_sample=on_sample, on_state=on_state)
+    tracker = Ms60Tracker(config, on_sample=on_sample, on_state=on_state,
+                          predict=_tf_prediction(frame_id, prism_frame, origin, max_age) if predict else None)
 
     def report(_event) -> None:
         stats = tracker.stats()

@@ -183,3 +183,21 @@ def test_origin_is_subtracted_from_what_is_published_and_the_log_keeps_full_coor
     assert len(common) >= 10
     for t in common:
         np.testing.assert_allclose(full[t] - origin, published[t], atol=1e-5)
+
+
+def test_prediction_parameters_and_extrapolation():
+    """~predict, ~prism_frame, ~predict_max_age; the predicted position: the newest pose moved on at the velocity
+    of the two newest, none when the newest is stale or from the future."""
+    from aruco_abs_orient.ros.ms60_node import extrapolate, prediction_from_params
+
+    assert prediction_from_params({}) == (True, "prism", 1.0)
+    assert prediction_from_params({"predict": False, "prism_frame": "prism_360", "predict_max_age": 0.5}) == (
+        False, "prism_360", 0.5)
+    for params, name in (({"predict": "yes"}, "~predict"), ({"prism_frame": ""}, "~prism_frame"),
+                         ({"predict_max_age": 0}, "~predict_max_age")):
+        with pytest.raises(TrackerError, match=name):
+            prediction_from_params(params)
+    older, newer = (10.0, np.array([1.0, 2.0, 1.5])), (10.2, np.array([1.2, 2.0, 1.5]))  # 1 m/s east
+    np.testing.assert_allclose(extrapolate(older, newer, 10.5, 1.0), [1.5, 2.0, 1.5])
+    assert extrapolate(older, newer, 11.3, 1.0) is None and extrapolate(older, newer, 10.1, 1.0) is None
+    np.testing.assert_allclose(extrapolate(newer, newer, 10.4, 1.0), newer[1])  # one pose: no velocity
