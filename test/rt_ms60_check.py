@@ -119,7 +119,7 @@ class Ms60DriverCheck(unittest.TestCase):
         self.assertIsNotNone(relock_s, "no position after the prism came back")
         rospy.loginfo(f"rt_ms60_check: re-lock {relock_s - t_back:.2f} s after the prism came back "
                       f"(lock-in {tcp_sim.config.lock_in_s} s)")
-        c = tcp_sim.config  # a fine adjustment that may miss, a PowerSearch turn at most, the fine adjustment, the lock-in
+        c = tcp_sim.config  # a fine adjustment that may miss, a PowerSearch turn at most, fine adjustment, lock-in
         self.assertLess(relock_s - t_back, 2 * c.fine_adjust_s + c.power_search_s + c.lock_in_s + 1.0)
         # diagnostic_updater's statuses while locked: the driver's own task with the instrument's serial number as
         # hardware id (the simulator's 1234567), the frequency status at ~rate and the prism stamp offset, all OK
