@@ -97,21 +97,22 @@ def scenario(preset: str, duration: float = 0.0, changes: tuple = ()) -> Path:
     if not all((out / f).exists() for f in ("scenario.bag", "truth.tum", "markers.yaml", "hidden.yaml")):
         out.parent.mkdir(parents=True, exist_ok=True)
         t0 = time.monotonic()
-        if changes:  # parameters the CLI has no option for: the generator's own API
-            import dataclasses
-
-            from aruco_abs_orient.synthetic.bag import generate
-            from aruco_abs_orient.synthetic.scenario import PRESETS
-
-            extra = {"duration": duration} if duration else {}
-            config = dataclasses.replace(PRESETS[preset], **dict(changes, **extra))
-            generate(config, str(out), progress=False, force=True)
+        if changes:  # parameters the CLI has no option for: the generator's own API, in a process of its own
+            script = ("import dataclasses, sys\n"
+                      "from aruco_abs_orient.synthetic.bag import generate\n"
+                      "from aruco_abs_orient.synthetic.scenario import PRESETS\n"
+                      "if __name__ == '__main__':\n"
+                      f"    config = dataclasses.replace(PRESETS[{preset!r}], **{dict(changes)!r})\n"
+                      + (f"    config = dataclasses.replace(config, duration={duration!r})\n" if duration else "")
+                      + f"    generate(config, {str(out)!r}, progress=False, force=True)\n")
+            proc = subprocess.run([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  text=True, timeout=900)
         else:
             extra = ["--duration", str(duration)] if duration else []
             proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"] + extra,
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900)
-            if proc.returncode != 0:
-                raise RuntimeError(f"scenario generation failed:\n{proc.stdout[-3000:]}")
+        if proc.returncode != 0:
+            raise RuntimeError(f"scenario generation failed:\n{proc.stdout[-3000:]}")
         rospy.loginfo("generated the %s scenario in %.0f s", preset, time.monotonic() - t0)
     return out
 
