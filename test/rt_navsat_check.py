@@ -6,8 +6,8 @@ map's origin there, grid UTM32N (the survey grid is the GNSS's own UTM zone: the
 differs). A robot drives a 10 m circle at 1 m/s. The checker publishes, per namespace, what the EKF beside an
 abs_orient node publishes on /odometry/filtered: in ``true_north`` the map frame of ``~north: true`` (the grid turned
 by −γ about the origin, :meth:`aruco_abs_orient.north.NorthReference.turn_point`, yaw − γ), in ``grid_north`` the grid
-itself; and the receiver's fixes (exact: PROJ's latitude and longitude of the robot's grid position). navsat_transform
-aligns the fixes with the first odometry heading it gets. With the true-north heading its odometry/gps is the robot's
+itself, each with its tf map -> base_link (frames of their own per namespace); and the receiver's fixes (exact:
+PROJ's latitude and longitude of the robot's grid position). navsat_transform aligns the fixes with the first odometry heading it gets. With the true-north heading its odometry/gps is the robot's
 position in that map frame within 2 cm; with the grid-north one, the same fixes land γ times the distance from the
 first fix off (≥ 0.2 m at 10 m): the error a grid heading fed next to GNSS makes silently."""
 import math
@@ -19,6 +19,8 @@ import numpy as np
 import pyproj
 import rospy
 import rostest
+import tf2_ros
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
@@ -54,14 +56,16 @@ class NavsatCheck(unittest.TestCase):
 
         for ns in frames:
             rospy.Subscriber(f"/{ns}/odometry/gps", Odometry, on_gps(ns), queue_size=100)
+        tf = tf2_ros.TransformBroadcaster()
         t0, k = time.time(), 0
         while time.time() - t0 < 12.0 and not rospy.is_shutdown():
             t = time.time() - t0
             p, yaw = robot(t)
             stamp = rospy.Time.now()
             for ns, ref in frames.items():
+                # each namespace its own map and base_link frames (one tf tree): what its EKF would publish
                 odom = Odometry()
-                odom.header.stamp, odom.header.frame_id, odom.child_frame_id = stamp, "map", "base_link"
+                odom.header.stamp, odom.header.frame_id, odom.child_frame_id = stamp, f"map_{ns}", f"base_{ns}"
                 q = ref.turn_point(p)[0]
                 odom.pose.pose.position.x, odom.pose.pose.position.y = q[0], q[1]
                 heading = yaw + ref.turn
@@ -69,10 +73,15 @@ class NavsatCheck(unittest.TestCase):
                 odom.pose.pose.orientation.w = math.cos(heading / 2)
                 odom.pose.covariance = list(np.diag([1e-4] * 6).ravel())
                 pubs[ns][0].publish(odom)
+                tr = TransformStamped()
+                tr.header, tr.child_frame_id = odom.header, odom.child_frame_id
+                tr.transform.translation.x, tr.transform.translation.y = q[0], q[1]
+                tr.transform.rotation = odom.pose.pose.orientation
+                tf.sendTransform(tr)
                 if k % 4 == 0:  # 5 Hz fixes
                     lon, lat = proj(ORIGIN[0] + p[0], ORIGIN[1] + p[1], inverse=True)
                     fix = NavSatFix(latitude=lat, longitude=lon, altitude=ORIGIN[2])
-                    fix.header.stamp, fix.header.frame_id = stamp, "base_link"
+                    fix.header.stamp, fix.header.frame_id = stamp, f"base_{ns}"  # the antenna at base_link
                     fix.status.status, fix.position_covariance_type = NavSatStatus.STATUS_FIX, 2
                     fix.position_covariance = [0.0001, 0, 0, 0, 0.0001, 0, 0, 0, 0.0001]
                     pubs[ns][1].publish(fix)
