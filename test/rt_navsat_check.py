@@ -7,8 +7,9 @@ differs). A robot drives a 10 m circle at 1 m/s. The checker publishes, per name
 abs_orient node publishes on /odometry/filtered: in ``true_north`` the map frame of ``~north: true`` (the grid turned
 by −γ about the origin, :meth:`aruco_abs_orient.north.NorthReference.turn_point`, yaw − γ), in ``grid_north`` the grid
 itself, each with its tf map -> base_link (frames of their own per namespace); and the receiver's fixes (exact:
-PROJ's latitude and longitude of the robot's grid position). navsat_transform aligns the fixes with the first odometry heading it gets. With the true-north heading its odometry/gps is the robot's
-position in that map frame within 2 cm; with the grid-north one, the same fixes land γ times the distance from the
+PROJ's latitude and longitude of the robot's grid position). navsat_transform aligns the fixes with the first
+odometry heading it gets. With the true-north heading its odometry/gps is the robot's position in that map frame
+within 2 cm; with the grid-north one, the same fixes land γ times the distance from the
 first fix off (≥ 0.2 m at 10 m): the error a grid heading fed next to GNSS makes silently."""
 import math
 import threading
