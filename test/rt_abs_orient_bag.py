@@ -87,17 +87,17 @@ FUTURE_DATED = 0.1  # s: the node's ~transform_tolerance and cfg/ekf.yaml's tran
 ARGS = None
 
 
-def scenario(preset: str, duration: float = 0.0) -> Path:
+def scenario(preset: str, duration: float = 0.0, changes: tuple = ()) -> Path:
     """Directory with scenario.bag, truth.tum, markers.yaml, hidden.yaml of ``preset`` (cached), re-rendered
-    ``duration`` s long when given."""
-    h = hashlib.sha256((preset + (f"/{duration}" if duration else "")).encode())
+    ``duration`` s long when given, with the scenario parameters ``changes`` ((name, value) pairs) changed."""
+    h = hashlib.sha256((preset + (f"/{duration}" if duration else "") + (f"/{changes}" if changes else "")).encode())
     pkg = ROOT / "src" / "aruco_abs_orient"
     for p in sorted(pkg.glob("synthetic/*.py")) + [pkg / "camera.py", pkg / "markers.py", pkg / "tum.py"]:
         h.update(p.read_bytes())
     out = ROOT / ".cache" / "rostest" / f"{preset}-{h.hexdigest()[:12]}"
     out.parent.mkdir(parents=True, exist_ok=True)
     with _locked(out):  # rostests run side by side (make test): one renders, the others wait for it
-        _render(out, preset, duration)
+        _render(out, preset, duration, changes)
     return out
 
 
@@ -109,12 +109,23 @@ def _locked(path: Path):
         yield
 
 
-def _render(out: Path, preset: str, duration: float) -> None:
+def _render(out: Path, preset: str, duration: float, changes: tuple = ()) -> None:
     if not all((out / f).exists() for f in ("scenario.bag", "truth.tum", "markers.yaml", "hidden.yaml")):
         t0 = time.monotonic()
-        extra = ["--duration", str(duration)] if duration else []
-        proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"] + extra,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900)
+        if changes:  # parameters the CLI has no option for: the generator's own API, in a process of its own
+            script = ("import dataclasses, sys\n"
+                      "from aruco_abs_orient.synthetic.bag import generate\n"
+                      "from aruco_abs_orient.synthetic.scenario import PRESETS\n"
+                      "if __name__ == '__main__':\n"
+                      f"    config = dataclasses.replace(PRESETS[{preset!r}], **{dict(changes)!r})\n"
+                      + (f"    config = dataclasses.replace(config, duration={duration!r})\n" if duration else "")
+                      + f"    generate(config, {str(out)!r}, progress=False, force=True)\n")
+            proc = subprocess.run([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  text=True, timeout=900)
+        else:
+            extra = ["--duration", str(duration)] if duration else []
+            proc = subprocess.run(["aruco-abs-orient-synth", "--preset", preset, "--out", str(out), "--force"] + extra,
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900)
         if proc.returncode != 0:
             raise RuntimeError(f"scenario generation failed:\n{proc.stdout[-3000:]}")
         rospy.loginfo("generated the %s scenario in %.0f s", preset, time.monotonic() - t0)
@@ -465,7 +476,7 @@ def rmse_deg(e) -> float:
 class BagRun(unittest.TestCase):
     def setUp(self):
         rospy.init_node("rt_abs_orient_bag")
-        self.dir = Path(ARGS.scenario) if ARGS.scenario else scenario(ARGS.preset, ARGS.duration)
+        self.dir = Path(ARGS.scenario) if ARGS.scenario else scenario(ARGS.preset, ARGS.duration, tuple(ARGS.set))
         self.truth = read_tum(str(self.dir / "truth.tum"))
         self.offset = time_offset_of(self.dir)
         self.rec = Recorder()
@@ -539,22 +550,44 @@ class BagRun(unittest.TestCase):
         self.report("abs_orient/pose_markers messages", len(poses), 20, "")
         self.assertGreater(len(poses), 20, f"too few resection poses; the node said: {self.rec.last_status}")
 
+    def errors(self, poses, t_from: float):
+        """(yaw errors rad, position errors m) of [(stamp s camera clock, 4x4 base_link in map)] against the truth
+        from true time ``t_from`` on."""
+        series = _series(poses)
+        sel = series.stamps - self.offset >= t_from
+        p, q, valid = self.truth.interpolate(series.stamps[sel] - self.offset)
+        self.assertGreater(valid.sum(), 10, f"too few poses: {len(poses)}")
+        yaw_err = wrap_angle(yaw_of(series.rotations[sel][valid]) - yaw_of(quat_to_matrix(q[valid])))
+        return yaw_err, np.linalg.norm(series.positions[sel][valid] - p[valid], axis=1)
+
     def check_ekf(self, markers_only: bool = False):
-        self.launch(use_ekf=True, markers_only=markers_only)
+        from geometry_msgs.msg import PoseStamped
+
+        own = []  # the node's own filtered pose (abs_orient/pose) in the same replay
+
+        def on_pose(msg):
+            p, q = msg.pose.position, msg.pose.orientation
+            own.append((stamp_to_sec(msg.header.stamp), make_T(quat_to_matrix([q.x, q.y, q.z, q.w]), [p.x, p.y, p.z])))
+
+        rospy.Subscriber("abs_orient/pose", PoseStamped, on_pose, queue_size=100)
+        self.launch(use_ekf=True, markers_only=markers_only,
+                    calibration=true_calibration(self.dir) if ARGS.calibrated else "",
+                    extra=[a.replace("=", ":=", 1) for a in ARGS.launch_arg])
         self.assertEqual(self.rec.map_odom_publishers, {"/ekf_map"},
                          f"map->odom must have exactly one owner; the node said: {self.rec.last_status}")
-        filt = _series(self.rec.filtered)
-        sel = filt.stamps - self.offset >= self.t_still
-        t_true = filt.stamps[sel] - self.offset
-        p, q, valid = self.truth.interpolate(t_true)
-        self.assertGreater(valid.sum(), 10, "too few /odometry/filtered messages")
-        yaw_err = wrap_angle(yaw_of(filt.rotations[sel][valid]) - yaw_of(quat_to_matrix(q[valid])))
-        pos_err = np.linalg.norm(filt.positions[sel][valid] - p[valid], axis=1)
+        yaw_err, pos_err = self.errors(self.rec.filtered, self.t_still)
         pos_rmse = float(np.sqrt(np.mean(pos_err ** 2)))
         self.report("EKF yaw RMSE after the standstill", rmse_deg(yaw_err), ARGS.max_yaw_rmse_deg, "deg")
         self.report("EKF position RMSE after the standstill", pos_rmse, ARGS.max_pos_rmse, "m")
         self.assertLessEqual(rmse_deg(yaw_err), ARGS.max_yaw_rmse_deg)
         self.assertLessEqual(pos_rmse, ARGS.max_pos_rmse)
+        if ARGS.max_ratio_to_node:
+            node_err, _ = self.errors(own, self.t_still)
+            ratio = rmse_deg(yaw_err) / rmse_deg(node_err)
+            self.report("the node's own heading RMSE (abs_orient/pose) in the same replay", rmse_deg(node_err),
+                        ARGS.max_yaw_rmse_deg, "deg")
+            self.report("EKF heading RMSE / the node's", ratio, ARGS.max_ratio_to_node, "")
+            self.assertLessEqual(ratio, ARGS.max_ratio_to_node)
 
     def check_consumer(self):
         bag = with_odometry_at(self.dir, 50.0)  # a robot's odometry: costmaps look up "now" at its rate
@@ -750,5 +783,13 @@ if __name__ == "__main__":
     ap.add_argument("--calibrated", action="store_true",
                     help="node mode: calibration:= the scenario's true camera mounting and readout")
     ap.add_argument("--max-pos-rmse", type=float, default=0.03)
+    ap.add_argument("--max-ratio-to-node", type=float, default=0.0,
+                    help="ekf mode: /odometry/filtered's heading RMSE at most this times the node's own "
+                         "(abs_orient/pose) in the same replay (0: not checked)")
+    ap.add_argument("--launch-arg", action="append", default=[], metavar="NAME=VALUE",
+                    help="ekf mode: one more argument NAME:=VALUE of postprocess.launch (rospy.myargv drops arguments "
+                         "with ':=')")
+    ap.add_argument("--set", type=lambda text: (text.split("=")[0], float(text.split("=")[1])), action="append",
+                    default=[], metavar="NAME=VALUE", help="a scenario parameter changed (a number)")
     ARGS, rest = ap.parse_known_args(rospy.myargv()[1:])
     rostest.rosrun("aruco_abs_orient", f"rt_abs_orient_bag_{ARGS.mode}_{ARGS.owner}", BagRun, [sys.argv[0]] + rest)

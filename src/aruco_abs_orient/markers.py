@@ -16,7 +16,8 @@ from behind).
 National grids: with ``origin: [E, N, H]`` the positions are written as surveyed (full coordinates,
 LV95 E ≈ 2 600 000) and the map holds them relative to the origin, as everything in ROS is (float32
 consumers such as rviz lose millimetres at 10⁶ m); ``to_dict``/``save`` give full coordinates back.
-The MS60 driver's ``~origin`` must be the same.
+The MS60 driver's ``~origin`` must be the same. ``grid`` names the national grid (LV95, UTM32N, GK3, EPSG:2056,
+…: :func:`north.parse_grid`): with the origin it gives the meridian convergence, grid north against true north.
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ class MarkerMap:
     """Markers by id, their ArUco dictionary and frame."""
 
     def __init__(self, markers: List[Marker], dictionary: str = "DICT_4X4_50", frame_id: str = "map",
-                 source: str = "<memory>", origin=None):
+                 source: str = "<memory>", origin=None, grid: Optional[str] = None):
         if dictionary not in ARUCO_DICTIONARIES:
             raise MarkerMapError(f"{source}: dictionary: unknown ArUco dictionary {dictionary!r}; "
                                  f"expected one of {', '.join(ARUCO_DICTIONARIES)}")
@@ -72,6 +73,7 @@ class MarkerMap:
         self.frame_id = frame_id
         self.source = source
         self.origin = None if origin is None else np.asarray(origin, dtype=float).reshape(3)
+        self.grid = grid
         self.markers: Dict[int, Marker] = {}
         for m in markers:
             if m.id in self.markers:
@@ -106,6 +108,14 @@ class MarkerMap:
                                    or not all(_is_finite_number(x) for x in origin)):
             raise MarkerMapError(f"{source}: origin: expected [E, N, H] in metres, got {origin!r}")
         shift = np.zeros(3) if origin is None else np.array(origin, dtype=float)
+        grid = data.get("grid")
+        if grid is not None:
+            from .north import NorthError, parse_grid
+
+            try:
+                parse_grid(grid)
+            except NorthError as e:
+                raise MarkerMapError(f"{source}: {e}") from None
         items = data.get("markers")
         if not isinstance(items, list) or not items:
             raise MarkerMapError(f"{source}: markers: expected a non-empty list of {{id, position}}")
@@ -136,7 +146,7 @@ class MarkerMap:
                 normal = np.array(normal, dtype=float) / np.linalg.norm(normal)
             markers.append(Marker(mid, np.array(pos, dtype=float) - shift, size, sigma, normal))
         return cls(markers, str(data.get("dictionary", "DICT_4X4_50")), str(data.get("frame_id", "map")),
-                   source, origin)
+                   source, origin, grid)
 
     @classmethod
     def load(cls, path: str) -> MarkerMap:
@@ -151,6 +161,8 @@ class MarkerMap:
         out = {"dictionary": self.dictionary, "frame_id": self.frame_id}
         if self.origin is not None:
             out["origin"] = [round(float(x), 6) for x in self.origin]
+        if self.grid is not None:
+            out["grid"] = self.grid
         out["markers"] = []
         for m in self:
             item = {"id": m.id, "position": [round(float(x), 6) for x in m.position + shift], "size": m.size,

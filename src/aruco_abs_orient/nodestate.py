@@ -175,7 +175,8 @@ class MapOdomPrediction:
     linearly. The node's re-publication timer uses it while the image thread holds the filter.
     """
 
-    def __init__(self, t0: float, map_T_odom_0: np.ndarray, t1: float, map_T_odom_1: np.ndarray):
+    def __init__(self, t0: float, map_T_odom_0: np.ndarray, t1: float, map_T_odom_1: np.ndarray,
+                 yaw_variances: Tuple[float, float] = (math.nan, math.nan)):
         if not t1 > t0:
             raise ValueError(f"map->odom prediction: t1 ({t1}) must be after t0 ({t0})")
         A, B = np.asarray(map_T_odom_0, dtype=float), np.asarray(map_T_odom_1, dtype=float)
@@ -184,6 +185,12 @@ class MapOdomPrediction:
         self.p0 = A[:3, 3].copy()
         self.yaw_rate = float(wrap_angle(yaw_of(B[:3, :3]) - self.yaw0)) / (t1 - t0)   # rad/s
         self.p_rate = (B[:3, 3] - self.p0) / (t1 - t0)                                  # m/s
+        self.var0 = float(yaw_variances[0])                                              # rad², the yaw's
+        self.var_rate = (float(yaw_variances[1]) - self.var0) / (t1 - t0)               # rad²/s
+
+    def yaw_variance(self, t: float) -> float:
+        """The variance (rad²) of the predicted yaw at time ``t`` (s); NaN when not given; never below t0's."""
+        return self.var0 + self.var_rate * max(0.0, float(t) - self.t0)
 
     def at(self, t: float) -> np.ndarray:
         """map→odom (4×4) predicted at time ``t`` (s)."""

@@ -74,7 +74,7 @@ class PipelineError(ConfigurationError, ValueError):
 class PipelineParams:
     """Knobs of the pipeline itself (detection, tracking and filter knobs live in their own objects).
 
-    - ``prism_sigma``: 1-σ per axis of a total-station prism position (m).
+    - ``prism_sigma``: 1-σ per axis of a total-station prism position that comes without its own covariance (m).
     - ``prism_max_gap``: largest gap between the two prism samples around an image for
       interpolation (s); beyond it the frame gives no absolute yaw (counted).
     - ``prism_max_extrapolation``: how far past the newest prism sample an image may lie (s);
@@ -191,6 +191,7 @@ class FrameResult:
     yaw_sigma: Optional[float] = None
     map_T_base: Optional[np.ndarray] = None         # 4×4 corrected pose
     base_position_cov: Optional[np.ndarray] = None  # 3×3 m² (prism, lever arm removed)
+    prism_cov: Optional[np.ndarray] = None          # 3×3 m²: the instrument's covariance of the prism position
     prism_position: Optional[np.ndarray] = None     # (3,) m, prism interpolated at the image time
     map_T_odom: Optional[np.ndarray] = None
     map_T_odom_cov: Optional[np.ndarray] = None     # 4×4 over (yaw, x, y, z)
@@ -205,30 +206,45 @@ class FrameResult:
 
 
 class PrismBuffer:
-    """Recent prism positions (total-station time), interpolated at image times."""
+    """Recent prism positions (total-station time), interpolated at image times, each with its covariance
+    (3×3 m², None: unknown)."""
 
     def __init__(self, horizon: float = 30.0):
         self.horizon = horizon
         self.t: List[float] = []
         self.p: List[np.ndarray] = []
+        self.cov: List[Optional[np.ndarray]] = []
 
-    def add(self, t: float, p) -> None:
+    def add(self, t: float, p, cov=None) -> None:
+        cov = None if cov is None else np.asarray(cov, dtype=float)
         if self.t and t <= self.t[-1]:
             if t == self.t[-1]:
                 return
             i = bisect.bisect_left(self.t, t)  # late sample: insert in order
             self.t.insert(i, t)
             self.p.insert(i, np.asarray(p, dtype=float))
+            self.cov.insert(i, cov)
         else:
             self.t.append(t)
             self.p.append(np.asarray(p, dtype=float))
+            self.cov.append(cov)
         cut = bisect.bisect_left(self.t, self.t[-1] - self.horizon)
         if cut:
-            del self.t[:cut], self.p[:cut]
+            del self.t[:cut], self.p[:cut], self.cov[:cut]
 
     def clear(self) -> None:
         self.t.clear()
         self.p.clear()
+        self.cov.clear()
+
+    def cov_at(self, t: float) -> Optional[np.ndarray]:
+        """The covariance (3×3 m²) of the samples around ``t``, the larger of the two neighbours' (None when
+        either is unknown or there are none)."""
+        i = bisect.bisect_right(self.t, t)
+        near = [self.cov[k] for k in (i - 1, i) if 0 <= k < len(self.t)]
+        if not near or any(c is None for c in near):
+            return None
+        return max(near, key=lambda c: float(np.trace(c)))
 
     def at(self, t: float, max_gap: float, max_extrapolation: float) -> Optional[Tuple[np.ndarray, float]]:
         """(position, extra 1-σ in m from interpolation/extrapolation) at ``t``, or None."""
@@ -365,12 +381,18 @@ class AbsOrientPipeline:
 
     # ------------------------------------------------------------------ inputs
     def add_prism(self, t: float, p_map, cov=None) -> None:
-        """A total-station prism position ``p_map`` (3,) m in map at total-station time ``t`` (s)."""
+        """A total-station prism position ``p_map`` (3,) m in map at total-station time ``t`` (s), with its
+        covariance ``cov`` (3×3 m², the instrument's: :mod:`geocom.accuracy`; None: ``prism_sigma`` per axis)."""
         p = np.asarray(p_map, dtype=float)
+        if cov is not None:
+            cov = np.asarray(cov, dtype=float)
+            if cov.shape != (3, 3) or not np.all(np.isfinite(cov)) or np.any(np.diag(cov) <= 0):
+                self._count("bad_prism")
+                return
         if p.shape != (3,) or not np.all(np.isfinite(p)) or not math.isfinite(t):
             self._count("bad_prism")
             return
-        self.prism.add(float(t), p)
+        self.prism.add(float(t), p, cov)
 
     def add_imu(self, t: float, roll: float, pitch: float, sigma: float) -> None:
         """Roll and pitch of base_link (rad, 1-σ rad) from an IMU at total-station time ``t`` (s)
@@ -487,8 +509,9 @@ class AbsOrientPipeline:
         else:
             p, extra_sigma = prism
             res.prism_position = p
-            s2 = self.params.prism_sigma ** 2 + extra_sigma ** 2
-            prism_cov = np.eye(3) * s2
+            measured = self.prism.cov_at(t)
+            res.prism_cov = np.eye(3) * self.params.prism_sigma ** 2 if measured is None else measured
+            prism_cov = res.prism_cov + np.eye(3) * extra_sigma ** 2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
             tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             if (self.tilt_from_markers and tilt.source != "imu"
@@ -505,9 +528,10 @@ class AbsOrientPipeline:
             res.map_T_odom, res.map_T_odom_cov = self.filter.map_T_odom(t)
             map_T_base = res.map_T_odom @ odom_T_base
             R = map_T_base[:3, :3]
-            if res.prism_position is not None:
-                map_T_base[:3, 3] = res.prism_position - R @ self.base_T_prism[:3, 3]
-                res.base_position_cov = np.eye(3) * (self.params.prism_sigma ** 2)
+            if res.prism_position is not None:  # the lever arm turned by the tilt in use (a tilted odometry corrected)
+                R_tilt = rpy_to_matrix(tilt.roll, tilt.pitch, float(yaw_of(R)))
+                map_T_base[:3, 3] = res.prism_position - R_tilt @ self.base_T_prism[:3, 3]
+                res.base_position_cov = res.prism_cov
             res.map_T_base = map_T_base
             res.yaw = float(yaw_of(R))
             res.yaw_sigma = float(math.sqrt(max(res.map_T_odom_cov[0, 0], 0.0)))

@@ -34,6 +34,8 @@ def test_save_load_round_trip(tmp_path):
     for m in mm:
         assert back[m.id].size == m.size and back[m.id].sigma == m.sigma
         np.testing.assert_allclose(back[m.id].position, m.position)
+    (tmp_path / "g.yaml").write_text("grid: LV95\norigin: [2600000, 1200000, 500]\n" + GOOD)
+    assert MarkerMap.load(str(tmp_path / "g.yaml")).to_dict()["grid"] == "LV95"
 
 
 @pytest.mark.parametrize("text,message", [
@@ -50,6 +52,7 @@ def test_save_load_round_trip(tmp_path):
      "id 1 appears twice"),
     ("dictionary: DICT_9X9_1\nsize: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0]}\n",
      "dictionary: unknown ArUco dictionary 'DICT_9X9_1'"),
+    ("grid: CH1903\nsize: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0]}\n", "grid: unknown grid 'CH1903'"),
 ])
 def test_bad_maps_name_the_file_and_the_field(tmp_path, text, message):
     path = tmp_path / "bad.yaml"

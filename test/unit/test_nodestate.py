@@ -174,6 +174,9 @@ def test_prediction_by_hand():
     np.testing.assert_allclose(p.at(14.0)[:3, 3], [1.4, 2.0, 0.5])   # extrapolated
     with pytest.raises(ValueError, match="t1"):
         MapOdomPrediction(1.0, A, 1.0, B)
+    v = MapOdomPrediction(10.0, A, 12.0, B, (1e-6, 3e-6))   # the yaw's variance grows linearly from t0
+    assert v.yaw_variance(11.0) == pytest.approx(2e-6) and v.yaw_variance(9.0) == pytest.approx(1e-6)
+    assert math.isnan(p.yaw_variance(11.0))
 
 
 def test_prediction_reproduces_the_filters_own():

@@ -214,3 +214,28 @@ def test_reset_forgets_the_filter_the_tracker_and_the_prism():
     assert pipe.prism.at(1.0, 1.0, 1.0) is None
     res = pipe.process_observations(1.3, [observation(0)], ODOM_T_BASE)
     assert list(reasons(res)) == [0] and reasons(res)[0].startswith("no prism position")
+
+
+def test_a_prism_position_with_the_instruments_covariance_is_used_with_it():
+    """A position given with its covariance (the driver's ms60/prism_with_covariance) is weighed with it, not with
+    prism_sigma: base_link's position covariance is the larger of the two samples around the frame; a bad
+    covariance is refused and counted; samples without one fall back to prism_sigma."""
+    far = np.diag([0.0005, 0.003, 0.0005]) ** 2      # 100 m north of the instrument: 3 mm along, 0.5 mm across
+    near = np.diag([0.003, 0.00003, 0.00003]) ** 2   # 5 m east of it
+    buf = PrismBuffer()
+    buf.add(1.0, PRISM, near)
+    buf.add(2.0, PRISM, far)
+    assert np.array_equal(buf.cov_at(1.5), far) and np.array_equal(buf.cov_at(1.0), far)
+    buf.add(3.0, PRISM)
+    assert buf.cov_at(2.5) is None
+    pipe = AbsOrientPipeline(MarkerMap([Marker(i, np.array(p, dtype=float), 0.19, 0.002) for i, p in MARKERS.items()]),
+                             BASE_T_CAMERA, BASE_T_PRISM, PipelineParams())
+    for t in np.arange(0.0, 3.01, 0.1):
+        pipe.add_prism(float(t), PRISM, far)
+    pipe.add_prism(3.05, PRISM, np.full((3, 3), np.nan))
+    assert pipe.stats["bad_prism"] == 1
+    for t in (1.0, 1.1, 1.2):
+        res = pipe.process_observations(t, [observation(i) for i in MARKERS], ODOM_T_BASE)
+    assert res.initialised and np.array_equal(res.base_position_cov, far) and np.array_equal(res.prism_cov, far)
+    res = pipeline().process_observations(1.0, [observation(i) for i in MARKERS], ODOM_T_BASE)
+    assert np.allclose(res.prism_cov, np.eye(3) * PipelineParams().prism_sigma ** 2)

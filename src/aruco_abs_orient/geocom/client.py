@@ -288,6 +288,10 @@ class GeoComClient:
         """AUT_FineAdjust within a search window (rad); returns its code (0: on the prism)."""
         return self.code(Rpc.AUT_FineAdjust, (float(hz_rad), float(v_rad), 0), timeout_s)
 
+    def make_positioning(self, hz_rad: float, v_rad: float, timeout_s: Optional[float] = None) -> int:
+        """AUT_MakePositioning to Hz, V (rad; AUT_NORMAL, AUT_POSITION: the angles, no target); returns its code."""
+        return self.code(Rpc.AUT_MakePositioning, (float(hz_rad), float(v_rad), 0, 0, 0), timeout_s)
+
     def search(self, hz_rad: float, v_rad: float, timeout_s: Optional[float] = None) -> int:
         """AUT_Search over an area (rad); returns its code (0: a prism in the ATR's field)."""
         return self.code(Rpc.AUT_Search, (float(hz_rad), float(v_rad), 0), timeout_s)

@@ -35,7 +35,8 @@ Procedures (rpc: request parameters -> reply values after rc):
   'DD', 'hh', 'mm', 'ss'; CSV_GetSWVersion 5034: -> firmware release, version, subversion;
   CSV_GetDateTimeCentiSec 5117: -> year, month, day, hour, minute, second, centisecond;
 - MOT_ReadLockStatus 6021: -> MOT_LOCK_STATUS;
-- AUT_LockIn 9013; AUT_Search 9029: Hz area, V area (rad), 0; AUT_FineAdjust 9037: Hz, V search
+- AUT_LockIn 9013; AUT_MakePositioning 9027: Hz, V (rad), position mode (0 AUT_NORMAL), ATR mode
+  (0 AUT_POSITION: to the angles), 0; AUT_Search 9029: Hz area, V area (rad), 0; AUT_FineAdjust 9037: Hz, V search
   window (rad), 0; AUT_PS_SearchNext 9051: direction (1 clockwise, -1 anticlockwise), swing;
 - BAP_SetPrismType 17008 / BAP_GetPrismType 17009: BAP_PRISMTYPE; BAP_GetMeasPrg 17018 /
   BAP_SetMeasPrg 17019: BAP_USER_MEASPRG; BAP_SetTargetType 17021 / BAP_GetTargetType 17022:
@@ -112,6 +113,7 @@ class Rpc(enum.IntEnum):
     CSV_GetDateTimeCentiSec = 5117
     MOT_ReadLockStatus = 6021
     AUT_LockIn = 9013
+    AUT_MakePositioning = 9027
     AUT_Search = 9029
     AUT_FineAdjust = 9037
     AUT_PS_SearchNext = 9051

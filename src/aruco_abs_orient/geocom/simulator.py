@@ -37,9 +37,19 @@ What it models (all times are host ``time.time()`` seconds; the truth log uses t
 - the prism: a TUM trajectory (positions interpolated, looped) or a built-in smooth track; the
   simulator assumes a correct set-up, so coordinates are the track's whatever station and
   orientation a client sets (it keeps and reports them);
-- motorised procedures: AUT_FineAdjust ``fine_adjust_s``, AUT_LockIn ``lock_in_s``, AUT_Search
-  ``search_s`` and AUT_PS_SearchNext ``power_search_s`` (both end ``found_s`` after the prism is
-  in view); the instrument answers nothing else meanwhile. A hidden prism loses the lock at once;
+- measurement noise (``accuracy``, an :class:`~.accuracy.InstrumentAccuracy`; None: exact): the slope
+  distance, Hz and V of every reported coordinate are the true ones plus independent normal errors of
+  the class's σ (the distance's shared by a coordinate's distance and continuous parts), and a prism
+  centring error of ``prism_mm`` per axis; the truth log keeps the true positions;
+- where the telescope points (Hz, V): at the prism while locked; where the prism was when the lock
+  was lost (a hidden prism loses it at once); where AUT_MakePositioning turned it (``positioning_s`` plus
+  the angle at ``slew_rad_s``). The motorised procedures take their time and the instrument answers
+  nothing else meanwhile: AUT_FineAdjust (``fine_adjust_s``) finds the prism only within its search
+  window around that direction when it starts; AUT_Search (``search_s``) only within its area around
+  it; AUT_PS_SearchNext (PowerSearch, a fan sweeping the horizon in ``power_search_s`` per turn from that
+  direction) when the sweep passes the prism's Hz while it is in view; a search ends ``found_s`` after
+  it found the prism (pointing at it), else with AUT_NO_TARGET; AUT_LockIn (``lock_in_s``) needs a fine
+  adjustment onto the prism;
 - faults: garbage bytes before a reply, dropped replies, late replies (after the client's
   timeout), warnings 1283/1284 (position kept), lost lock for a while, link outages (TCP: the
   connection is closed and refused; pty: the line goes silent), latency spikes.
@@ -70,6 +80,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple, 
 import numpy as np
 
 from ..errors import InstrumentError
+from .accuracy import ARCSEC, InstrumentAccuracy
 from .protocol import (
     AUT_ANTICLOCKWISE,
     AUT_CLOCKWISE,
@@ -134,8 +145,8 @@ class SimConfig(NamedTuple):
     spike, s), ``late_s`` (delay of a late reply, s), instrument clock ``clock_offset_ms`` (ms),
     ``clock_drift`` (dimensionless, 1e-6 = 1 ppm), ``wrap_ms`` (counter modulus), ``faults``,
     ``profile`` (strict/lenient), ``model`` (MS60/TPS1200), ``edm_rate_hz`` (tracking distances
-    per second), durations of the motorised procedures (s), identity (name, serial number,
-    firmware and GeoCOM versions)."""
+    per second), durations of the motorised procedures (s), ``accuracy`` (measurement noise, None: exact),
+    identity (name, serial number, firmware and GeoCOM versions)."""
 
     baud: int = 115200
     latency_s: float = 0.012
@@ -154,6 +165,9 @@ class SimConfig(NamedTuple):
     search_s: float = 3.0
     power_search_s: float = 5.0
     found_s: float = 0.2
+    positioning_s: float = 0.1
+    slew_rad_s: float = math.pi / 2
+    accuracy: Optional[InstrumentAccuracy] = None
     name: str = "MS60"
     serial_number: int = 1234567
     firmware: Tuple[int, int, int] = (7, 10, 2)
@@ -176,7 +190,9 @@ class SimConfig(NamedTuple):
             (f"profile in {PROFILES}", self.profile in PROFILES),
             (f"model in {MODELS}", self.model in MODELS),
             ("0 < edm_rate_hz ≤ 100", 0 < self.edm_rate_hz <= 100),
+            ("slew_rad_s > 0", self.slew_rad_s > 0),
             ("motion times ≥ 0", min(self.lock_in_s, self.fine_adjust_s, self.search_s, self.power_search_s,
+                                     self.positioning_s,
                                      self.found_s) >= 0),
         ]
         for what, ok in checks:
@@ -263,6 +279,8 @@ _SIGNATURES: Dict[int, Tuple[_Check, ...]] = {
     Rpc.CSV_GetDateTimeCentiSec: (),
     Rpc.MOT_ReadLockStatus: (),
     Rpc.AUT_LockIn: (),
+    Rpc.AUT_MakePositioning: (("f", lambda v: abs(v) <= 4 * math.pi), ("f", lambda v: abs(v) <= 4 * math.pi),
+                              ("i", lambda v: v in (0, 1)), ("i", lambda v: v == 0), _BOOL),
     Rpc.AUT_Search: (_WINDOW, _WINDOW, _BOOL),
     Rpc.AUT_FineAdjust: (_WINDOW, _WINDOW, _BOOL),
     Rpc.AUT_PS_SearchNext: (("i", lambda v: v in (AUT_CLOCKWISE, AUT_ANTICLOCKWISE)), _BOOL),
@@ -277,7 +295,7 @@ _SIGNATURES: Dict[int, Tuple[_Check, ...]] = {
     Rpc.AUS_SetUserLockState: (_BOOL,),
     Rpc.AUS_GetUserLockState: (),
 }
-_MOTIONS = (Rpc.AUT_LockIn, Rpc.AUT_FineAdjust, Rpc.AUT_Search, Rpc.AUT_PS_SearchNext)
+_MOTIONS = (Rpc.AUT_LockIn, Rpc.AUT_FineAdjust, Rpc.AUT_Search, Rpc.AUT_PS_SearchNext, Rpc.AUT_MakePositioning)
 #: settings the instrument only stores and reports back: RPC → (attribute, type, True for the setter)
 _STORED = {rpc: (name, kind, is_set) for set_rpc, get_rpc, name, kind in (
     (Rpc.COM_SetDoublePrecision, Rpc.COM_GetDoublePrecision, "precision", int),
@@ -350,6 +368,7 @@ class Ms60Simulator:
         self.prism_visible = True
         self.locked = False
         self.adjusted = False          # the telescope points at the prism (AUT_FineAdjust succeeded)
+        self._aim: Optional[Tuple[float, float]] = None  # (Hz, V) rad where the telescope points; None: at the prism
         self.user_lock = False         # LOCK mode (AUS_SetUserLockState)
         self.user_atr = False
         self.tracking = False          # the EDM measures continuously
@@ -423,10 +442,26 @@ class Ms60Simulator:
             if self._edm_sees_prism() and not saw:
                 self._edm_from_ms = now_ms
 
+    def _prism_direction(self, t: Optional[float] = None) -> Tuple[float, float]:
+        """(Hz, V) rad of the prism at host time ``t`` (now)."""
+        hz, v, _ = self._polar(self.track((time.time() if t is None else t) - self.t_boot))
+        return hz, v
+
+    def aim(self) -> Tuple[float, float]:
+        """(Hz, V) rad where the telescope points now: at the prism while locked (or before anything turned it)."""
+        if self._aim is None or (self.locked and self.prism_visible):
+            return self._prism_direction()
+        return self._aim
+
+    def _point_at_prism(self) -> None:
+        self._aim = None
+
     def set_prism_visible(self, visible: bool) -> None:
-        """Hide (the lock and the fine adjustment are lost at once) or show the prism (the lock
-        needs AUT_FineAdjust and AUT_LockIn again)."""
+        """Hide (the lock and the fine adjustment are lost at once, the telescope stays where the prism was)
+        or show the prism (the lock needs AUT_FineAdjust and AUT_LockIn again)."""
         def change() -> None:
+            if not visible and self.prism_visible:
+                self._aim = self.aim()
             self.prism_visible = bool(visible)
             if not visible:
                 self.locked = self.adjusted = False
@@ -458,6 +493,26 @@ class Ms60Simulator:
         v = math.acos(max(-1.0, min(1.0, d[2] / dist))) if dist > 0 else 0.0
         return hz, v, dist
 
+    def _from_polar(self, hz: float, v: float, slope: float) -> np.ndarray:
+        """The point (m) at Hz, V (rad) and slope distance (m) from the station."""
+        e0, n0, h0, hi = self.station
+        return np.array([e0 + slope * math.sin(v) * math.sin(hz), n0 + slope * math.sin(v) * math.cos(hz),
+                         h0 + hi + slope * math.cos(v)])
+
+    def _noise(self, kind: str, distance: float = 0.0) -> float:
+        """A random error of the accuracy class: of an angle (rad) or of the slope distance ``distance`` (m)."""
+        a = self.config.accuracy
+        if a is None:
+            return 0.0
+        return self._rng.gauss(0.0, a.distance_sigma(distance) if kind == "distance" else a.angle_arcsec * ARCSEC)
+
+    def _centring(self) -> np.ndarray:
+        """The prism's centring error (m, per axis) of one measurement."""
+        a = self.config.accuracy
+        if a is None or a.prism_mm == 0:
+            return np.zeros(3)
+        return np.array([self._rng.gauss(0.0, 1e-3 * a.prism_mm) for _ in range(3)])
+
     def _measure(self, tick: int) -> Tuple[int, Optional[Tuple[int, np.ndarray]], np.ndarray]:
         """Angles at counter ``tick``: (rc, the distance they combine with or None, true prism
         position at the tick). rc is 0 or 1285 TMC_ANGLE_OK (no valid distance)."""
@@ -482,12 +537,14 @@ class Ms60Simulator:
                 if forced_rc is not None:
                     rc = forced_rc
                 d_ms, p = dist
-                _, _, slope = self._polar(p)
+                hz_d, v_d, slope = self._polar(p)
                 hz, v, _ = self._polar(now_p)
-                e0, n0, h0, hi = self.station
-                cont = (e0 + slope * math.sin(v) * math.sin(hz), n0 + slope * math.sin(v) * math.cos(hz),
-                        h0 + hi + slope * math.cos(v))
-                values = (float(p[0]), float(p[1]), float(p[2]), int(d_ms) % c.wrap_ms) + cont + (t_ms,)
+                slope_error = self._noise("distance", slope)
+                measured = self._from_polar(hz_d + self._noise("angle"), v_d + self._noise("angle"),
+                                            slope + slope_error) + self._centring()
+                cont = tuple(self._from_polar(hz + self._noise("angle"), v + self._noise("angle"),
+                                              slope + slope_error) + self._centring())
+                values = tuple(float(x) for x in measured) + (int(d_ms) % c.wrap_ms,) + cont + (t_ms,)
                 truth = TruthRecord(self.host_time_of(d_ms), int(d_ms) % c.wrap_ms,
                                     (float(p[0]), float(p[1]), float(p[2])), int(rc), request.trid, True,
                                     self.host_time_of(tick), t_ms)
@@ -501,7 +558,7 @@ class Ms60Simulator:
         hz, v, _ = self._polar(now_p)
         slope = self._polar(dist[1])[2] if dist is not None else 0.0
         t_ms = int(tick) % c.wrap_ms
-        acc = 1.0 / 206265.0  # 1" (MS60 angle accuracy), rad
+        acc = (1.0 if c.accuracy is None else c.accuracy.angle_arcsec) * ARCSEC  # the class's angle σ, rad
         if rpc == Rpc.TMC_GetAngle5:
             return RC.OK, (hz, v)
         if rpc == Rpc.TMC_GetAngle1:
@@ -615,6 +672,7 @@ class Ms60Simulator:
         link went down or the simulator stopped meanwhile."""
         c = self.config
         rpc = motion.request.rpc
+        params = _decode(motion.request)
         if rpc == Rpc.AUT_LockIn:
             if c.strict and not self.user_lock:
                 return RC.AUT_NOT_ENABLED
@@ -623,28 +681,64 @@ class Ms60Simulator:
             duration = c.lock_in_s if c.strict else 0.0
         elif rpc == Rpc.AUT_FineAdjust:
             duration = c.fine_adjust_s
+        elif rpc == Rpc.AUT_MakePositioning:
+            target = (float(params[0]) % (2 * math.pi), float(params[1]))
+            hz0, v0 = self.aim()
+            turn = max(abs(math.remainder(target[0] - hz0, 2 * math.pi)), abs(target[1] - v0))
+            duration = c.positioning_s + turn / c.slew_rad_s
         else:
             if rpc == Rpc.AUT_PS_SearchNext and c.model == "TPS1200":
                 return RC.NOT_IMPL   # no PowerSearch on this instrument
             duration = c.power_search_s if rpc == Rpc.AUT_PS_SearchNext else c.search_s
-        searching = rpc in (Rpc.AUT_Search, Rpc.AUT_PS_SearchNext)
+        start_aim = self.aim()
+        in_window = rpc == Rpc.AUT_FineAdjust and self.prism_visible and self._within(start_aim, params[0] / 2,
+                                                                                       params[1] / 2)
         end = motion.start_s + duration
         seen: Optional[float] = None
         while True:
             now = time.time()
-            if searching and self.prism_visible and seen is None:
+            if seen is None and self.prism_visible and self._finds(rpc, params, start_aim, now - motion.start_s):
                 seen = now
             if now >= end or (seen is not None and now >= seen + c.found_s):
                 break
             if self._stop.wait(min(0.01, max(0.0, end - now))) or not self.link_up:
                 return None
-        if not self.prism_visible:
+        if rpc == Rpc.AUT_MakePositioning:
+            self._change(lambda: self._turn_to(target))
+            return RC.OK
+        if rpc == Rpc.AUT_FineAdjust:  # the ATR looks where the telescope points, then centres the prism
+            seen = now if in_window else None
+        if not self.prism_visible or (rpc != Rpc.AUT_LockIn and seen is None):
             return RC.AUT_NO_TARGET
         if rpc == Rpc.AUT_LockIn:
             self._change(lambda: setattr(self, "locked", True))
         elif rpc == Rpc.AUT_FineAdjust:
-            self._change(lambda: setattr(self, "adjusted", True))
-        return RC.OK   # a search leaves the prism in the ATR's field; AUT_FineAdjust centres it
+            self._change(lambda: (setattr(self, "adjusted", True), self._point_at_prism()))
+        else:
+            self._change(self._point_at_prism)  # a search leaves the prism in the ATR's field
+        return RC.OK
+
+    def _turn_to(self, target: Tuple[float, float]) -> None:
+        self._aim = target
+        self.locked = self.adjusted = False
+
+    def _within(self, aim: Tuple[float, float], hz_window: float, v_window: float) -> bool:
+        """The prism is within ±``hz_window``, ±``v_window`` (rad) of ``aim`` (Hz, V) now."""
+        hz, v = self._prism_direction()
+        return abs(math.remainder(hz - aim[0], 2 * math.pi)) <= hz_window and abs(v - aim[1]) <= v_window
+
+    def _finds(self, rpc: int, params, aim: Tuple[float, float], elapsed: float) -> bool:
+        """A search ``rpc`` started pointing at ``aim`` ``elapsed`` s ago finds the visible prism now: AUT_Search
+        within its area (its Hz and V widths), PowerSearch when its fan (full height) has swept past the prism's
+        Hz (clockwise or not); AUT_FineAdjust is judged at its end, within its window."""
+        if rpc == Rpc.AUT_Search:
+            return self._within(aim, params[0] / 2, params[1] / 2)
+        if rpc == Rpc.AUT_PS_SearchNext:
+            turned = 2 * math.pi * elapsed / self.config.power_search_s
+            sign = 1.0 if params[0] == AUT_CLOCKWISE else -1.0
+            ahead = (sign * (self._prism_direction()[0] - aim[0])) % (2 * math.pi)
+            return ahead <= turned or turned >= 2 * math.pi
+        return False
 
     # --- requests ------------------------------------------------------------------------------
     def _refusal_reply(self, line: bytes) -> Optional[bytes]:

@@ -18,8 +18,10 @@ function name):
    BAP_CONT_REF_STANDARD, IR tracking (BAP chapter, BAP_SetMeasPrg / BAP_USER_MEASPRG). The EDM
    mode follows from the program; TMC_SetEdmMode is the TPS1100 interface and not used;
 6. LOCK mode: AUS_SetUserLockState(ON) (AUS chapter: LOCK mode on does not lock by itself);
-7. acquire: AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field, searching its
-   window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust);
+7. acquire: after a lost lock, when a prediction of the prism's position is at hand (``predict``: the
+   robot's fused pose and the prism lever arm), AUT_MakePositioning to its direction (AUT chapter:
+   AUT_NORMAL, AUT_POSITION) first; AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field,
+   searching its window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust);
    without a target AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an
    instrument without PowerSearch (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust
    again. Motorised procedures take seconds: they get ``motion_timeout_s``. MOT_ReadLockStatus
@@ -51,12 +53,16 @@ from __future__ import annotations
 import collections
 import contextlib
 import enum
+import math
 import statistics
 import threading
 import time
 from typing import Callable, Deque, Dict, NamedTuple, Optional, Tuple
 
+import numpy as np
+
 from ..errors import InstrumentError
+from .accuracy import MS60_TRACKING, InstrumentAccuracy, polar_covariance
 from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout, rpc_name
 from .clock import InstrumentClock
 from .protocol import (
@@ -121,7 +127,10 @@ class TrackerConfig(NamedTuple):
     time (s) for the clock; ``warmup_samples`` positions that only feed the clock before the
     first one is published; ``byte_timing`` whether replies cross a serial line byte by byte
     (None: all ports but socket://); ``no_distance_s`` how long a lock without a new distance is
-    tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s)."""
+    tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s);
+    ``accuracy`` the instrument's accuracy class, each position's covariance (:mod:`.accuracy`);
+    ``reaim_search_after_s`` how long re-aims at a prediction may fail (the prism hidden, or the prediction
+    wrong) before the search sweeps for it all the same (s)."""
 
     url: str
     baud: int = 115200
@@ -139,6 +148,8 @@ class TrackerConfig(NamedTuple):
     byte_timing: Optional[bool] = None
     no_distance_s: float = 2.0
     error_retry_s: float = 5.0
+    accuracy: InstrumentAccuracy = MS60_TRACKING
+    reaim_search_after_s: float = 10.0
 
     def validate(self) -> None:
         """Raise TrackerError naming the first bad setting."""
@@ -148,18 +159,24 @@ class TrackerConfig(NamedTuple):
                   ("motion_timeout", self.motion_timeout_s >= self.timeout_s),
                   ("max_timeouts", self.max_timeouts >= 1), ("backoff", self.backoff_s >= 0),
                   ("min_latency", self.min_latency_s >= 0), ("warmup_samples", self.warmup_samples >= 0),
-                  ("no_distance", self.no_distance_s > 0), ("error_retry", self.error_retry_s >= 0)]
+                  ("no_distance", self.no_distance_s > 0), ("error_retry", self.error_retry_s >= 0),
+                  ("reaim_search_after", self.reaim_search_after_s >= 0)]
         for name, ok in checks:
             if not ok:
                 raise TrackerError(f"{name}: value out of range")
         if self.prism_constant_m is not None and not abs(self.prism_constant_m) < 1.0:
             raise TrackerError(f"prism_constant: {self.prism_constant_m} m is not within ±1 m")
+        try:
+            self.accuracy.validate()
+        except ValueError as e:
+            raise TrackerError(f"accuracy: {e}") from None
 
 
 class PrismSample(NamedTuple):
     """One prism position: ``stamp_s`` host time of its distance measurement (s), ``east``,
     ``north``, ``height`` (m, instrument frame = map), ``instrument_ms`` (raw counter of the
-    distance, ms), ``rc`` (0 or a warning code 1283/1284)."""
+    distance, ms), ``rc`` (0 or a warning code 1283/1284), ``cov`` its covariance (3×3 m², east, north,
+    height: the accuracy class carried from the station's polar measurement, :func:`.accuracy.polar_covariance`)."""
 
     stamp_s: float
     east: float
@@ -167,6 +184,7 @@ class PrismSample(NamedTuple):
     height: float
     instrument_ms: int
     rc: int
+    cov: Optional[np.ndarray] = None
 
     @property
     def warning(self) -> bool:
@@ -176,7 +194,8 @@ class PrismSample(NamedTuple):
 class TrackerStats(NamedTuple):
     """Counters and clock figures for status and diagnostics (rate in Hz, offset in s, drift
     dimensionless); ``error`` the message of the error state ("" otherwise), ``notice`` why the
-    prism is not locked ("" otherwise), ``program`` and ``search`` what the instrument accepted."""
+    prism is not locked ("" otherwise), ``program`` and ``search`` what the instrument accepted, ``reaims``
+    the turns to a predicted position after a lost lock and ``reaims_found`` those the prism was found at."""
 
     state: str
     samples: int
@@ -199,17 +218,26 @@ class TrackerStats(NamedTuple):
     program: str = ""
     search: str = ""
     edm_period_ms: float = float("nan")
+    reaims: int = 0
+    reaims_found: int = 0
 
 
 class Ms60Tracker:
     """Runs the loop in a thread (:meth:`start`/:meth:`stop`) and calls ``on_sample`` with each
     new :class:`PrismSample` and ``on_state`` with each new :class:`TrackerState` (from the
-    loop's thread)."""
+    loop's thread). ``predict`` (optional, called from the loop's thread) gives where the prism is now
+    ((E, N, H) m in the instrument's frame) or None when it does not know (no pose, or a stale one): after
+    a lost lock the telescope is turned there before the prism is searched for."""
 
     def __init__(self, config: TrackerConfig, on_sample: Optional[Callable[[PrismSample], None]] = None,
                  on_state: Optional[Callable[[TrackerState], None]] = None,
-                 client_factory: Callable[..., GeoComClient] = GeoComClient):
+                 client_factory: Callable[..., GeoComClient] = GeoComClient,
+                 predict: Optional[Callable[[], Optional[Tuple[float, float, float]]]] = None):
         config.validate()
+        self.predict = predict                   # () -> the prism's (E, N, H) now, or None (missing or stale)
+        self.reaims = 0                          # re-aims at a prediction after a lost lock
+        self.reaims_found = 0                    # ... after which AUT_FineAdjust found the prism
+        self._reaiming_since = 0.0               # host time re-aims began to fail in this loss (0: they do not)
         self.config = config
         self.on_sample = on_sample
         self.on_state = on_state
@@ -231,6 +259,7 @@ class Ms60Tracker:
         self._motion_pending = False             # a motorised call timed out: its reply may still come
         self._retry_at = 0.0
         self._power_search: Optional[bool] = None
+        self.station_axis = np.zeros(3)          # E, N, H of the instrument's tilting axis (m), read at connect
         self.instrument = ""
         self.error = ""
         self.notice = ""
@@ -373,6 +402,8 @@ class Ms60Tracker:
         if c.orientation_rad is not None:
             self._required("orientation", lambda: client.set_orientation(c.orientation_rad),
                            "check station/orientation_deg")
+        e0, n0, h0, hi = client.get_station()  # the tilting axis, where each position's covariance is seen from
+        self.station_axis = np.array([e0, n0, h0 + hi])
         self._required("target type", lambda: client.set_target_type(BAP_REFL_USE),
                        "the instrument cannot measure to a reflector")
         if c.prism_type is not None:
@@ -411,8 +442,18 @@ class Ms60Tracker:
         """Step 7 and 8: fine adjust, search if there is no target, lock in, start tracking."""
         client = self._client
         assert client is not None
+        reaimed = self.state == TrackerState.LOST and self._reaim(client)
         rc = self._motion(Rpc.AUT_FineAdjust, lambda t: client.fine_adjust(FINE_ADJUST_WINDOW_RAD,
                                                                           FINE_ADJUST_WINDOW_RAD, t))
+        if reaimed and rc == 0:
+            with self._stats_lock:
+                self.reaims_found += 1
+        if reaimed and rc in _NO_TARGET:
+            since = self._reaiming_since = self._reaiming_since or time.time()
+            if time.time() - since < self.config.reaim_search_after_s:  # hidden: aim again, no sweep meanwhile
+                self.notice = f"prism not at its predicted position (AUT_FineAdjust returned {rc_name(rc)})"
+                return
+        self._reaiming_since = 0.0
         if rc in _NO_TARGET:
             if not self._search(client):
                 return
@@ -440,6 +481,25 @@ class Ms60Tracker:
             with self._stats_lock:
                 self.relocks += 1
         self._start_tracking(client)
+
+    def _reaim(self, client: GeoComClient) -> bool:
+        """Turn the telescope to the predicted prism (AUT_MakePositioning); False without a prediction or when
+        the instrument refuses (then the search as before)."""
+        if self.predict is None:
+            return False
+        p = self.predict()
+        if p is None:
+            return False
+        d = np.asarray(p, dtype=float) - self.station_axis
+        hz = math.atan2(d[0], d[1]) % (2 * math.pi)
+        v = math.atan2(math.hypot(d[0], d[1]), d[2])
+        rc = self._motion(Rpc.AUT_MakePositioning, lambda t: client.make_positioning(hz, v, t))
+        if rc != 0:
+            self.notice = f"re-aim refused: AUT_MakePositioning returned {rc_name(rc)}"
+            return False
+        with self._stats_lock:
+            self.reaims += 1
+        return True
 
     def _search(self, client: GeoComClient) -> bool:
         """PowerSearch, or AUT_Search on an instrument without it; True when a prism was found."""
@@ -542,7 +602,8 @@ class Ms60Tracker:
                 self.out_of_order += 1
             return self._next_poll_s()
         self._last_stamp = stamp
-        sample = PrismSample(stamp, r.east, r.north, r.height, r.time_ms, r.rc)
+        cov = polar_covariance(self.station_axis, (r.east, r.north, r.height), self.config.accuracy)
+        sample = PrismSample(stamp, r.east, r.north, r.height, r.time_ms, r.rc, cov)
         with self._stats_lock:
             self.samples += 1
             if r.rc != 0:
@@ -582,4 +643,4 @@ class Ms60Tracker:
                                 dict(self.no_position), self.timeouts, self.duplicates, self.out_of_order,
                                 self.reconnects, self.relocks, garbage, stale, offset, drift, self.instrument,
                                 self.error, self.notice, self.program, search,
-                                float("nan") if period is None else float(period))
+                                float("nan") if period is None else float(period), self.reaims, self.reaims_found)

@@ -12,8 +12,10 @@ Outputs in ``out_dir`` (each written atomically: complete or absent):
 - ``observations.csv``: one row per marker observation;
 - ``heading_sigma.csv``: ``time, heading_deg, sigma_deg`` of each pose: the filter's heading of base_link and
   its own 1-σ (what the report's heading-error plot draws as the filter's band);
-- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, the
-  self-checks (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too) and the map check
+- ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, which north
+  the headings are referred to (``north``: the map's grid north; with its ``grid`` and ``origin`` the meridian
+  convergence, ``meridian_convergence_deg``, that turns them to true north), the self-checks
+  (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too) and the map check
   (:mod:`aruco_abs_orient.mapcheck`: does the marker map fit the recording?).
 
 A marker map that does not fit the recording (another site's, rotated, shifted, scaled, a wrong origin) gets
@@ -42,6 +44,7 @@ from ..calibration import CalibrationParams
 from ..detection import DetectionError, decode_jpeg
 from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, SightingSample, check_map
 from ..markers import MarkerMap
+from ..north import NorthReference
 from ..params import Tunables, parse_params
 from ..pipeline import AbsOrientPipeline, FrameResult
 from ..selfcheck import ModelContext, RunContext, check_run, observation_columns
@@ -185,6 +188,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[
     topics = setup.topics or BagTopics()
     setup = setup._replace(topics=topics)
     tunables = tunables or parse_params({})
+    north = NorthReference.make("grid", marker_map.grid, marker_map.origin, f"{marker_map.source}: ")
     t_start = (time.perf_counter(), time.process_time(), time.thread_time())  # wall, CPU, this thread's CPU
     os.makedirs(out_dir, exist_ok=True)
     readable, salvaged, notes = (bag if hasattr(bag, "iter_images") else bag_paths(bag)), [], []
@@ -196,7 +200,7 @@ def process_bag(bag: Bags, marker_map: MarkerMap, out_dir: str, setup: Optional[
             data = read_bag_data(readable, topics)
             data.warnings.extend(notes)
     try:
-        return _process(bag, readable, data, marker_map, out_dir, setup, tunables, t_start)
+        return _process(bag, readable, data, marker_map, out_dir, setup, tunables, t_start, north)
     finally:
         for path in salvaged:
             if os.path.exists(path):
@@ -222,8 +226,9 @@ def _salvage(paths: List[str], out_dir: str):
 
 
 def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup, tunables: Tunables,
-             t_start: tuple) -> ProcessResult:
-    """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's."""
+             t_start: tuple, north: NorthReference) -> ProcessResult:
+    """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's;
+    ``north`` what the headings are referred to (the map's grid north)."""
     time_offset, topics, calibration, full_coordinates, progress, force = setup
     params = tunables.pipeline
     base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
@@ -330,7 +335,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
             origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
                                                            f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
             write_tum(traj_path, traj,
-                      header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time")
+                      header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time; "
+                             f"headings referred to {north.describe()}")
             extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
             atomic_write_text(os.path.join(out_dir, "heading_sigma.csv"), "time,heading_deg,sigma_deg\n" + "".join(
                 f"{t:.6f},{_deg(float(yaw_of(T[:3, :3])))},{_deg(s)}\n" for t, T, s in zip(stamps, poses, sigmas)))
@@ -382,6 +388,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         # free cores the wall time would be about max(pipeline, all / N)
         "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
+        "north": north.describe(),
+        "meridian_convergence_deg": math.degrees(north.gamma),
     }
     summary["map_check"] = map_check.as_dict()
     summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe,

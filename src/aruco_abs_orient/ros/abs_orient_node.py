@@ -2,7 +2,9 @@
 robot_localization (DESIGN §3). A thin shell around :class:`aruco_abs_orient.pipeline.AbsOrientPipeline`.
 
 Inputs: ``camera/image/compressed`` (``sensor_msgs/CompressedImage``) or, with ``~image_transport: raw``,
-``camera/image`` (``sensor_msgs/Image``); ``ms60/prism`` (``geometry_msgs/PointStamped`` in map); tf
+``camera/image`` (``sensor_msgs/Image``); ``ms60/prism`` (``geometry_msgs/PointStamped`` in map), or once
+it is heard ``ms60/prism_with_covariance`` (``PoseWithCovarianceStamped``: the same positions, each with the
+instrument's covariance, which the filter and ``abs_orient/prism_pose`` then use instead of ``prism_sigma``); tf
 ``odom → base_link`` (looked up at each image stamp) and the static lever arms ``base_link → camera``,
 ``base_link → prism``; the marker map YAML ``~markers``.
 
@@ -16,7 +18,10 @@ Outputs (all stamped with the IMAGE's header stamp, the clock of the odometry th
 - ``abs_orient/prism_pose`` (``PoseWithCovarianceStamped``): base_link's position from the prism, lever
   arm removed; ``abs_orient/pose_markers`` (``PoseWithCovarianceStamped``): base_link's pose from a resection
   on the frame's markers (no prism: ``~markers_only``, or a prism dropout), covariance from the geometry;
-  ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/detections``;
+  ``abs_orient/pose`` (``PoseStamped``): the corrected pose; ``abs_orient/odometry`` (``nav_msgs/Odometry``, while
+  someone subscribes): base_link in map at every new odometry stamp, the odometry corrected by the filter's
+  map→odom prediction (its drift rate between marker yaws), the yaw's variance the filter's, position and
+  roll/pitch with step σs: robot_localization's heading and motion input (cfg/ekf.yaml); ``abs_orient/detections``;
   ``abs_orient/markers`` (rviz ``MarkerArray``, latched); ``abs_orient/rays`` (``MarkerArray``: a line
   from the camera to each accepted marker of the frame, in the camera frame); ``~debug_image``
   (``Image`` bgr8) and ``~debug_image/compressed`` (``CompressedImage``, JPEG: image_transport's compressed
@@ -96,6 +101,7 @@ from ..nodestate import (
     state_record,
     state_snapshot,
 )
+from ..north import NORTHS, NorthError, NorthReference
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import ModelContext, RollingSelfCheck, SelfCheckParams, YawObservation
@@ -157,6 +163,9 @@ class NodeConfig:
     - ``markers_only``: no total station: each frame's pose from a resection on its markers, published on
       ``abs_orient/pose_markers`` (a map of fewer than 3 markers is refused at start-up).
     - ``imu_topic``: ``sensor_msgs/Imu`` for roll and pitch (empty: none; tilt from the markers and odometry).
+    - ``north``: what ``map``'s headings are referred to: ``grid`` (the marker map's y axis, the survey grid's north)
+      or ``true`` (geographic north at the map's origin: the marker map and the prism positions are turned by the
+      grid's meridian convergence, :mod:`aruco_abs_orient.north`; needs the map's ``grid`` and ``origin``).
     - frames: ``map_frame``, ``odom_frame``, ``base_frame``, ``camera_frame``, ``prism_frame``.
     """
 
@@ -190,6 +199,7 @@ class NodeConfig:
     prism_frame: str = "prism"
     markers_only: bool = False
     imu_topic: str = ""
+    north: str = "grid"
 
     @classmethod
     def from_params(cls, get_param) -> NodeConfig:
@@ -214,6 +224,8 @@ class NodeConfig:
             raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
         config.calibrated_lever_arms()  # read here, once: a file that does not load is one clear line at start-up
         config.tunables()
+        if config.north not in NORTHS:
+            raise NodeConfigError(f"~north: expected 'grid' or 'true', got {config.north!r}")
         if config.image_transport not in ("compressed", "raw"):
             raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
         for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
@@ -310,11 +322,12 @@ class _Throttle:
 class AbsOrientNode:
     """The node's state and its main loop; constructed after ``rospy.init_node``."""
 
-    def __init__(self, config: NodeConfig, marker_map: MarkerMap):
+    def __init__(self, config: NodeConfig, marker_map: MarkerMap, north: Optional[NorthReference] = None):
         import diagnostic_updater
         import rospy
         import tf2_ros
         from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped
+        from nav_msgs.msg import Odometry
         from sensor_msgs.msg import CompressedImage, Image
         from visualization_msgs.msg import MarkerArray
 
@@ -349,6 +362,9 @@ class AbsOrientNode:
         self.health = NodeHealth(config.image_timeout, config.prism_timeout, config.publish_tf, time.monotonic(),
                                  (config.base_frame, config.camera_frame, config.prism_frame))
         self.health.extra_values["tilt source"] = self._tilt_source
+        self.north = north = north or NorthReference()  # the map and the prism positions are turned to it
+        self.health.extra_values["north"] = north.describe
+        self.health.extra_values["meridian convergence deg"] = lambda: math.degrees(north.gamma)
         self.health.extra_values["image topic"] = lambda: self.image_sub.resolved_name
         self.health.extra_values["marker map"] = lambda: self.map_verdict.status
 
@@ -366,6 +382,8 @@ class AbsOrientNode:
         self._debug_wall = -math.inf
         self._rays_shown = False
         self.pub_pose_markers = rospy.Publisher("abs_orient/pose_markers", PoseWithCovarianceStamped, queue_size=10)
+        self.pub_odometry = rospy.Publisher("abs_orient/odometry", Odometry, queue_size=10)
+        self._odometry_stamp = -math.inf  # of the last abs_orient/odometry (s, odometry clock)
         self.imu_tilts: Deque[Tuple[float, float, float, float]] = collections.deque(maxlen=1000)
         if config.imu_topic:
             from sensor_msgs.msg import Imu
@@ -375,7 +393,8 @@ class AbsOrientNode:
         # counters and state (main thread only, except the mailbox and the prism deque)
         self.images = Mailbox()   # messages, from the subscriber callback
         self.frames = Mailbox()   # (message, receipt wall time, grey frame or why not, decode ms), decoder thread
-        self.prisms: Deque[Tuple[float, np.ndarray]] = collections.deque(maxlen=1000)
+        self.prisms: Deque[Tuple[float, np.ndarray, Optional[np.ndarray]]] = collections.deque(maxlen=1000)
+        self.prism_covariances = 0  # positions that came with the instrument's covariance
         self.prism_errors: Deque[str] = collections.deque(maxlen=100)
         self.prism_stamps: Deque[float] = collections.deque(maxlen=1000)  # for the timestamp status
         self.last_prism_stamp: Optional[float] = None     # s, total-station clock
@@ -393,6 +412,8 @@ class AbsOrientNode:
                                               buff_size=1 << 26, tcp_nodelay=True)
             self._decode = cv.image_from_raw
         self.prism_sub = rospy.Subscriber("ms60/prism", PointStamped, self._on_prism, queue_size=50)
+        self.prism_cov_sub = rospy.Subscriber("ms60/prism_with_covariance", PoseWithCovarianceStamped,
+                                              self._on_prism_with_covariance, queue_size=50)
         self.pub_markers.publish(cv.marker_array(marker_map, rospy.Time.now()))
         self._start_reconfigure()
 
@@ -401,12 +422,27 @@ class AbsOrientNode:
         self.images.put((msg, time.monotonic()))
 
     def _on_prism(self, msg) -> None:
+        if self.prism_covariances:  # the driver publishes each position with its covariance: taken from there
+            return
         try:
             t, p = self.cv.point_stamped_to_array(msg, self.config.map_frame)
         except self.cv.ConversionError as e:
             self.prism_errors.append(str(e))
             return
-        self.prisms.append((t, p))
+        self._prism_in(t, p, None)
+
+    def _on_prism_with_covariance(self, msg) -> None:
+        try:
+            t, p, cov = self.cv.prism_with_covariance(msg, self.config.map_frame)
+        except self.cv.ConversionError as e:
+            self.prism_errors.append(str(e))
+            return
+        self.prism_covariances += 1
+        self._prism_in(t, p, cov)
+
+    def _prism_in(self, t: float, p: np.ndarray, cov: Optional[np.ndarray]) -> None:
+        p, cov = self.north.turn_point(p, cov)
+        self.prisms.append((t, p, cov))
         self.diag_prisms.tick()
         self.diag_prism_offset.tick(t)
 
@@ -737,12 +773,12 @@ class AbsOrientNode:
         while self.prism_errors:
             self._error("bad_prism", f"ms60/prism: {self.prism_errors.popleft()}")
         while self.prisms and self.pipeline is not None:  # kept (bounded) until the pipeline exists
-            t, p = self.prisms.popleft()
+            t, p, cov = self.prisms.popleft()
             if self.stamps.jumped_back(self.last_prism_stamp, t):
                 self._reset(f"ms60/prism time jumped back by {self.last_prism_stamp - t:.3f} s")
             self.last_prism_stamp = t if self.last_prism_stamp is None else max(t, self.last_prism_stamp)
             self.health.count("prisms")
-            self.pipeline.add_prism(t, p)
+            self.pipeline.add_prism(t, p, cov)
             if self.mapcheck is not None:
                 self.mapcheck.add_prism(t, p)
             with self._selfcheck_lock:
@@ -927,7 +963,8 @@ class AbsOrientNode:
 
     def _prediction_from(self, t: float) -> MapOdomPrediction:
         """The filter's prediction from time ``t`` (s, total-station time) on, for the tf timer."""
-        return MapOdomPrediction(t, self.pipeline.map_T_odom(t)[0], t + 1.0, self.pipeline.map_T_odom(t + 1.0)[0])
+        (A, PA), (B, PB) = self.pipeline.map_T_odom(t), self.pipeline.map_T_odom(t + 1.0)
+        return MapOdomPrediction(t, A, t + 1.0, B, (PA[0, 0], PB[0, 0]))
 
     def _send_map_odom(self, stamp_sec: Optional[float], map_T_odom: np.ndarray) -> None:
         """Broadcast ``map_T_odom`` at ``stamp_sec`` (s, already future-dated; None: held back by the stamp
@@ -956,11 +993,28 @@ class AbsOrientNode:
         with self._tf_lock:
             if self._prediction is None:  # not initialised (or just reset)
                 return
+            prediction, offset = self._prediction, self.time_offset
             stamp = self.stamps.republish(s)
-            if stamp is None:
-                return
-            self._send_map_odom(stamp, self._prediction.at(s - self.time_offset))
-            self.health.count("tf_republished")
+            if stamp is not None:
+                self._send_map_odom(stamp, prediction.at(s - offset))
+                self.health.count("tf_republished")
+        if s > self._odometry_stamp and self.pub_odometry.get_num_connections():
+            self._odometry_stamp = s
+            self._publish_odometry(latest, prediction, offset)
+
+    def _publish_odometry(self, latest, prediction: MapOdomPrediction, offset: float) -> None:
+        """``abs_orient/odometry``: base_link in map at the odometry's newest stamp, the odometry's pose corrected by
+        the filter's map→odom prediction (its drift rate between marker yaws), with the yaw's variance."""
+        c = self.config
+        try:
+            tr = self.tf_buffer.lookup_transform(c.odom_frame, c.base_frame, latest)
+            odom_T_base = self.cv.transform_to_matrix(tr.transform, f"tf {c.odom_frame}->{c.base_frame}")
+        except (self.tf2_ros.TransformException, self.cv.ConversionError):
+            return
+        t = self.cv.stamp_to_sec(latest) - offset
+        self.pub_odometry.publish(self.cv.corrected_odometry_msg(prediction.at(t) @ odom_T_base,
+                                                                 prediction.yaw_variance(t), latest, c.map_frame,
+                                                                 c.base_frame))
 
     def _tilt_source(self) -> str:
         """Where the newest frame's roll and pitch came from (imu, markers, odometry), with unusable IMU samples."""
@@ -1033,12 +1087,14 @@ def main(argv=None) -> int:
     try:
         config = NodeConfig.from_params(rospy.get_param)
         marker_map = MarkerMap.load(config.markers)
-    except (NodeConfigError, MarkerMapError) as e:
+        north = NorthReference.make(config.north, marker_map.grid, marker_map.origin, "~")
+    except (NodeConfigError, MarkerMapError, NorthError) as e:
         return configuration_error(rospy, str(e), argv)
     if config.markers_only and len(marker_map) < 3:
         return configuration_error(rospy, f"{config.markers}: ~markers_only needs at least 3 markers in the map for "
                                           f"a resection, it has {len(marker_map)}", argv)
-    node = AbsOrientNode(config, marker_map)
+    node = AbsOrientNode(config, north.turn_map(marker_map), north)
+    rospy.loginfo(f"abs_orient: headings referred to {north.describe()}")
     rospy.loginfo(f"abs_orient: {len(marker_map)} markers from {config.markers}; "
                   f"{'publishing' if config.publish_tf else 'NOT publishing (EKF owns it)'} "
                   f"{config.map_frame} -> {config.odom_frame}")

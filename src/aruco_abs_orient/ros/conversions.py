@@ -48,12 +48,14 @@ __all__ = [
     "matrix_to_transform_stamped",
     "matrix_to_pose",
     "point_stamped_to_array",
+    "prism_with_covariance",
     "image_from_compressed",
     "image_from_raw",
     "pose_covariance",
     "orientation_msg",
     "prism_pose_msg",
     "pose_msg",
+    "corrected_odometry_msg",
     "observations_msg",
     "marker_array",
     "rays_marker_array",
@@ -130,6 +132,19 @@ def point_stamped_to_array(msg, expected_frame: str) -> Tuple[float, np.ndarray]
         raise ConversionError(f"point.header.frame_id: expected {expected_frame!r}, got {msg.header.frame_id!r}")
     p = _finite([msg.point.x, msg.point.y, msg.point.z], "point")
     return stamp_to_sec(msg.header.stamp), p
+
+
+def prism_with_covariance(msg, expected_frame: str) -> Tuple[float, np.ndarray, np.ndarray]:
+    """``ms60/prism_with_covariance`` (``PoseWithCovarianceStamped``) → (stamp s, position (3,) m, covariance 3×3
+    m²). Raises ConversionError for another frame, NaN/inf or a position variance that is not positive."""
+    if msg.header.frame_id.lstrip("/") != expected_frame.lstrip("/"):
+        raise ConversionError(f"prism.header.frame_id: expected {expected_frame!r}, got {msg.header.frame_id!r}")
+    p = msg.pose.pose.position
+    xyz = _finite([p.x, p.y, p.z], "prism position")
+    cov = _finite(msg.pose.covariance, "prism covariance").reshape(6, 6)[:3, :3]
+    if np.any(np.diag(cov) <= 0):
+        raise ConversionError(f"prism covariance: position variances {np.diag(cov).tolist()} are not all positive")
+    return stamp_to_sec(msg.header.stamp), xyz, cov
 
 
 def image_from_compressed(msg) -> bytes:
@@ -234,6 +249,23 @@ def pose_msg(result, stamp: rospy.Time, frame_id: str = "map") -> Optional[PoseS
     if result.map_T_base is None:
         return None
     return PoseStamped(header=_header(stamp, frame_id), pose=matrix_to_pose(result.map_T_base))
+
+
+def corrected_odometry_msg(map_T_base: np.ndarray, yaw_variance: float, stamp: rospy.Time, frame_id: str = "map",
+                           child_frame_id: str = "base_link", step_sigmas: Tuple[float, float] = (0.005, 0.002)
+                           ):
+    """``nav_msgs/Odometry`` of base_link in ``frame_id``: the pose ``map_T_base`` (4×4); the yaw's variance
+    ``yaw_variance`` (rad², absolute), position and roll/pitch with ``step_sigmas`` (m, rad: what one pose is worth
+    relative to the previous one, for a differential input); the twist UNOBSERVED_VARIANCE."""
+    from nav_msgs.msg import Odometry
+
+    msg = Odometry(header=_header(stamp, frame_id), child_frame_id=child_frame_id)
+    msg.pose.pose = matrix_to_pose(map_T_base)
+    position, attitude = step_sigmas
+    msg.pose.covariance = pose_covariance(np.eye(3) * position ** 2,
+                                          np.diag([attitude ** 2, attitude ** 2, float(yaw_variance)]))
+    msg.twist.covariance = [float(x) for x in np.diag([UNOBSERVED_VARIANCE] * 6).ravel()]
+    return msg
 
 
 def observations_msg(observations, stamp: rospy.Time, frame_id: str = "camera") -> MarkerObservations:

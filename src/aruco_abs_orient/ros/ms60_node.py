@@ -4,6 +4,10 @@ Publishes
 - ``ms60/prism`` (geometry_msgs/PointStamped, frame ``~frame_id``, default ``map``): the prism
   position (m); the stamp is the instrument's measurement time mapped to ROS time, never the
   reception time;
+- ``ms60/prism_with_covariance`` (geometry_msgs/PoseWithCovarianceStamped, same frame and stamp): the same
+  position with its covariance from the instrument's accuracy class and the station's polar geometry
+  (:mod:`aruco_abs_orient.geocom.accuracy`: the distance σ along the line of sight, the angle σ times the
+  distance across it); the orientation is not measured (identity, variance 1e6);
 - ``ms60/status`` (diagnostic_msgs/DiagnosticStatus, latched, 1 Hz: ``rostopic echo`` shows it as it is, no
   escaped JSON): the ``prism tracking`` status below, whose key/values are the tracker's figures: ``state``
   (connecting/searching/locked/lost/reconnecting/error), ``error`` (why, in the error state),
@@ -29,7 +33,15 @@ instrument's shortest measurement-to-reply time, 0), ``~station/x``, ``~station/
 ``~station/orientation_deg`` (optional), ``~origin`` ([E, N, H], default [0, 0, 0]: subtracted from every
 published position, the marker map's ``origin``, so that nothing in ROS carries national-grid coordinates),
 ``~log`` (optional path: every fix appended as ``t,east,north,height`` in full coordinates, the prism
-log ``aruco-abs-orient process --prism`` reads).
+log ``aruco-abs-orient process --prism`` reads), ``~accuracy/distance_mm``, ``~accuracy/distance_ppm``,
+``~accuracy/angle_arcsec``, ``~accuracy/prism_mm`` (the accuracy class in the measurement mode used; default
+the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
+
+Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is
+predicted to be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf
+``~frame_id`` → ``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever
+arm), its two newest poses extrapolated to now, plus ``~origin``; none when tf has no such chain or its newest
+pose is older than ``~predict_max_age`` (s, 1.0): then the search as before.
 
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
@@ -44,15 +56,18 @@ import sys
 from typing import Any, Dict, Optional, Tuple
 
 import diagnostic_updater
+import numpy as np
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 
+from ..geocom.accuracy import MS60_TRACKING, InstrumentAccuracy
 from ..geocom.client import default_byte_timing
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 from . import exit_without_master
 
-__all__ = ["config_from_params", "output_from_params", "log_line", "stats_to_json", "status_values", "main"]
+__all__ = ["config_from_params", "output_from_params", "prediction_from_params", "extrapolate", "prism_with_covariance",
+           "log_line", "stats_to_json", "status_values", "main"]
 
 
 def _number(params: Dict[str, Any], name: str, default=None, kind=float, prefix: str = ""):
@@ -98,6 +113,7 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     min_latency_ms = _number(params, "min_latency_ms", 0.0)
     if not 0 <= min_latency_ms <= 1000:
         raise TrackerError(f"~min_latency_ms: {min_latency_ms} ms is not in [0, 1000]")
+    accuracy = _accuracy(params.get("accuracy", {}))
     station_params = params.get("station", {})
     if not isinstance(station_params, dict):
         raise TrackerError(f"~station: expected a dictionary with x, y, z, instrument_height, orientation_deg, "
@@ -118,9 +134,24 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
         byte_timing=byte_timing,
         prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
         orientation_rad=None if orientation_deg is None else math.radians(orientation_deg),
-        min_latency_s=min_latency_ms / 1000.0)
+        min_latency_s=min_latency_ms / 1000.0, accuracy=accuracy)
     config.validate()
     return config, frame_id.strip()
+
+
+def _accuracy(params) -> InstrumentAccuracy:
+    """``~accuracy/*`` → InstrumentAccuracy (defaults: the MS60's). Raises TrackerError naming the parameter."""
+    if not isinstance(params, dict):
+        raise TrackerError(f"~accuracy: expected a dictionary with {', '.join(MS60_TRACKING._fields)}, got {params!r}")
+    unknown = set(params) - set(MS60_TRACKING._fields)
+    if unknown:
+        raise TrackerError(f"~accuracy: unknown key(s) {', '.join(sorted(unknown))}; expected "
+                           f"{', '.join(MS60_TRACKING._fields)}")
+    accuracy = MS60_TRACKING._replace(**{k: _number(params, k, prefix="accuracy/") for k in params})
+    try:
+        return accuracy.validate()
+    except ValueError as e:
+        raise TrackerError(f"~accuracy/{e}") from None
 
 
 def output_from_params(params: Dict[str, Any]) -> Tuple[Tuple[float, float, float], Optional[str]]:
@@ -134,6 +165,45 @@ def output_from_params(params: Dict[str, Any]) -> Tuple[Tuple[float, float, floa
     if not isinstance(log, str):
         raise TrackerError(f"~log: expected a file path, got {log!r}")
     return (float(origin[0]), float(origin[1]), float(origin[2])), (log.strip() or None)
+
+
+def prism_with_covariance(point: PointStamped, cov) -> PoseWithCovarianceStamped:
+    """The position of ``point`` with its covariance ``cov`` (3×3 m²); the orientation unobserved (variance 1e6,
+    conversions.UNOBSERVED_VARIANCE: that module needs the package's messages, this node does not)."""
+    msg = PoseWithCovarianceStamped(header=point.header)
+    msg.pose.pose.position = point.point
+    msg.pose.pose.orientation.w = 1.0
+    C = np.diag([0.0] * 3 + [1.0e6] * 3)
+    C[:3, :3] = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+    msg.pose.covariance = [float(x) for x in C.ravel()]
+    return msg
+
+
+def prediction_from_params(params: Dict[str, Any]) -> Tuple[bool, str, float]:
+    """``(predict, prism frame, max age s)`` from ``~predict``, ``~prism_frame``, ``~predict_max_age``. Raises
+    TrackerError naming the parameter."""
+    predict = params.get("predict", True)
+    if not isinstance(predict, bool):
+        raise TrackerError(f"~predict: expected true or false, got {predict!r}")
+    frame = params.get("prism_frame", "prism")
+    if not isinstance(frame, str) or not frame.strip():
+        raise TrackerError(f"~prism_frame: expected a frame name, got {frame!r}")
+    max_age = _number(params, "predict_max_age", 1.0)
+    if not 0 < max_age <= 10:
+        raise TrackerError(f"~predict_max_age: {max_age} s is not in (0, 10]")
+    return predict, frame.strip(), max_age
+
+
+def extrapolate(older: Tuple[float, np.ndarray], newer: Tuple[float, np.ndarray], now: float,
+                max_age: float) -> Optional[np.ndarray]:
+    """The position at ``now`` (s) from two (stamp s, position (3,) m) poses, linearly; None when the newer is
+    more than ``max_age`` s old (a stale pose), or from the future."""
+    (t0, p0), (t1, p1) = older, newer
+    age = now - t1
+    if not 0.0 <= age <= max_age:
+        return None
+    rate = (np.asarray(p1) - np.asarray(p0)) / (t1 - t0) if t1 > t0 else np.zeros(3)
+    return np.asarray(p1, dtype=float) + rate * age
 
 
 LOG_HEADER = "t,east,north,height\n"
@@ -192,6 +262,33 @@ SIM_TIME_MESSAGE = ("ms60_driver: /use_sim_time is true on this master (a bag re
                     "`rosparam set /use_sim_time false` and start the driver again")
 
 
+def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
+    """``predict()`` for the tracker: the prism's position now (instrument coordinates) from tf, or None."""
+    import tf2_ros
+
+    buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
+    tf2_ros.TransformListener(buffer)
+
+    def position(stamp) -> Tuple[float, np.ndarray]:
+        tr = buffer.lookup_transform(frame_id, prism_frame, stamp)
+        p = tr.transform.translation
+        return tr.header.stamp.to_sec(), np.array([p.x, p.y, p.z])
+
+    def predict() -> Optional[Tuple[float, float, float]]:
+        try:
+            newer = position(rospy.Time(0))
+        except tf2_ros.TransformException:  # no pose of the robot (yet)
+            return None
+        try:
+            older = position(rospy.Time.from_sec(newer[0] - 0.2))
+        except tf2_ros.TransformException:  # one pose only: no velocity
+            older = newer
+        p = extrapolate(older, newer, rospy.get_time(), max_age)
+        return None if p is None else tuple(float(x) for x in p + np.asarray(origin))
+
+    return predict
+
+
 def main() -> None:
     exit_without_master("ms60_driver", "ms60.launch")
     rospy.init_node("ms60_driver")
@@ -201,6 +298,7 @@ def main() -> None:
     try:
         config, frame_id = config_from_params(rospy.get_param("~", {}))
         origin, log_path = output_from_params(rospy.get_param("~", {}))
+        predict, prism_frame, max_age = prediction_from_params(rospy.get_param("~", {}))
         log = None
         if log_path:
             log = open(log_path, "a", buffering=1)  # noqa: SIM115 (open while the node spins, closed after)
@@ -213,6 +311,7 @@ def main() -> None:
         rospy.logfatal(f"ms60_driver: ~log: cannot write {log_path}: {e.strerror}")
         sys.exit(2)
     prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
+    cov_pub = rospy.Publisher("ms60/prism_with_covariance", PoseWithCovarianceStamped, queue_size=50)
     status_pub = rospy.Publisher("ms60/status", DiagnosticStatus, queue_size=5, latch=True)
     updater = diagnostic_updater.Updater()
     updater.setHardwareID(f"MS60 {config.url}")
@@ -232,6 +331,7 @@ def main() -> None:
         msg.point.x, msg.point.y, msg.point.z = (sample.east - origin[0], sample.north - origin[1],
                                                  sample.height - origin[2])
         prism_pub.publish(msg)
+        cov_pub.publish(prism_with_covariance(msg, sample.cov))
         positions.tick()
         stamp_offset.tick(sample.stamp_s)
         if log is not None:
@@ -243,7 +343,8 @@ def main() -> None:
         else:
             rospy.loginfo(f"ms60_driver: {state.value} ({config.url})")
 
-    tracker = Ms60Tracker(config, on_sample=on_sample, on_state=on_state)
+    tracker = Ms60Tracker(config, on_sample=on_sample, on_state=on_state,
+                          predict=_tf_prediction(frame_id, prism_frame, origin, max_age) if predict else None)
 
     def report(_event) -> None:
         stats = tracker.stats()

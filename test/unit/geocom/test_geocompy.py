@@ -171,3 +171,31 @@ def test_any_request_gets_one_well_formed_reply_with_its_trid(rpc, trid, params)
     assert reply.trid == trid
     assert conn.exchange("%R1Q,0,1:") == "%R1P,0,1:0"   # still serving, and in step
     assert sim.internal_errors == []
+
+
+def test_geocompy_reaims_the_telescope_where_the_prism_is():
+    """AUT_MakePositioning through geocompy's turn_to: a prism lost while hidden and found again only where the
+    telescope is turned to: AUT_FineAdjust misses it from a wrong direction (AUT_NO_TARGET) and finds it, locks in
+    and measures after a turn to its direction computed here (Hz, V from the station, the surveying convention)."""
+    sim = Ms60Simulator(SimConfig(latency_s=0.003, jitter_s=0.002), seed=4)
+    sim.station = STATION
+    try:
+        with _connect(sim, "tcp") as conn:
+            tps = GeoCom(conn)
+            tps.aus.switch_user_lock(True)
+            assert tps.aut.fine_adjust(0.05, 0.05).error == GeoComCode.OK
+            assert tps.aut.lock_in().error == GeoComCode.OK
+            sim.set_prism_visible(False)
+            sim.set_prism_visible(True)   # lost: it needs aiming again
+            hz, v, _ = _polar(sim.track(time.time() - sim.t_boot))
+            assert tps.aut.turn_to(hz + 0.5, v).error == GeoComCode.OK            # 29° beside it
+            assert tps.aut.fine_adjust(0.05, 0.05).error == GeoComCode.AUT_NO_TARGET
+            assert tps.request(9027, [hz, v, 0, 1, 0]).error == GeoComCode.IVPARAM  # ATR mode AUT_TARGET: not modelled
+            hz, v, _ = _polar(sim.track(time.time() + 0.2 - sim.t_boot))           # where it will be after the turn
+            assert tps.aut.turn_to(hz, v).error == GeoComCode.OK
+            assert tps.aut.fine_adjust(0.05, 0.05).error == GeoComCode.OK
+            assert tps.aut.lock_in().error == GeoComCode.OK
+            assert tps.mot.get_lockon_status().params == ATRLock.LOCK
+        assert sim.internal_errors == []
+    finally:
+        sim.close()

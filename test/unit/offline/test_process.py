@@ -81,6 +81,8 @@ def test_outputs_are_complete_and_described(ci_run):
     summary = json.loads(Path(res.summary_path).read_text())
     assert summary["frames"] == 300 and summary["frames_with_pose"] > 0
     assert summary["skipped"] == {}
+    assert summary["north"].startswith("grid north (the marker map's y axis; no 'grid' given")  # the scenario's map
+    assert "headings referred to grid north" in Path(res.trajectory_path).read_text().splitlines()[0]
     header = Path(res.observations_path).read_text().splitlines()[0].split(",")
     assert header[:3] == ["time", "id", "method"]
     out = os.path.dirname(res.trajectory_path)
@@ -285,7 +287,9 @@ def test_bag_cut_before_its_first_chunk_is_a_clear_error(tiny, tmp_path, capsys)
 
 @pytest.mark.parametrize("text,field", [("markers: [1, 2", "not valid YAML"),
                                         ("dictionary: DICT_4X4_50\nsize: 0.2\nmarkers:\n  - {id: 1}\n",
-                                         "markers\\[0\\].position")])
+                                         "markers\\[0\\].position"),
+                                        ("grid: LV95\nsize: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0]}\n",
+                                         "grid LV95: needs the map's 'origin'")])
 def test_bad_marker_map_is_named(tiny, tmp_path, capsys, text, field):
     bad = tmp_path / "m.yaml"
     bad.write_text(text)

@@ -35,6 +35,7 @@ def test_node_config_defaults_and_values():
     ({"~markers": "m", "~time_offset": float("nan")}, "~time_offset: expected a number"),
     ({"~markers": "m", "~publish_tf": "false"}, "~publish_tf: expected true or false"),
     ({"~markers": 3}, "~markers: expected a string"),
+    ({"~markers": "m", "~north": "magnetic"}, "~north: expected 'grid' or 'true'"),
 ])
 def test_node_config_errors_name_the_parameter(values, message):
     with pytest.raises(NodeConfigError, match=message.replace("(", r"\(")):

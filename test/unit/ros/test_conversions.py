@@ -261,3 +261,34 @@ def test_bearing_rays_run_from_the_camera_to_each_accepted_marker():
     assert [t.text for t in texts] == ["3", "5"]
     empty = cv.rays_marker_array([_observation(8, 0.0, 0.0, 0.0, 0.01, False)], rospy.Time(8), "cam")
     assert [m.action for m in empty.markers] == [empty.markers[0].DELETEALL]
+
+
+def test_prism_with_covariance_and_the_corrected_odometry():
+    """ms60/prism_with_covariance → (stamp, position, 3×3 covariance), refused in another frame or with a variance
+    that is not positive; abs_orient/odometry: the pose, the yaw's variance absolute, step σs on the rest."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    from aruco_abs_orient.ros.conversions import corrected_odometry_msg, prism_with_covariance
+
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id, msg.header.stamp = "map", rospy.Time(12, 500000000)
+    msg.pose.pose.position.x, msg.pose.pose.position.y = 3.0, 4.0
+    cov = np.diag([4e-6, 9e-6, 1e-6])
+    C = np.diag([0.0] * 3 + [1e6] * 3)
+    C[:3, :3] = cov
+    msg.pose.covariance = C.ravel().tolist()
+    t, p, c = prism_with_covariance(msg, "map")
+    assert t == 12.5 and np.allclose(p, [3, 4, 0]) and np.array_equal(c, cov)
+    with pytest.raises(cv.ConversionError, match="frame_id"):
+        prism_with_covariance(msg, "odom")
+    msg.pose.covariance[0] = 0.0
+    with pytest.raises(cv.ConversionError, match="not all positive"):
+        prism_with_covariance(msg, "map")
+    T = make_T(rpy_to_matrix(0.01, -0.02, 1.2), [1.0, 2.0, 0.3])
+    odom = corrected_odometry_msg(T, 1e-8, rospy.Time(5), "map", "base_link")
+    assert odom.header.frame_id == "map" and odom.child_frame_id == "base_link"
+    P = np.array(odom.pose.covariance).reshape(6, 6)
+    np.testing.assert_allclose(np.diag(P), [0.005**2] * 3 + [0.002**2] * 2 + [1e-8])
+    q = odom.pose.pose.orientation
+    np.testing.assert_allclose(cv.quat_to_matrix([q.x, q.y, q.z, q.w]), T[:3, :3], atol=1e-12)
+    assert np.all(np.diag(np.array(odom.twist.covariance).reshape(6, 6)) == 1e6)

@@ -44,7 +44,7 @@ def test_live_launch_has_one_map_odom_owner(use_ekf):
     n = nodes(c)
     assert ("aruco_abs_orient", "static_tfs") in n and c.params["/lever_arms/calibration"].value == "/c.yaml"
     assert ("aruco_abs_orient", "ms60_driver") in n
-    assert (("aruco_abs_orient", "tf_to_odometry") in n) == (use_ekf == "true")
+    assert ("aruco_abs_orient", "tf_to_odometry") not in n  # the EKF takes the node's abs_orient/odometry
     assert c.params["/abs_orient/markers"].value == "/m.yaml"
 
 
@@ -95,14 +95,20 @@ def test_relative_paths_are_resolved_against_the_callers_directory(monkeypatch, 
 def test_ekf_launch_loads_the_package_config():
     c = load("ekf.launch")
     ekf = "/ekf_map/"
-    assert c.params[ekf + "world_frame"].value == "map" and c.params[ekf + "odom0"].value == "odometry/vo"
-    assert c.params[ekf + "odom0_differential"].value is True
-    # masks: orientation message -> yaw only; prism pose -> x, y, z only
-    assert c.params[ekf + "pose0_config"].value[:6] == [False] * 5 + [True]
-    assert c.params[ekf + "pose1_config"].value[:6] == [True] * 3 + [False] * 3
+    assert c.params[ekf + "world_frame"].value == "map"
+    # the node's corrected odometry: its motion differentially, its yaw absolutely; the prism pose: x, y, z
+    assert c.params[ekf + "odom0"].value == c.params[ekf + "odom1"].value == "abs_orient/odometry"
+    assert c.params[ekf + "odom0_differential"].value is True and c.params[ekf + "odom1_differential"].value is False
+    assert c.params[ekf + "odom0_config"].value[:6] == [True] * 5 + [False]
+    assert c.params[ekf + "odom1_config"].value[:6] == [False] * 5 + [True]
+    assert c.params[ekf + "pose0_config"].value[:6] == [True] * 3 + [False] * 3
+    assert os.path.basename(c.params[ekf + "pose0"].value) == "prism_pose"
+    assert ekf + "pose1" not in c.params  # the marker yaws are in the node's yaw already
     assert len(c.params[ekf + "process_noise_covariance"].value) == 225
     assert len(c.params[ekf + "initial_estimate_covariance"].value) == 225
-    assert os.path.basename(c.params[ekf + "pose0"].value) == "orientation"
+    assert ("aruco_abs_orient", "tf_to_odometry") not in nodes(c)
+    c = load("ekf.launch", markers_only="true")  # no prism: the relayed odometry and the resections
+    assert c.params[ekf + "odom0"].value == "odometry/vo" and ("aruco_abs_orient", "tf_to_odometry") in nodes(c)
 
 
 def test_abs_orient_launch_requires_markers():

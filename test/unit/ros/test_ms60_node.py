@@ -35,10 +35,33 @@ def test_defaults_and_full_station():
     ({"station": 3}, "~station"), ({"station": {"x": 1, "y": 2, "z": "a"}}, "~station/z"),
     ({"min_latency_ms": -1}, "~min_latency_ms"), ({"rate": True}, "~rate"),
     ({"motion_timeout": 1.0}, "~motion_timeout"), ({"byte_timing": "yes"}, "~byte_timing"),
+    ({"accuracy": {"angle_arcsec": -1}}, "~accuracy/angle_arcsec"), ({"accuracy": {"mm": 1}}, "~accuracy"),
+    ({"accuracy": {"distance_mm": "x"}}, "~accuracy/distance_mm"), ({"accuracy": 3}, "~accuracy"),
 ])
 def test_bad_parameters_name_themselves(params, name):
     with pytest.raises(TrackerError, match=name.replace("~", "~?")):
         config_from_params(params)
+
+
+def test_accuracy_class_and_the_covariance_message():
+    """~accuracy/* set the class (MS60 tracking by default); ms60/prism_with_covariance carries the position and
+    its 3×3 covariance, the orientation unobserved."""
+    from geometry_msgs.msg import PointStamped
+
+    from aruco_abs_orient.geocom.accuracy import MS60_TRACKING, polar_covariance
+    from aruco_abs_orient.ros.ms60_node import prism_with_covariance
+
+    assert config_from_params({})[0].accuracy == MS60_TRACKING
+    config, _ = config_from_params({"accuracy": {"distance_mm": 1, "distance_ppm": 2.0, "angle_arcsec": 0.5,
+                                                 "prism_mm": 1.5}})
+    assert tuple(config.accuracy) == (1.0, 2.0, 0.5, 1.5)
+    point = PointStamped()
+    point.header.frame_id, point.point.x, point.point.y, point.point.z = "map", 30.0, 40.0, 1.0
+    cov = polar_covariance([0, 0, 0], [30, 40, 1], config.accuracy)
+    msg = prism_with_covariance(point, cov)
+    C = np.array(msg.pose.covariance).reshape(6, 6)
+    np.testing.assert_allclose(C[:3, :3], cov)
+    assert np.all(np.diag(C)[3:] == 1e6) and msg.pose.pose.position.y == 40.0 and msg.header.frame_id == "map"
 
 
 def test_status_json_and_the_status_message_that_carries_it():
@@ -169,3 +192,21 @@ def test_origin_is_subtracted_from_what_is_published_and_the_log_keeps_full_coor
     assert len(common) >= 10
     for t in common:
         np.testing.assert_allclose(full[t] - origin, published[t], atol=1e-5)
+
+
+def test_prediction_parameters_and_extrapolation():
+    """~predict, ~prism_frame, ~predict_max_age; the predicted position: the newest pose moved on at the velocity
+    of the two newest, none when the newest is stale or from the future."""
+    from aruco_abs_orient.ros.ms60_node import extrapolate, prediction_from_params
+
+    assert prediction_from_params({}) == (True, "prism", 1.0)
+    assert prediction_from_params({"predict": False, "prism_frame": "prism_360", "predict_max_age": 0.5}) == (
+        False, "prism_360", 0.5)
+    for params, name in (({"predict": "yes"}, "~predict"), ({"prism_frame": ""}, "~prism_frame"),
+                         ({"predict_max_age": 0}, "~predict_max_age")):
+        with pytest.raises(TrackerError, match=name):
+            prediction_from_params(params)
+    older, newer = (10.0, np.array([1.0, 2.0, 1.5])), (10.2, np.array([1.2, 2.0, 1.5]))  # 1 m/s east
+    np.testing.assert_allclose(extrapolate(older, newer, 10.5, 1.0), [1.5, 2.0, 1.5])
+    assert extrapolate(older, newer, 11.3, 1.0) is None and extrapolate(older, newer, 10.1, 1.0) is None
+    np.testing.assert_allclose(extrapolate(newer, newer, 10.4, 1.0), newer[1])  # one pose: no velocity
