@@ -47,7 +47,7 @@ __all__ = [
 ]
 
 
-class CameraModelError(ConfigurationError, ValueError):
+class CameraModelError(ConfigurationError):
     """Invalid camera model parameters (image size, view size, field of view)."""
 
 

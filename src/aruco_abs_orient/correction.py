@@ -103,7 +103,7 @@ def _ez_cross(v: np.ndarray) -> np.ndarray:
     return np.array([-v[1], v[0], 0.0])
 
 
-class CorrectionError(ConfigurationError, ValueError):
+class CorrectionError(ConfigurationError):
     """Malformed input to the map→odom filter (wrong shapes, bad parameters)."""
 
 

@@ -28,14 +28,19 @@ import cv2
 import numpy as np
 
 from .camera import Equirect, angle_between
+from .errors import InputFileError
 from .markers import MarkerMap
 
-__all__ = ["COLOURS", "debug_frame", "encode_debug_jpeg", "predicted_bearings", "horizon_bearings", "ExpectedMarker",
-           "expected_markers"]
+__all__ = ["DebugImageError", "COLOURS", "debug_frame", "encode_debug_jpeg", "predicted_bearings", "horizon_bearings",
+           "ExpectedMarker", "expected_markers"]
 
 COLOURS = {"accepted": (0, 200, 0), "rejected": (0, 0, 255), "predicted": (0, 220, 255),
            "seam": (255, 0, 255), "horizon": (255, 160, 0)}
 """BGR colour of each kind of drawing."""
+
+
+class DebugImageError(InputFileError):
+    """A frame that cannot be drawn or encoded as a debug image (its shape, the width asked for)."""
 
 
 def predicted_bearings(marker_map: MarkerMap, map_T_camera: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
@@ -154,9 +159,9 @@ def debug_frame(image: np.ndarray, observations: Iterable, marker_map: Optional[
     """
     img = np.asarray(image)
     if img.ndim not in (2, 3) or img.shape[1] != 2 * img.shape[0]:
-        raise ValueError(f"debug image: expected a 2:1 equirect frame, got shape {img.shape}")
+        raise DebugImageError(f"debug image: expected a 2:1 equirect frame, got shape {img.shape}")
     if max_width < 2:
-        raise ValueError(f"debug image: max_width must be at least 2 px, got {max_width}")
+        raise DebugImageError(f"debug image: max_width must be at least 2 px, got {max_width}")
     width = min(img.shape[1], int(max_width) // 2 * 2)
     if width != img.shape[1]:
         img = cv2.resize(img, (width, width // 2), interpolation=cv2.INTER_AREA)
@@ -191,5 +196,5 @@ def encode_debug_jpeg(frame: np.ndarray, quality: int = 80) -> bytes:
     """JPEG bytes of a debug frame (for ``sensor_msgs/CompressedImage``)."""
     ok, buf = cv2.imencode(".jpg", frame, [int(cv2.IMWRITE_JPEG_QUALITY), int(quality)])
     if not ok:
-        raise ValueError(f"debug image: JPEG encoding failed for shape {frame.shape}")
+        raise DebugImageError(f"debug image: JPEG encoding failed for shape {frame.shape}")
     return buf.tobytes()

@@ -57,7 +57,7 @@ DEFAULT_THRESHOLDS = (math.radians(0.5), math.radians(1.0), math.radians(2.0))
 _EXACT = 1e-6  # s: stamps this close are the same instant (the same image)
 
 
-class EvaluationError(InputFileError, ValueError):
+class EvaluationError(InputFileError):
     """Inputs that cannot be evaluated (empty, mismatched lengths, no common times); says why."""
 
 

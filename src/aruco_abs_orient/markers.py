@@ -38,7 +38,7 @@ ARUCO_DICTIONARIES = tuple(
      "DICT_APRILTAG_36h11")
 
 
-class MarkerMapError(InputFileError, ValueError):
+class MarkerMapError(InputFileError):
     """A marker map that cannot be used: the message names the file and the field."""
 
 
@@ -95,6 +95,10 @@ class MarkerMap:
     @property
     def ids(self) -> List[int]:
         return sorted(self.markers)
+
+    def with_markers(self, markers: List[Marker]) -> MarkerMap:
+        """The same map (dictionary, frame, source, origin, grid) with ``markers`` instead of its own."""
+        return MarkerMap(markers, self.dictionary, self.frame_id, self.source, self.origin, self.grid)
 
     @classmethod
     def from_dict(cls, data, source: str = "<memory>") -> MarkerMap:

@@ -41,6 +41,7 @@ from typing import Deque, Dict, Iterable, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from .errors import ConfigurationError
 from .transforms import make_T, rot_z, wrap_angle, yaw_of
 
 __all__ = ["MapOdomStamps", "MapOdomPrediction", "NodeHealth", "NodeSnapshot", "IMAGE_OK", "IMAGE_JUMPED_BACK",
@@ -105,11 +106,11 @@ class MapOdomStamps:
 
     def __init__(self, tolerance: float, period: float, jump_tolerance: float):
         if not (math.isfinite(tolerance) and tolerance >= 0):
-            raise ValueError(f"transform tolerance: expected a finite number ≥ 0 s, got {tolerance!r}")
+            raise ConfigurationError(f"transform tolerance: expected a finite number ≥ 0 s, got {tolerance!r}")
         if not (math.isfinite(period) and period > 0):
-            raise ValueError(f"re-publication period: expected a positive number of s, got {period!r}")
+            raise ConfigurationError(f"re-publication period: expected a positive number of s, got {period!r}")
         if not (math.isfinite(jump_tolerance) and jump_tolerance > 0):
-            raise ValueError(f"time jump tolerance: expected a positive number of s, got {jump_tolerance!r}")
+            raise ConfigurationError(f"time jump tolerance: expected a positive number of s, got {jump_tolerance!r}")
         self.tolerance = float(tolerance)
         self.period = float(period)
         self.jump_tolerance = float(jump_tolerance)
@@ -178,7 +179,7 @@ class MapOdomPrediction:
     def __init__(self, t0: float, map_T_odom_0: np.ndarray, t1: float, map_T_odom_1: np.ndarray,
                  yaw_variances: Tuple[float, float] = (math.nan, math.nan)):
         if not t1 > t0:
-            raise ValueError(f"map->odom prediction: t1 ({t1}) must be after t0 ({t0})")
+            raise ConfigurationError(f"map->odom prediction: t1 ({t1}) must be after t0 ({t0})")
         A, B = np.asarray(map_T_odom_0, dtype=float), np.asarray(map_T_odom_1, dtype=float)
         self.t0 = float(t0)
         self.yaw0 = float(yaw_of(A[:3, :3]))

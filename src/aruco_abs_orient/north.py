@@ -27,12 +27,14 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Callable, NamedTuple, Optional, Tuple
+from typing import TYPE_CHECKING, Callable, NamedTuple, Optional, Tuple
 
 import numpy as np
 
 from .errors import ConfigurationError
-from .markers import MarkerMap
+
+if TYPE_CHECKING:
+    from .markers import MarkerMap
 
 __all__ = ["NorthError", "Grid", "parse_grid", "convergence", "convergence_closed_form", "NorthReference",
            "NORTHS"]
@@ -46,7 +48,7 @@ _GRS80 = (6378137.0, 1.0 / 298.257222101)
 _BESSEL = (6377397.155, 1.0 / 299.1528128)
 
 
-class NorthError(ConfigurationError, ValueError):
+class NorthError(ConfigurationError):
     """A grid name that is not known, a point outside its grid, or a north that is neither grid nor true."""
 
 
@@ -270,8 +272,7 @@ class NorthReference(NamedTuple):
         R = rot_z(self.turn)
         markers = [m._replace(position=R @ m.position, normal=None if m.normal is None else R @ m.normal)
                    for m in marker_map]
-        return MarkerMap(markers, marker_map.dictionary, marker_map.frame_id, marker_map.source, marker_map.origin,
-                         marker_map.grid)
+        return marker_map.with_markers(markers)
 
     def turn_point(self, p, cov=None):
         """A map point (3,) m relative to the origin, and its covariance (3×3 m² or None), in the heading's frame."""

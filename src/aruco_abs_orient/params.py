@@ -50,7 +50,7 @@ SECTIONS = PARAM_GROUPS + (("timesync", TimeSyncParams), ("evaluation", Evaluati
                            ("calibration", CalibrationParams))
 
 
-class ParamsError(ConfigurationError, ValueError):
+class ParamsError(ConfigurationError):
     """A params file with an unknown section or name, a wrong type or a value out of range (one line)."""
 
 

@@ -66,7 +66,7 @@ def row_fraction(bearings, height: int) -> np.ndarray:
 _MIN_TILT_SIGMA = math.radians(0.001)  # rad: a tilt σ of 0 (tilt_sigma_deg 0) taken as this in a resection
 
 
-class PipelineError(ConfigurationError, ValueError):
+class PipelineError(ConfigurationError):
     """Bad pipeline configuration (lever arms, parameters): names the field."""
 
 

@@ -59,7 +59,7 @@ __all__ = [
 ]
 
 
-class SolverError(GeometryError, ValueError):
+class SolverError(GeometryError):
     """Inputs the solver cannot use (wrong shapes, too few markers, non-finite values)."""
 
 

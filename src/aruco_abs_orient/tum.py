@@ -23,13 +23,12 @@ __all__ = ["TumError", "WriteError", "Trajectory", "read_tum", "write_tum", "ato
            "slerp", "read_yaml", "read_text", "sorted_series"]
 
 
-class TumError(InputFileError, ValueError):
+class TumError(InputFileError):
     """A TUM file that cannot be read: names the file and the line."""
 
 
-class WriteError(InputFileError, OSError):
-    """A file that cannot be written (its directory cannot be made, no permission, disk full): names the file.
-    An OSError too, for callers that catch those."""
+class WriteError(InputFileError):
+    """A file that cannot be written (its directory cannot be made, no permission, disk full): names the file."""
 
 
 class Trajectory(NamedTuple):

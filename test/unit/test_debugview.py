@@ -11,7 +11,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.camera import azel_to_bearing
-from aruco_abs_orient.debugview import COLOURS, debug_frame, encode_debug_jpeg, expected_markers, horizon_bearings
+from aruco_abs_orient.debugview import (
+    COLOURS,
+    DebugImageError,
+    debug_frame,
+    encode_debug_jpeg,
+    expected_markers,
+    horizon_bearings,
+)
 from aruco_abs_orient.detection import MarkerDetector, decode_jpeg
 from aruco_abs_orient.markers import Marker, MarkerMap
 from aruco_abs_orient.pipeline import ObservationResult
@@ -98,7 +105,7 @@ def test_small_frames_stay_and_bad_frames_are_refused(scene):
     image, results, _ = scene
     small = image[::4, ::4]
     assert debug_frame(small, results).shape == (480, 960, 3)
-    with pytest.raises(ValueError, match="2:1"):
+    with pytest.raises(DebugImageError, match="2:1"):
         debug_frame(image[:, :100], results)
     jpeg = encode_debug_jpeg(debug_frame(small, results))
     assert decode_jpeg(jpeg).shape == (480, 960)

@@ -8,6 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from aruco_abs_orient.correction import MapOdomFilter
+from aruco_abs_orient.errors import ConfigurationError
 from aruco_abs_orient.nodestate import (
     IMAGE_JUMPED_BACK,
     IMAGE_NOT_AFTER,
@@ -70,7 +71,7 @@ def test_image_stamps_jumping_back_or_repeating():
                                           ((0.1, 0.0, 0.5), "re-publication period"),
                                           ((0.1, 0.05, math.nan), "time jump tolerance")])
 def test_bad_settings_are_refused(args, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ConfigurationError, match=message):
         MapOdomStamps(*args)
 
 
@@ -172,7 +173,7 @@ def test_prediction_by_hand():
     assert float(yaw_of(half[:3, :3])) == pytest.approx(3.1 + (2 * math.pi - 6.2) / 2)
     np.testing.assert_allclose(half[:3, 3], [1.1, 2.0, 0.5])
     np.testing.assert_allclose(p.at(14.0)[:3, 3], [1.4, 2.0, 0.5])   # extrapolated
-    with pytest.raises(ValueError, match="t1"):
+    with pytest.raises(ConfigurationError, match="t1"):
         MapOdomPrediction(1.0, A, 1.0, B)
     v = MapOdomPrediction(10.0, A, 12.0, B, (1e-6, 3e-6))   # the yaw's variance grows linearly from t0
     assert v.yaw_variance(11.0) == pytest.approx(2e-6) and v.yaw_variance(9.0) == pytest.approx(1e-6)

@@ -38,7 +38,7 @@ N_GLOBALS = 12
 HEADING_MODELS = ("auto", "vo_yaw", "vo_track")
 
 
-class CalibrationError(GeometryError, ValueError):
+class CalibrationError(GeometryError):
     """The recording cannot determine the calibration, or the inputs are malformed; the message says why."""
 
 

@@ -18,7 +18,7 @@ from .quads import DecodeParams, EdgeFitParams
 __all__ = ["DetectionError", "DetectorParams"]
 
 
-class DetectionError(InputFileError, ValueError):
+class DetectionError(InputFileError):
     """An image, JPEG or dictionary the detector cannot use; the caller counts and skips."""
 
 

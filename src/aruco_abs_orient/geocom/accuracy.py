@@ -18,9 +18,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["ARCSEC", "InstrumentAccuracy", "MS60_TRACKING", "polar_covariance"]
+from ..errors import ConfigurationError
+
+__all__ = ["ARCSEC", "AccuracyError", "InstrumentAccuracy", "MS60_TRACKING", "polar_covariance"]
 
 ARCSEC = math.pi / (180.0 * 3600.0)
+
+
+class AccuracyError(ConfigurationError):
+    """An accuracy class with a negative, non-finite or zero figure: names the field."""
 
 
 class InstrumentAccuracy(NamedTuple):
@@ -38,12 +44,12 @@ class InstrumentAccuracy(NamedTuple):
         return 1e-3 * self.distance_mm + 1e-6 * self.distance_ppm * abs(distance_m)
 
     def validate(self) -> InstrumentAccuracy:
-        """Raise ValueError naming a field that is negative or not finite (or all zero). Returns self."""
+        """Raise AccuracyError naming a field that is negative or not finite (or all zero). Returns self."""
         for name, value in zip(self._fields, self):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: expected a number >= 0, got {value!r}")
+                raise AccuracyError(f"{name}: expected a number >= 0, got {value!r}")
         if self.distance_mm <= 0 or self.angle_arcsec <= 0:
-            raise ValueError("distance_mm and angle_arcsec: expected > 0 (no instrument measures exactly)")
+            raise AccuracyError("distance_mm and angle_arcsec: expected > 0 (no instrument measures exactly)")
         return self
 
 

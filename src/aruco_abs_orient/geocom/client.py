@@ -95,7 +95,7 @@ class _TcpPort:
     def __init__(self, url: str):
         host, sep, port = url[len("socket://"):].split("?")[0].rpartition(":")
         if not sep or not host or not port.isdigit():
-            raise ValueError(f"expected socket://host:port, got {url!r}")
+            raise GeoComLinkError(f"expected socket://host:port, got {url!r}")
         self._socket = socket.create_connection((host, int(port)), timeout=5.0)
         self._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._socket.settimeout(1.0)   # writes: a peer that stops reading fails within 1 s
@@ -150,7 +150,7 @@ class GeoComClient:
                 self._serial = _TcpPort(url.strip())
             else:
                 self._serial = serial.serial_for_url(url, baudrate=self.baud, timeout=0, write_timeout=1.0)
-        except (serial.SerialException, ValueError, OSError) as e:
+        except (serial.SerialException, GeoComLinkError, ValueError, OSError) as e:
             raise GeoComLinkError(f"cannot open GeoCOM port {url!r}: {e}") from None
         try:
             self._fileno: Optional[int] = self._serial.fileno()

@@ -31,7 +31,7 @@ from ..errors import InstrumentError
 __all__ = ["ClockError", "InstrumentClock", "lower_envelope_line"]
 
 
-class ClockError(InstrumentError, ValueError):
+class ClockError(InstrumentError):
     """A clock query before any sample, or bad clock parameters."""
 
 

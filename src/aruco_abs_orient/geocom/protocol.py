@@ -81,7 +81,7 @@ __all__ = [
 Param = Union[int, float, str, bool]
 
 
-class GeoComProtocolError(InstrumentError, ValueError):
+class GeoComProtocolError(InstrumentError):
     """A line that is not a well-formed GeoCOM request or reply (the message quotes it)."""
 
 

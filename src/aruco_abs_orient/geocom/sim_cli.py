@@ -8,6 +8,7 @@ import sys
 import threading
 from typing import List, Optional
 
+from ..errors import run
 from .simulator import MODELS, PROFILES, FaultRates, Ms60Simulator, SimConfig, SimulatorError, builtin_track, tum_track
 
 __all__ = ["main", "parse_faults"]
@@ -30,23 +31,28 @@ lock_loss, link_loss (events per second, each lasting 0.3-1.5 s)."""
 
 
 def parse_faults(text: str) -> FaultRates:
-    """``"garbage=0.02,drop=0.01"`` → FaultRates. Raises ValueError naming the bad item."""
+    """``"garbage=0.02,drop=0.01"`` → FaultRates. Raises SimulatorError naming the bad item."""
     rates = {}
     for item in filter(None, (s.strip() for s in text.split(","))):
         name, sep, value = item.partition("=")
         if not sep or name not in FaultRates._fields or name == "outage_s":
-            raise ValueError(f"--faults: unknown item {item!r} (names: {', '.join(FaultRates._fields[:-1])})")
+            raise SimulatorError(f"--faults: unknown item {item!r} (names: {', '.join(FaultRates._fields[:-1])})")
         try:
             v = float(value)
         except ValueError:
-            raise ValueError(f"--faults: {name}={value!r} is not a number") from None
+            raise SimulatorError(f"--faults: {name}={value!r} is not a number") from None
         if not v >= 0 or (name not in ("lock_loss", "link_loss") and v > 1):
-            raise ValueError(f"--faults: {name}={v} out of range")
+            raise SimulatorError(f"--faults: {name}={v} out of range")
         rates[name] = v
     return FaultRates(**rates)
 
 
 def main(argv: Optional[List[str]] = None) -> int:
+    """Entry point of ``aruco-abs-orient-ms60-sim``: the exit status (2: a bad option or trajectory, one line)."""
+    return run("aruco-abs-orient-ms60-sim", lambda: _serve(argv))
+
+
+def _serve(argv: Optional[List[str]]) -> int:
     parser = argparse.ArgumentParser(prog="aruco-abs-orient-ms60-sim", description=__doc__.replace("``", ""),
                                      epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -68,18 +74,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     if args.pty == (args.tcp is not None):
         parser.error("choose exactly one of --pty and --tcp PORT")
-    try:
-        faults = parse_faults(args.faults)
-        config = SimConfig(baud=args.baud, latency_s=args.latency_ms / 1000.0, jitter_s=args.jitter_ms / 1000.0,
-                           clock_drift=args.drift_ppm * 1e-6, faults=faults, profile=args.profile, model=args.model,
-                           lock_in_s=args.lock_in_s,
-                           name="MS60" if args.model == "MS60" else "TCRP1201+")
-        track = tum_track(args.trajectory) if args.trajectory else builtin_track
-        sim = Ms60Simulator(config, track, seed=args.seed)
-        where = sim.serve_pty() if args.pty else f"socket://127.0.0.1:{sim.serve_tcp(args.tcp)}"
-    except (ValueError, SimulatorError) as e:
-        print(f"aruco-abs-orient-ms60-sim: {e}", file=sys.stderr)
-        return 2
+    faults = parse_faults(args.faults)
+    config = SimConfig(baud=args.baud, latency_s=args.latency_ms / 1000.0, jitter_s=args.jitter_ms / 1000.0,
+                       clock_drift=args.drift_ppm * 1e-6, faults=faults, profile=args.profile, model=args.model,
+                       lock_in_s=args.lock_in_s, name="MS60" if args.model == "MS60" else "TCRP1201+")
+    track = tum_track(args.trajectory) if args.trajectory else builtin_track
+    sim = Ms60Simulator(config, track, seed=args.seed)
+    where = sim.serve_pty() if args.pty else f"socket://127.0.0.1:{sim.serve_tcp(args.tcp)}"
     print(where, flush=True)
     print(f"{args.model} simulator ({args.profile}) at {args.baud} baud, "
           f"latency {args.latency_ms}±{args.jitter_ms} ms; Ctrl-C to stop", file=sys.stderr, flush=True)

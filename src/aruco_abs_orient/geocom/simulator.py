@@ -120,7 +120,7 @@ _MAX_REMEASURE = 20  # then send late rather than never (a host too loaded to ke
 _STALE_PERIODS = 3   # a tracking distance older than this many EDM periods is no distance
 
 
-class SimulatorError(InstrumentError, ValueError):
+class SimulatorError(InstrumentError):
     """Bad simulator settings (names the setting) or a trajectory that cannot be played."""
 
 

@@ -62,7 +62,7 @@ from typing import Callable, Deque, Dict, NamedTuple, Optional, Tuple
 import numpy as np
 
 from ..errors import InstrumentError
-from .accuracy import MS60_TRACKING, InstrumentAccuracy, polar_covariance
+from .accuracy import MS60_TRACKING, AccuracyError, InstrumentAccuracy, polar_covariance
 from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout, rpc_name
 from .clock import InstrumentClock
 from .protocol import (
@@ -98,7 +98,7 @@ _MAX_REPOLLS = 3       # polls in a row that may repeat the old distance before 
 _POLL_MARGIN_S = 0.003  # a poll reaches the instrument this long after the expected distance
 
 
-class TrackerError(InstrumentError, ValueError):
+class TrackerError(InstrumentError):
     """Bad tracker settings (names the setting)."""
 
 
@@ -168,7 +168,7 @@ class TrackerConfig(NamedTuple):
             raise TrackerError(f"prism_constant: {self.prism_constant_m} m is not within ±1 m")
         try:
             self.accuracy.validate()
-        except ValueError as e:
+        except AccuracyError as e:
             raise TrackerError(f"accuracy: {e}") from None
 
 
@@ -346,7 +346,7 @@ class Ms60Tracker:
             else:
                 self._close_client()
                 return time.time() + self.config.backoff_s
-        except (GeoComError, ValueError):  # malformed reply content: skip this slot
+        except (InstrumentError, ValueError):  # malformed reply content: skip this slot
             pass
         return max(now + period, time.time()) if self.state == TrackerState.LOCKED else time.time()
 

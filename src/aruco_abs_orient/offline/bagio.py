@@ -67,7 +67,7 @@ def bag_name(bags: Bags) -> str:
 
 
 
-class BagError(BagFileError, RuntimeError):
+class BagError(BagFileError):
     """A bag that cannot be used: names the file and the topic/frame."""
 
 
@@ -136,10 +136,11 @@ def _finite(*values) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
-def _transform_of(msg) -> np.ndarray:
+def _transform_of(msg) -> Optional[np.ndarray]:
+    """The 4×4 transform of a TransformStamped, None for NaN/inf or a zero quaternion."""
     t, q = msg.transform.translation, msg.transform.rotation
     if not _finite(t.x, t.y, t.z, q.x, q.y, q.z, q.w) or (q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) < 1e-12:
-        raise ValueError("NaN/inf or zero quaternion")
+        return None
     return make_T(quat_to_matrix([q.x, q.y, q.z, q.w]), [t.x, t.y, t.z])
 
 
@@ -194,9 +195,8 @@ def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
                 continue
             for tr in msg.transforms:
                 parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
-                try:
-                    T = _transform_of(tr)
-                except ValueError:
+                T = _transform_of(tr)
+                if T is None:
                     key = f"NaN/inf transform {parent}->{child}"
                     skipped[key] = skipped.get(key, 0) + 1
                     continue

@@ -1,68 +1,35 @@
-"""``aruco-abs-orient calibrate BAG``: boresight (and lever arm) of the camera from a recording.
+"""The camera's calibration from a recording: its marker observations and the solve (``calibrate``'s library).
 
-Reads the bag without ROS (``bagio``): odometry, lever arms and prism in a first pass, then the
-images streamed one by one, each searched whole for the map's markers (``tracking.MarkerTracker``
-without a prediction, so the nominal calibration cannot bias what is found). Every observation
-(time, id, camera-frame bearing, σ, image row) goes to :func:`aruco_abs_orient.calibration.calibrate` with the
-odometry trajectory and the prism track moved onto the camera clock (prism stamp + ``time_offset``).
-Before the solve, the map check (:mod:`aruco_abs_orient.mapcheck`): a marker map that does not fit the
-recording is refused, saying how it is off (``--force`` calibrates anyway). Writes the static-tf YAML read by
-``live.launch``/``postprocess.launch`` and a launch file beside it (``calibration.yaml`` →
-``calibration.launch``: the same static tfs, to roslaunch or ``<include>``; the directory is created).
+In: a recording (a bag, split bags, or a VideoRecording), read without ROS (``bagio``): odometry, lever arms and
+prism in a first pass, then the images streamed one by one, each searched whole for the map's markers
+(``tracking.MarkerTracker`` without a prediction, so the nominal calibration cannot bias what is found). Out:
+the observations (:func:`collect_observations`: time, id, camera-frame bearing, σ, image row), whether the map
+fits them (:func:`map_check`) and the :class:`~aruco_abs_orient.calibration.Calibration` of
+:func:`calibrate_bag`: the observations, the odometry and the prism track moved onto the camera clock (prism
+stamp + ``time_offset``) through :func:`aruco_abs_orient.calibration.calibrate`. Errors: BagError (an unusable
+recording), CalibrationError (the recording does not determine it: why).
 
-Units: seconds, metres, radians inside; degrees and millimetres in what is printed.
+Units: seconds, metres, radians.
 """
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
-import json
 import math
-import os
-import shlex
-import sys
 from typing import List, Optional
 
 import numpy as np
 
-from ..calibration import (
-    HEADING_MODELS,
-    Calibration,
-    CalibrationError,
-    CalibrationParams,
-    Recording,
-    Unknowns,
-    calibrate,
-    launch_snippet,
-    static_tf_yaml,
-)
+from ..calibration import Calibration, CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
 from ..camera import SINGLE_CENTRE, DualFisheye
 from ..detection import DetectionError, DetectorParams, decode_jpeg
 from ..errors import AbsOrientError
-from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, Sightings, check_map
+from ..mapcheck import UNDETERMINED, MapVerdict, Sightings, check_map
 from ..markers import MarkerMap
-from ..params import load_params
 from ..pipeline import row_fraction
 from ..tracking import MarkerTracker
-from ..tum import atomic_write_text
 from .bagio import BagData, BagTopics, bag_name, iter_images, read_bag_data
-from .cli import add_params_option, add_video_inputs, print_lines, process_command, video_recording
 
-__all__ = ["CalibrateResult", "collect_observations", "calibrate_bag", "add_parser", "run"]
-
-EXAMPLES = """examples:
-  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.367 --out calibration.yaml
-  aruco-abs-orient calibrate run.bag --markers markers.yaml --lever-arm --out calibration.yaml
-  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset --readout \\
-      --out calibration.yaml
-  aruco-abs-orient calibrate run.bag --markers markers.yaml --time-offset 0.37 --refine-time-offset \\
-      --out calibration.yaml
-  roslaunch aruco_abs_orient live.launch markers:=markers.yaml calibration:=calibration.yaml
-
-The recording must show markers while the platform DRIVES (straight stretches and gentle curves):
-the boresight yaw is separated from the map->odom yaw by the prism track's direction of travel.
-"""
+__all__ = ["CalibrateResult", "collect_observations", "map_check", "calibrate_bag"]
 
 
 class CalibrateResult:
@@ -190,181 +157,3 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
     return cal
-
-
-# ----------------------------------------------------------------------------- CLI
-
-
-def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Register the ``calibrate`` sub-command on an ``argparse`` sub-parsers object."""
-    p = subparsers.add_parser(
-        "calibrate", help="boresight (and lever arm) of the camera from a recording → static-tf YAML",
-        description="Estimate the camera's boresight rotation in base_link (and optionally its lever arm) "
-                    "by least squares over all marker observations of a recording; write the static-tf "
-                    "YAML that live.launch/postprocess.launch read, and a launch file beside it (calibration.yaml → "
-                    "calibration.launch: the same static tfs by static_transform_publisher, to roslaunch or "
-                    "<include>).",
-        epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several "
-                   "bags or a quoted glob ('run_*.bag') are one split recording")
-    p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
-    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
-                   help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
-    p.add_argument("--out", required=True, metavar="YAML",
-                   help="calibration YAML to write (atomically); the launch file goes beside it (.yaml → .launch)")
-    p.add_argument("--lever-arm", action="store_true", help="also estimate the camera lever arm (3 more unknowns)")
-    p.add_argument("--refine-time-offset", action="store_true",
-                   help="also estimate the time offset (1 more unknown), starting from --time-offset (from "
-                        "`timesync`, within ~0.2 s); prints the refined value to use with `process`")
-    p.add_argument("--readout", action="store_true",
-                   help="also estimate the camera's rolling-shutter readout time (1 more unknown; the image stamp "
-                        "is the middle row's capture time, row v of H at stamp + (v/H - 1/2)*readout); written "
-                        "to the calibration YAML (camera_readout_ms), which process and the node read. Needs "
-                        "turns with markers above and below the horizon")
-    p.add_argument("--readout-ms", type=float, default=0.0, metavar="MS",
-                   help="the camera's rolling-shutter readout as known (ms, first to last row; e.g. from a calibration "
-                        "run with --readout): used as it is, or with --readout as the start of its estimate; written "
-                        "to the calibration YAML (default 0: a global shutter)")
-    p.add_argument("--heading-model", choices=HEADING_MODELS, default=None,
-                   help="how the prism track's direction separates the boresight yaw from the map->odom yaw: "
-                        "against the VO's yaw (vo_yaw: the platform drives where base_link x points), against the "
-                        "VO's own direction of travel (vo_track: a platform that crabs), or auto: both fitted, the "
-                        "VO's yaw kept unless the two disagree beyond their σ (the platform crabs) or the direction "
-                        "of travel is the more precise; the choice and why are printed (default: the calibration "
-                        "section's heading_model, auto)")
-    p.add_argument("--no-lenses", dest="lenses", action="store_false",
-                   help="keep the camera's two lenses as the pipeline section gives them (lens_offset, "
-                        "stitch_distance) instead of estimating their offset and relative rotation (by default "
-                        "they are estimated, and written to the calibration YAML)")
-    p.add_argument("--every", type=int, default=1, metavar="N",
-                   help="search every N-th image only (default 1: all; 3 is plenty at 30 fps)")
-    p.add_argument("--force", action="store_true",
-                   help="calibrate even when the marker map does not fit the recording (the map check)")
-    p.add_argument("--json", action="store_true", help="print the estimate as one JSON line (for programs)")
-    p.add_argument("--plot", metavar="DIR", help="write DIR/calibration.png: the bearing residuals against azimuth and "
-                   "elevation before and after, per lens, with the fitted mounting (evaluate shows it in the report)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    d = BagTopics()
-    g = p.add_argument_group("topics and frames")
-    for name in ("image", "tf", "tf_static", "prism"):
-        g.add_argument(f"--{name.replace('_', '-')}-topic", default=getattr(d, name),
-                       help=f"(default {getattr(d, name)})")
-    for name in ("odom_frame", "base_frame", "camera_frame", "prism_frame"):
-        g.add_argument(f"--{name.replace('_', '-')}", default=getattr(d, name), help=f"(default {getattr(d, name)})")
-    add_params_option(p, "detection section (the marker search) and calibration section (the solve)")
-    add_video_inputs(p)
-    p.set_defaults(func=run)
-    return p
-
-
-def launch_path(out: str) -> str:
-    """The launch file written beside the calibration YAML ``out``: ``site/calibration.yaml`` →
-    ``site/calibration.launch``."""
-    root, ext = os.path.splitext(out)
-    return (root if ext in (".yaml", ".yml") else out) + ".launch"
-
-
-def _fail(msg: str, code: int = 2) -> int:
-    print(f"aruco-abs-orient calibrate: error: {msg}", file=sys.stderr)
-    return code
-
-
-def run(args: argparse.Namespace) -> int:
-    """The ``calibrate`` sub-command: 0 written, 1 the recording cannot determine it, 2 bad input."""
-    topics = BagTopics(args.image_topic, args.tf_topic, args.tf_static_topic, args.prism_topic, args.odom_frame,
-                       args.base_frame, args.camera_frame, args.prism_frame)
-    if args.every < 1:
-        return _fail(f"--every: expected an integer ≥ 1, got {args.every}")
-    if not (math.isfinite(args.readout_ms) and 0.0 <= args.readout_ms < 1000.0):
-        return _fail(f"--readout-ms: expected milliseconds in [0, 1000), got {args.readout_ms}")
-    if not math.isfinite(args.time_offset):
-        return _fail(f"--time-offset: expected a finite number of seconds, got {args.time_offset}")
-    out_dir = os.path.dirname(os.path.abspath(args.out))
-    try:
-        os.makedirs(out_dir, exist_ok=True)
-    except OSError as e:
-        return _fail(f"{args.out}: cannot create the directory {out_dir}: {e.strerror}")
-    if not os.access(out_dir, os.W_OK):
-        return _fail(f"{args.out}: the directory {out_dir} is not writable")
-    try:
-        if args.plot:
-            os.makedirs(args.plot, exist_ok=True)
-    except OSError as e:
-        return _fail(f"--plot {args.plot}: cannot create it: {e.strerror}")
-    try:
-        marker_map = MarkerMap.load(args.markers)
-        recording = video_recording(args, marker_map) or args.bag
-        data = read_bag_data(recording, topics)
-        tunables = load_params(args.params)
-        obs = collect_observations(recording, marker_map, topics, progress=not args.quiet, data=data,
-                                   every=args.every, detector_params=tunables.detection)
-    except AbsOrientError as e:
-        return _fail(str(e))
-    check = map_check(obs, marker_map, args.time_offset)
-    if check.status == DOES_NOT_FIT:
-        if not args.force:
-            return _fail(f"{check.message}; not calibrated ({args.markers} against {bag_name(recording)}: check the "
-                         "map, or --force to calibrate anyway)", 1)
-        print(f"aruco-abs-orient calibrate: warning: {check.message}", file=sys.stderr)
-    try:
-        params = tunables.calibration
-        if args.heading_model is not None:
-            params = dataclasses.replace(params, heading_model=args.heading_model)
-        cal = calibrate_bag(recording, marker_map, args.time_offset, topics, observations=obs, params=params,
-                            unknowns=Unknowns(args.lever_arm, args.refine_time_offset, args.readout, args.lenses),
-                            lenses=tunables.pipeline.lenses(), readout=1e-3 * args.readout_ms)
-    except CalibrationError as e:
-        return _fail(f"{bag_name(recording)}: cannot calibrate: {e}", 1)
-    text = static_tf_yaml(cal, data.base_T_camera, data.base_T_prism)
-    snippet = launch_snippet(cal, data.base_T_camera, data.base_T_prism, topics.base_frame, topics.camera_frame,
-                             topics.prism_frame)
-    launch = launch_path(args.out)
-    atomic_write_text(args.out, text)
-    atomic_write_text(launch, f"<launch>\n{snippet}</launch>\n")
-    if args.plot:
-        from ..plots import plot_calibration
-
-        plot = plot_calibration(os.path.join(args.plot, "calibration.png"), cal, obs.bearings, data.base_T_camera)
-        print(f"wrote {plot}")
-    report = cal.report_dict()
-    offset = args.time_offset + (cal.time_offset_delta if cal.time_offset_estimated else 0.0)
-    if args.json:
-        print(json.dumps({**report, "map_check": check.status}, default=float))
-    else:
-        print_lines(_report_lines(cal, report, args.time_offset, check))
-    print(f"wrote {args.out}\n      {launch}  (the static tfs: roslaunch it, or "
-          f"<include file=\"{os.path.abspath(launch)}\"/>)")
-    print(f"use: {process_command(recording, shlex.quote(args.markers), offset, args.out)}   (next step)")
-    return 0
-
-
-def _report_lines(cal: Calibration, report: dict, given_offset: float, check: MapVerdict) -> List[tuple]:
-    """The calibration for people: (label, value with units) rows."""
-    rpy, sig = report["boresight_rpy_deg"], report["boresight_sigma_deg"]
-    rows = [("boresight roll, pitch, yaw", ", ".join(f"{v:+.3f}° ± {s:.3f}°" for v, s in zip(rpy, sig))),
-            ("bearing residual RMS", f"{report['residual_rms_before_deg']:.3f}° before, "
-                                     f"{report['residual_rms_after_deg']:.3f}° after"),
-            ("observations", f"{report['observations_used']} of {report['observations']} used, "
-                             f"{report['markers']} markers, {report['moving_time_s']:.1f} s driving")]
-    if cal.time_offset_estimated:
-        rows.append(("time offset", f"{1e3 * (given_offset + cal.time_offset_delta):+.1f} ms ± "
-                                    f"{1e3 * cal.time_offset_sigma:.1f} ms (refined with the marker bearings; given "
-                                    f"{1e3 * given_offset:+.1f} ms)"))
-    if cal.readout_estimated:
-        rows.append(("rolling-shutter readout", f"{1e3 * cal.readout:.1f} ms ± {1e3 * cal.readout_sigma:.1f} ms"))
-    if cal.lever_arm_estimated:
-        rows.append(("camera lever arm change", ", ".join(f"{v:+.1f} ± {s:.1f}" for v, s in zip(
-            report["lever_arm_delta_mm"], report["lever_arm_sigma_mm"])) + " mm (x, y, z)"))
-    if cal.lenses_estimated:
-        rows.append(("lens offset", f"{report['lens_offset_mm']:+.2f} mm ± {report['lens_offset_sigma_mm']:.2f} mm "
-                                    "(each lens's centre from the camera's, along its axis)"))
-        rows.append(("back lens rotation", ", ".join(f"{v:+.3f}° ± {s:.3f}°" for v, s in zip(
-            report["lens_rotation_deg"], report["lens_rotation_sigma_deg"])) + " (against the front lens)"))
-    rows.append(("each lens's yaw σ", ", ".join(f"{s:.3f}°" for s in report["lens_yaw_sigma_deg"])
-                 + f" (front, back; {', '.join(str(n) for n in report['lens_observations'])} observations)"))
-    rows.append(("odometry tilt at the start", ", ".join(f"{v:+.3f}° ± {s:.3f}°" for v, s in zip(
-        report["odom_tilt_deg"], report["odom_tilt_sigma_deg"])) + " (about map x, y)"))
-    rows.append(("platform model", cal.heading_model_reason))
-    rows.append(("marker map", check.message))
-    rows += [("note", warning) for warning in cal.warnings]
-    return rows

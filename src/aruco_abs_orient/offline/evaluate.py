@@ -35,7 +35,7 @@ __all__ = ["EvaluateError", "read_observations", "read_summary", "parse_after", 
            "topic_stamps", "fused_errors", "no_update_spans", "overview_figure"]
 
 
-class EvaluateError(InputFileError, ValueError):
+class EvaluateError(InputFileError):
     """Inputs that cannot be evaluated: names the file and what is missing."""
 
 

@@ -31,7 +31,7 @@ _COLUMNS = {"t": ("t", "time", "stamp", "timestamp"), "x": ("x", "e", "east", "e
             "y": ("y", "n", "north", "northing"), "z": ("z", "h", "height", "up")}
 
 
-class PrismLogError(InputFileError, ValueError):
+class PrismLogError(InputFileError):
     """A prism log that cannot be used: names the file, the line, what was expected."""
 
 

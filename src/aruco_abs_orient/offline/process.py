@@ -62,7 +62,7 @@ from .bagio import (
     read_bag_data,
     salvage_bag,
 )
-from .cli import calibrate_command
+from .commandlines import calibrate_command
 
 __all__ = ["ProcessResult", "RunSetup", "process_bag", "OBSERVATION_COLUMNS"]
 

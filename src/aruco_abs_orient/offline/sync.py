@@ -32,6 +32,7 @@ from ..params import Tunables, parse_params
 from ..transforms import yaw_of
 from ..tum import atomic_write_text
 from .bagio import BagData, BagTopics, bag_name, read_bag_data
+from .calibrate import calibrate_bag, collect_observations
 
 __all__ = ["estimate_bag_offset", "marker_offset_estimate", "marker_offset_cost", "plot_offset_file"]
 
@@ -63,8 +64,6 @@ def marker_offset_cost(bag: str, marker_map: MarkerMap, observations, cal: Calib
     params = CalibrationParams(max_boresight_sigma_deg=1.0, heading_model=cal.heading_model)
     offsets, rms = [], []
     for tau in np.unique(np.append(np.linspace(lo, hi, n), offset)):
-        from .calibrate import calibrate_bag
-
         try:
             res = calibrate_bag(bag, marker_map, float(tau), topics, observations=observations, params=params)
         except CalibrationError:
@@ -167,8 +166,6 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
     except timesync.TimeSyncError as e:
         out["timesync_baseline"] = {"not_available": str(e)}
     if marker_map is not None:
-        from .calibrate import calibrate_bag, collect_observations
-
         obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data, every=every,
                                    label="timesync: detect")
         try:

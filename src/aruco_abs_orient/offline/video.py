@@ -49,7 +49,7 @@ VIDEO_EXTENSIONS = (".mp4", ".mov", ".mkv", ".avi", ".m4v")
 GAP_FACTOR = 1.5        # a frame interval longer than this × the median is a dropped frame (or more)
 
 
-class VideoError(InputFileError, RuntimeError):
+class VideoError(InputFileError):
     """A video recording that cannot be used: names the file, the frame or line, what was expected."""
 
 

@@ -24,7 +24,7 @@ import tempfile
 import time
 from typing import List, NamedTuple, Optional, Tuple
 
-from ..errors import AbsOrientError
+from ..errors import AbsOrientError, ConfigurationError
 from .bagio import BagTopics
 from .video import VideoRecording, video_frames
 
@@ -55,7 +55,7 @@ def video_to_bag(recording: VideoRecording, out: str, time_offset: float = 0.0, 
     from ..synthetic.bag import TOPICS, Messages, make_typestore
 
     if not 1 <= quality <= 100:
-        raise ValueError(f"quality: expected 1-100, got {quality}")
+        raise ConfigurationError(f"quality: expected 1-100, got {quality}")
     topics = topics or BagTopics()
     t_start = time.monotonic()
     data = recording.read_data(topics)

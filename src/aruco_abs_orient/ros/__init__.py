@@ -3,7 +3,24 @@
 from __future__ import annotations
 
 import sys
-from typing import List, Optional
+from typing import Callable, List, Optional
+
+from ..errors import run
+
+
+def run_node(node: str, main: Callable[[], Optional[int]],
+             report: Optional[Callable[[str, int], int]] = None) -> int:
+    """:func:`aruco_abs_orient.errors.run` for a node: an error of the package (a bad parameter or file) is one
+    FATAL line ``<node>: <message>`` in the node's log (``report(message, status)`` instead, when given) and the
+    exit status 2 (1: the input gives no answer)."""
+
+    def fatal(message: str, status: int) -> int:
+        import rospy
+
+        rospy.logfatal(f"{node}: {message}")
+        return status
+
+    return run(node, main, report or fatal)
 
 
 def exit_without_master(node: str, launch: str, argv: Optional[List[str]] = None) -> None:

@@ -84,11 +84,11 @@ from typing import Deque, Dict, Optional, Tuple
 import numpy as np
 
 from ..calibration import CalibrationError, load_calibration
-from ..debugview import debug_frame, encode_debug_jpeg
+from ..debugview import DebugImageError, debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, frame_to_grey
-from ..errors import ConfigurationError
+from ..errors import AbsOrientError, ConfigurationError
 from ..mapcheck import DOES_NOT_FIT, FITS, MapCheckParams, MapVerdict, RollingMapCheck
-from ..markers import MarkerMap, MarkerMapError
+from ..markers import MarkerMap
 from ..nodestate import (
     IMAGE_JUMPED_BACK,
     IMAGE_NOT_AFTER,
@@ -101,13 +101,13 @@ from ..nodestate import (
     state_record,
     state_snapshot,
 )
-from ..north import NORTHS, NorthError, NorthReference
+from ..north import NORTHS, NorthReference
 from ..params import ParamsError, Tunables, load_params
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
 from ..selfcheck import ModelContext, RollingSelfCheck, SelfCheckParams, YawObservation
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
-from ..tum import Trajectory, atomic_write_text
+from ..tum import Trajectory, WriteError, atomic_write_text
 
 __all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
 
@@ -118,7 +118,7 @@ _LIVE_SELFCHECK = SelfCheckParams(model_observations=600)
 """Node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)."""
 
 
-class NodeConfigError(ConfigurationError, ValueError):
+class NodeConfigError(ConfigurationError):
     """A node parameter with a bad value: names the parameter."""
 
 
@@ -573,7 +573,7 @@ class AbsOrientNode:
             return
         try:
             self.pipeline.update_params(**changes)
-        except (PipelineError, ValueError, TypeError) as e:
+        except (AbsOrientError, ValueError, TypeError) as e:
             self._error("bad_params", f"parameters not applied: {e}")
 
     def _error(self, key: str, text: str) -> None:
@@ -716,7 +716,7 @@ class AbsOrientNode:
         self._state_saved_wall = now_wall
         try:
             atomic_write_text(self.state_file, json.dumps(state_record(snap, self._state_writer)) + "\n")
-        except OSError as e:
+        except WriteError as e:
             self._error("state_file", f"~state_file {self.state_file}: cannot write: {e}")
 
     @cached_property
@@ -953,7 +953,7 @@ class AbsOrientNode:
                             else None)
             frame = debug_frame(image, result.observations, self.marker_map, map_T_camera, int(c.debug_width))
             jpeg = encode_debug_jpeg(frame) if jpeg_wanted else b""
-        except ValueError as e:
+        except (DebugImageError, ValueError) as e:
             self._error("debug_image", f"~debug_image: {e}")
             return
         if jpeg_wanted:
@@ -1080,19 +1080,23 @@ def main(argv=None) -> int:
     parameters or marker map, each with one line; see :func:`configuration_error`)."""
     import rospy
 
-    from . import exit_without_master
+    from . import exit_without_master, run_node
 
     exit_without_master("abs_orient", "live.launch", argv)
     rospy.init_node("abs_orient", argv=argv)
-    try:
-        config = NodeConfig.from_params(rospy.get_param)
-        marker_map = MarkerMap.load(config.markers)
-        north = NorthReference.make(config.north, marker_map.grid, marker_map.origin, "~")
-    except (NodeConfigError, MarkerMapError, NorthError) as e:
-        return configuration_error(rospy, str(e), argv)
+    return run_node("abs_orient", lambda: _run(rospy),
+                    report=lambda message, _status: configuration_error(rospy, message, argv))
+
+
+def _run(rospy) -> int:
+    """Read the configuration and the marker map (an error of either: one line, see :func:`configuration_error`)
+    and process images until shutdown."""
+    config = NodeConfig.from_params(rospy.get_param)
+    marker_map = MarkerMap.load(config.markers)
+    north = NorthReference.make(config.north, marker_map.grid, marker_map.origin, "~")
     if config.markers_only and len(marker_map) < 3:
-        return configuration_error(rospy, f"{config.markers}: ~markers_only needs at least 3 markers in the map for "
-                                          f"a resection, it has {len(marker_map)}", argv)
+        raise NodeConfigError(f"{config.markers}: ~markers_only needs at least 3 markers in the map for a resection, "
+                              f"it has {len(marker_map)}")
     node = AbsOrientNode(config, north.turn_map(marker_map), north)
     rospy.loginfo(f"abs_orient: headings referred to {north.describe()}")
     rospy.loginfo(f"abs_orient: {len(marker_map)} markers from {config.markers}; "

@@ -34,7 +34,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker as VizMarker
 from visualization_msgs.msg import MarkerArray
 
-from ..errors import InputFileError
+from ..errors import ConfigurationError, InputFileError
 from ..markers import MarkerMap
 from ..msg import MarkerObservation, MarkerObservations
 from ..transforms import make_T, matrix_to_quat, matrix_to_rpy, quat_to_matrix, rpy_to_matrix
@@ -68,7 +68,7 @@ UNOBSERVED_VARIANCE = 1.0e6
 """Variance (m² or rad²) written for the parts of a pose a message does not measure."""
 
 
-class ConversionError(InputFileError, ValueError):
+class ConversionError(InputFileError):
     """A message that cannot be turned into numbers: the text names the message field."""
 
 
@@ -378,7 +378,7 @@ def fill_diagnostic(status: DiagnosticStatus, level: str, message: str,
     ``DiagnosticStatusWrapper``, which a task fills and returns); ``level`` is 'ok', 'warn', 'error' or
     'stale'; values are formatted (floats with 4 significant digits) in the mapping's order. Returns it."""
     if level not in _LEVELS:
-        raise ValueError(f"diagnostic level {level!r}: expected one of {sorted(_LEVELS)}")
+        raise ConfigurationError(f"diagnostic level {level!r}: expected one of {sorted(_LEVELS)}")
     status.level, status.message = _LEVELS[level], message
     status.values = [KeyValue(str(k), _fmt(v)) for k, v in values.items()]
     return status

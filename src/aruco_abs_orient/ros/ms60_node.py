@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from typing import Any, Dict, Optional, Tuple
 
 import diagnostic_updater
@@ -61,10 +60,11 @@ import rospy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 
-from ..geocom.accuracy import MS60_TRACKING, InstrumentAccuracy
+from ..errors import ConfigurationError
+from ..geocom.accuracy import MS60_TRACKING, AccuracyError, InstrumentAccuracy
 from ..geocom.client import default_byte_timing
 from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
-from . import exit_without_master
+from . import exit_without_master, run_node
 
 __all__ = ["config_from_params", "output_from_params", "prediction_from_params", "extrapolate", "prism_with_covariance",
            "log_line", "stats_to_json", "status_values", "main"]
@@ -150,7 +150,7 @@ def _accuracy(params) -> InstrumentAccuracy:
     accuracy = MS60_TRACKING._replace(**{k: _number(params, k, prefix="accuracy/") for k in params})
     try:
         return accuracy.validate()
-    except ValueError as e:
+    except AccuracyError as e:
         raise TrackerError(f"~accuracy/{e}") from None
 
 
@@ -257,7 +257,7 @@ def status_values(status) -> dict:
     return out
 
 
-SIM_TIME_MESSAGE = ("ms60_driver: /use_sim_time is true on this master (a bag replay such as postprocess.launch "
+SIM_TIME_MESSAGE = ("/use_sim_time is true on this master (a bag replay such as postprocess.launch "
                     "left it set); a live instrument is stamped with wall-clock time: run "
                     "`rosparam set /use_sim_time false` and start the driver again")
 
@@ -289,27 +289,27 @@ def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
     return predict
 
 
-def main() -> None:
+def main() -> int:
+    """Node entry point: track until shutdown; 2 (one line) for bad parameters, sim time or a log it cannot write."""
     exit_without_master("ms60_driver", "ms60.launch")
     rospy.init_node("ms60_driver")
+    return run_node("ms60_driver", _drive)
+
+
+def _drive() -> None:
     if rospy.get_param("/use_sim_time", False):
-        rospy.logfatal(SIM_TIME_MESSAGE)
-        sys.exit(2)
-    try:
-        config, frame_id = config_from_params(rospy.get_param("~", {}))
-        origin, log_path = output_from_params(rospy.get_param("~", {}))
-        predict, prism_frame, max_age = prediction_from_params(rospy.get_param("~", {}))
-        log = None
-        if log_path:
+        raise ConfigurationError(SIM_TIME_MESSAGE)
+    config, frame_id = config_from_params(rospy.get_param("~", {}))
+    origin, log_path = output_from_params(rospy.get_param("~", {}))
+    predict, prism_frame, max_age = prediction_from_params(rospy.get_param("~", {}))
+    log = None
+    if log_path:
+        try:
             log = open(log_path, "a", buffering=1)  # noqa: SIM115 (open while the node spins, closed after)
             if log.tell() == 0:
                 log.write(LOG_HEADER)
-    except TrackerError as e:
-        rospy.logfatal(f"ms60_driver: {e}")
-        sys.exit(2)
-    except OSError as e:
-        rospy.logfatal(f"ms60_driver: ~log: cannot write {log_path}: {e.strerror}")
-        sys.exit(2)
+        except OSError as e:
+            raise ConfigurationError(f"~log: cannot write {log_path}: {e.strerror}") from None
     prism_pub = rospy.Publisher("ms60/prism", PointStamped, queue_size=50)
     cov_pub = rospy.Publisher("ms60/prism_with_covariance", PoseWithCovarianceStamped, queue_size=50)
     status_pub = rospy.Publisher("ms60/status", DiagnosticStatus, queue_size=5, latch=True)

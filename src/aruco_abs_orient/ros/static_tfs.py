@@ -17,11 +17,16 @@ from __future__ import annotations
 import sys
 
 from ..calibration import CalibrationError, load_calibration
+from . import run_node
 
 __all__ = ["main"]
 
 def main(argv=None) -> int:
-    """Node entry point: publish the two static transforms (latched) and spin."""
+    """Node entry point: publish the two static transforms (latched) and spin; 2 (one line) for a bad file."""
+    return run_node("static_tfs", lambda: _publish(argv))
+
+
+def _publish(argv) -> int:
     import rospy
     import tf2_ros
 
@@ -35,13 +40,9 @@ def main(argv=None) -> int:
     frames = {"camera": rospy.get_param("~camera_frame", "camera"),
               "prism": rospy.get_param("~prism_frame", "prism")}
     base = rospy.get_param("~base_frame", "base_link")
-    try:
-        if not path:
-            raise CalibrationError("~calibration: no calibration file given (param ~calibration)")
-        calibration = load_calibration(path)
-    except CalibrationError as e:
-        rospy.logfatal(f"static_tfs: {e}")
-        return 2
+    if not path:
+        raise CalibrationError("~calibration: no calibration file given (param ~calibration)")
+    calibration = load_calibration(path)
     stamp = rospy.Time.now()
     msgs = [matrix_to_transform_stamped(calibration[child], stamp, base, frames[child])
             for child in ("camera", "prism")]

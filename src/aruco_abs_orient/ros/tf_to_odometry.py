@@ -19,6 +19,8 @@ import sys
 
 import numpy as np
 
+from ..errors import ConfigurationError
+
 __all__ = ["odometry_from_transform", "main"]
 
 
@@ -41,6 +43,13 @@ def odometry_from_transform(transform_stamped, position_sigma: float, attitude_s
 
 
 def main(argv=None) -> int:
+    """Node entry point: relay the transform until shutdown; 2 (one line) for bad parameters."""
+    from . import run_node
+
+    return run_node("tf_to_odometry", lambda: _relay(argv))
+
+
+def _relay(argv) -> int:
     import rospy
     from nav_msgs.msg import Odometry
     from tf2_msgs.msg import TFMessage
@@ -56,9 +65,8 @@ def main(argv=None) -> int:
     position_sigma = float(rospy.get_param("~position_sigma", 0.005))
     attitude_sigma = float(rospy.get_param("~attitude_sigma", 0.002))
     if not (position_sigma > 0 and attitude_sigma > 0):
-        rospy.logfatal("tf_to_odometry: ~position_sigma and ~attitude_sigma must be positive "
-                       f"(got {position_sigma}, {attitude_sigma})")
-        return 2
+        raise ConfigurationError("~position_sigma and ~attitude_sigma must be positive "
+                                 f"(got {position_sigma}, {attitude_sigma})")
     pub = rospy.Publisher("odometry/vo", Odometry, queue_size=50)
     dropped = [0]
 

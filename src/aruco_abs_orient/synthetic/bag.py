@@ -50,7 +50,7 @@ TOPICS = {
 IMU_TOPIC = "/imu/data"
 
 
-class GenerateError(InputFileError, RuntimeError):
+class GenerateError(InputFileError):
     """The scenario could not be written (output directory, existing files)."""
 
 

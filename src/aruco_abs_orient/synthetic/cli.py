@@ -7,8 +7,9 @@ import dataclasses
 import sys
 from typing import List, Optional
 
-from .bag import GenerateError, describe, generate
-from .scenario import PRESETS, ScenarioError
+from ..errors import run
+from .bag import describe, generate
+from .scenario import PRESETS
 
 EXAMPLE = """\
 outputs (in --out): scenario.bag (/camera/image/compressed, /tf, /tf_static, /ms60/prism),
@@ -84,21 +85,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Entry point of ``aruco-abs-orient-synth``: the exit status (2: a bad option or output, one line; 130:
+    interrupted, no bag written)."""
+    args = build_parser().parse_args(argv)
+    return run("aruco-abs-orient-synth", lambda: _generate(args))
+
+
+def _generate(args: argparse.Namespace) -> int:
     overrides = {name: value for name, value in (
         ("seed", args.seed), ("duration", args.duration), ("fps", args.fps), ("width", args.width),
         ("camera_time_offset", args.time_offset), ("boresight_deg", args.boresight_deg),
         ("rolling_shutter_readout", args.readout), ("jpeg_quality", args.jpeg_quality)) if value is not None}
-    try:
-        config = dataclasses.replace(PRESETS[args.preset], **overrides).validate()
-        result = generate(config, args.out, progress=not args.quiet, force=args.force, workers=args.workers)
-    except (ScenarioError, GenerateError) as e:
-        print(f"{parser.prog}: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{parser.prog}: interrupted (no bag written)", file=sys.stderr)
-        return 130
+    config = dataclasses.replace(PRESETS[args.preset], **overrides).validate()
+    result = generate(config, args.out, progress=not args.quiet, force=args.force, workers=args.workers)
     print(describe(result, config))
     return 0
 

@@ -27,12 +27,13 @@ from typing import List, NamedTuple, Optional, Sequence
 import numpy as np
 
 from ..detection import decode_jpeg
+from ..errors import ConfigurationError, run
 from ..markers import MarkerMap
 from ..offline.bagio import iter_images, read_bag_data
 from ..offline.video import ROS_FROM_OPTICAL, TRAJECTORY_FRAMES, set_mp4_creation_time
 from ..survey import format_gsi
 from ..transforms import make_T, matrix_to_rpy
-from ..tum import Trajectory, atomic_write_text, read_tum, write_tum
+from ..tum import Trajectory, WriteError, atomic_write_text, read_tum, write_tum
 
 __all__ = ["ExportedVideo", "export_video", "lever_arms_yaml"]
 
@@ -73,7 +74,7 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
     import cv2
 
     if frame not in TRAJECTORY_FRAMES:
-        raise ValueError(f"frame: expected one of {', '.join(TRAJECTORY_FRAMES)}, got {frame!r}")
+        raise ConfigurationError(f"frame: expected one of {', '.join(TRAJECTORY_FRAMES)}, got {frame!r}")
     out_dir = out_dir or os.path.join(scenario_dir, "video")
     os.makedirs(out_dir, exist_ok=True)
     bag = os.path.join(scenario_dir, "scenario.bag")
@@ -90,7 +91,7 @@ def export_video(scenario_dir: str, out_dir: Optional[str] = None, frame: str = 
                 fourcc = cv2.VideoWriter_fourcc(*CODECS[codec][1])
                 writer = cv2.VideoWriter(video, fourcc, fps, (grey.shape[1], grey.shape[0]), False)
                 if not writer.isOpened():
-                    raise RuntimeError(f"{video}: OpenCV cannot write {codec} video here")
+                    raise WriteError(f"{video}: OpenCV cannot write {codec} video here")
             writer.write(grey)
             stamps.append(stamp)
     finally:
@@ -143,6 +144,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--codec", choices=sorted(CODECS), default="mp4v",
                    help="mp4v (video.mp4) or ffv1 (lossless, video.avi)")
     a = p.parse_args(argv)
+    return run(p.prog, lambda: _export(a))
+
+
+def _export(a: argparse.Namespace) -> int:
     r = export_video(a.scenario, a.out, a.frame, a.origin, a.prism_format, a.codec)
     print(f"wrote {r.out_dir}/: {os.path.basename(r.video)} ({r.frames} frames), {os.path.basename(r.trajectory)}, "
           f"{os.path.basename(r.prism)}, lever_arms.yaml, markers.yaml, truth.tum "

@@ -44,7 +44,7 @@ __all__ = [
 QUIET_ZONE_BITS = 1
 
 
-class RenderError(ConfigurationError, ValueError):
+class RenderError(ConfigurationError):
     """Invalid rendering input: image width, profile name, marker geometry, dictionary, id."""
 
 

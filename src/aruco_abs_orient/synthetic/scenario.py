@@ -62,7 +62,7 @@ _DT = 0.002  # s, integration grid of the motion and of the VO
 _TAIL = 5.0  # s of motion computed beyond the duration (late stamps, offsets)
 
 
-class ScenarioError(ConfigurationError, ValueError):
+class ScenarioError(ConfigurationError):
     """An invalid scenario parameter or hidden-parameters file (the message names the field)."""
 
 

@@ -18,7 +18,7 @@ from ..errors import GeometryError
 __all__ = ["TimeSyncError", "OffsetEstimate"]
 
 
-class TimeSyncError(GeometryError, ValueError):
+class TimeSyncError(GeometryError):
     """The time offset cannot be estimated from these data; the message says why."""
 
 

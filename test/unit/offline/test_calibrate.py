@@ -14,14 +14,9 @@ from aruco_abs_orient.markers import MarkerMap
 
 
 def _cli(argv):
-    import argparse
+    from aruco_abs_orient.offline.cli import main
 
-    from aruco_abs_orient.offline.calibrate import add_parser
-
-    parser = argparse.ArgumentParser(prog="aruco-abs-orient")
-    add_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["calibrate"] + [str(a) for a in argv])
-    return args.func(args)
+    return main(["calibrate"] + [str(a) for a in argv])
 
 
 def _scenario(out, **changes):

@@ -19,6 +19,7 @@ from std_msgs.msg import Header
 
 from aruco_abs_orient.camera import Equirect, azel_to_bearing
 from aruco_abs_orient.detection import MarkerObservation
+from aruco_abs_orient.errors import ConfigurationError
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.msg import MarkerObservations
 from aruco_abs_orient.pipeline import FrameResult, ObservationResult
@@ -243,7 +244,7 @@ def test_diagnostic_status_levels_and_values():
     assert s is wrapper and s.level == s.WARN and s.message == "no prism for 31 s" and s.name == "pipeline"
     assert [(kv.key, kv.value) for kv in s.values] == [("markers seen", "2"), ("prism age [s]", "31.04"),
                                                         ("offset", "nan")]
-    with pytest.raises(ValueError, match="diagnostic level 'bad'"):
+    with pytest.raises(ConfigurationError, match="diagnostic level 'bad'"):
         cv.fill_diagnostic(wrapper, "bad", "", {})
 
 
