@@ -2,7 +2,8 @@
 
 Sub-commands: ``process`` (bag → trajectory, observations, summary), ``timesync`` (camera ↔
 total-station time offset), ``evaluate`` (a processed run vs a reference: report and plots),
-``calibrate`` (boresight and lever arm of the camera → static-tf YAML).
+``calibrate`` (boresight and lever arm of the camera → static-tf YAML), ``map`` (the marker map from the
+recording itself → markers YAML).
 Bad input gives one line naming the file/topic/field and exit code 2; exit 1 when nothing useful
 could be produced.
 """
@@ -214,8 +215,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "listed, the fused output's settling time)")
 
     from .calibrate import add_parser as add_calibrate
+    from .map import add_parser as add_map
 
     add_calibrate(sub)
+    add_map(sub)
 
     p = sub.add_parser("params", help="write the documented defaults of every tunable (cfg/params.yaml)",
                        description="Every tunable (pipeline, detection, tracking, filter, timesync, evaluation) "
@@ -435,7 +438,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     try:
         if getattr(a, "bag", None):
             a.bag = expand_bags(a.bag)
-        if a.command == "calibrate":
+        if a.command in ("calibrate", "map"):
             return a.func(a)
         return {"process": cmd_process, "timesync": cmd_timesync, "evaluate": cmd_evaluate,
                 "params": cmd_params, "markers": cmd_markers, "video-to-bag": cmd_video_to_bag}[a.command](a)
