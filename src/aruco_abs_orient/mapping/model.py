@@ -36,7 +36,9 @@ class MappingParams(Validated):
 
     - ``min_views``: a marker seen in fewer images is refused (not placed), with what to drive.
     - ``min_baseline``: a marker seen only from camera positions closer together than this (m) is refused.
-    - ``max_sigma``: a marker whose position 1-σ along its worst axis exceeds this (m) is refused.
+    - ``max_sigma``: a marker whose position 1-σ along its worst axis exceeds this (m) is refused; one beyond
+      ``loose_sigma`` (m) is placed (``process`` and the node weigh it by its σ: a far marker placed to a few cm
+      still holds the heading where it is the only one in view) with a warning saying what to drive.
     - ``max_normal_sigma_deg``: a face normal whose 1-σ exceeds this (degrees) is not written (the marker is;
       the tracker then looks for it from every side).
     - ``bias_deg``: the error all sightings of a marker (and of each of its corners) have in common, 1-σ per axis of
@@ -55,7 +57,8 @@ class MappingParams(Validated):
 
     min_views: int = 10
     min_baseline: float = 1.0
-    max_sigma: float = 0.01
+    max_sigma: float = 0.05
+    loose_sigma: float = 0.005
     max_normal_sigma_deg: float = 5.0
     bias_deg: float = 0.01
     test_alpha: float = 0.001

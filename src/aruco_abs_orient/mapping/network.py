@@ -396,7 +396,11 @@ def _result(rec: Recording, net: _Net, st: _Stats, corners, size: float, mparams
                 f"placed only to ± {1e3 * worst:.1f} mm (1-σ, worst axis; limit {1e3 * mparams.max_sigma:.0f} mm), "
                 f"seen in {m.views} images from {m.baseline:.1f} m of track at {m.ranges[0]:.1f}-{m.ranges[1]:.1f} m: "
                 + _DRIVE_ADVICE)
-        elif m.outliers > max(_FEW_OUTLIERS, 0.002 * (m.outliers + m.views)):
+        elif worst > mparams.loose_sigma:
+            warnings.append(f"marker {mid}: placed only to ± {1e3 * worst:.1f} mm (1-σ, worst axis), seen in {m.views} "
+                            f"images from {m.baseline:.1f} m of track at {m.ranges[0]:.1f}-{m.ranges[1]:.1f} m: "
+                            "process and the node weigh it by that; to place it better, " + _DRIVE_ADVICE)
+        if m.status == "mapped" and m.outliers > max(_FEW_OUTLIERS, 0.002 * (m.outliers + m.views)):
             warnings.append(f"marker {mid}: {m.outliers} of its sightings agree with no position (false ids or "
                             "reflections): left out of it")
         markers[mid] = m

@@ -82,7 +82,7 @@ def _row(m: MappedMarker) -> str:
         note = (f"control: {m.control[1]:.1f} σ from its survey, " + ("used" if m.control[2] else "NOT used")
                 + (f"; {note}" if note else ""))
     if m.outliers and m.status == "mapped":
-        note = f"{m.outliers} sightings beyond the gate left out" + (f"; {note}" if note else "")
+        note = f"{m.outliers} sighting{'s' * (m.outliers > 1)} beyond the gate left out" + (f"; {note}" if note else "")
     return (f"| {m.id} | {m.status} | {m.views} | {rng} | {m.baseline:.1f} | {sig} | {ell} | {normal} | "
             f"{m.redundancy:.0f} | {test} | {note} |")
 
@@ -134,7 +134,9 @@ def plot_plan(result: MappingResult, path: str, title: str = "") -> str:
     semi = [m.ellipsoid(3.0)[0][0] for m in mapped]
     points = np.concatenate([result.drive[:, :2]] + [m.position[None, :2] for m in mapped])
     span = float(np.ptp(points, axis=0).max()) if len(points) else 1.0
-    gain = max(1.0, 10 ** math.floor(math.log10(0.03 * span / max(max(semi, default=1e-3), 1e-6))))
+    want = 0.05 * span / max(max(semi, default=1e-3), 1e-6)           # the largest ellipse 5 % of the plan
+    decade = 10 ** math.floor(math.log10(max(want, 1.0)))
+    gain = max(step * decade for step in (1, 2, 5) if step * decade <= max(want, 1.0))
     t = np.linspace(0.0, 2.0 * math.pi, 60)
     for m in result.markers.values():
         if not np.all(np.isfinite(m.position)):

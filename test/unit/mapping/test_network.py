@@ -40,10 +40,13 @@ def test_markers_are_placed_within_their_sigma(preset, changes):
     err = errors(res, sc)
     assert len(err) >= 6, {m.id: m.reason for m in res.markers.values()}
     for mid, (e, z, baseline) in err.items():
-        assert z <= 3.0, (mid, e, z)
-        if baseline >= 3.0:
-            assert e <= 0.005, (mid, e, z, baseline)
         m = res.markers[mid]
+        worst = math.sqrt(np.linalg.eigvalsh(m.cov).max())
+        assert z <= 3.0, (mid, e, z)
+        if baseline >= 3.0 and worst <= 0.005:
+            assert e <= 0.005, (mid, e, z, baseline)
+        if worst > 0.005:       # placed loosely: said, with what to drive
+            assert any(w.startswith(f"marker {mid}: placed only to ±") for w in res.warnings), res.warnings
         tilt = math.acos(min(1.0, float(m.normal @ sc.marker_normals[mid])))
         assert tilt <= 3.0 * m.normal_sigma + math.radians(0.05), (mid, math.degrees(tilt),
                                                                    math.degrees(m.normal_sigma))
