@@ -36,7 +36,7 @@ from ..params import load_params
 from ..tum import atomic_write_text
 from .bagio import bag_name, read_bag_data
 from .calibrate import collect_observations
-from .cli import _add_topics, _topics, add_params_option, add_video_inputs, video_recording
+from .cli import BAGS_HELP, _add_topics, _topics, add_params_option, add_video_inputs, video_recording
 
 __all__ = ["add_parser", "run", "load_control", "report_paths"]
 
@@ -66,8 +66,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "against the others, a report and the plan. Markers seen too little are refused with what to "
                     "drive; markers that disagree (moved during the recording, two with one id) are left out.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several bags or "
-                   "a quoted glob ('run_*.bag') are one split recording")
+    p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
     p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
     p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
                    help="ArUco dictionary (default DICT_4X4_50)")
