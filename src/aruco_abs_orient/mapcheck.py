@@ -7,12 +7,13 @@ origin). Out: a :class:`MapVerdict`: ``fits``, ``does_not_fit`` or ``undetermine
 which markers, how far off and what it looks like, and its figures (JSON-able).
 
 How. (1) The map as it is: from the camera (prism + lever arm), every sighting must point at its marker's
-map position, up to the map→odom yaw (hat functions in time: the odometry drifts) and a time-offset error
+map position, up to the map→odom yaw (hat functions in time: the odometry drifts), a constant tilt of the
+odometry's frame (a VO without gravity keeps the starting roll and pitch) and a time-offset error
 (searched within ±``max_time_error``: a wrong ``--time-offset`` is the self-checks' finding, not the
 map's). (2) The markers are placed where they are seen: triangulated from their rays along the prism track,
-jointly with the map→odom yaw (robust Gauss-Newton from the best constant yaw of a grid), with the time offset
-in use or the one (1) fitted best at, whichever the rays agree better with. The map fits when the median angle
-of (1) is within ``fit_deg`` and most placed markers are within ``tolerance`` (+ 3 σ) of their map positions
+jointly with the map→odom yaw and odom's tilt (robust Gauss-Newton from the best constant yaw of a grid), with
+the time offset in use or the one (1) fitted best at, whichever the rays agree better with. The map fits when the median
+angle of (1) is within ``fit_deg`` and most placed markers are within ``tolerance`` (+ 3 σ) of their map positions
 (a 5° rotation can hide in the angles of (1) but not in the places); otherwise the simplest change of the map
 that puts its markers where they are seen is named: a shift, a rotation about z (about the map's origin) with a
 shift, or a scale as well. A shift of a kilometre or more is a wrong ``origin``, a scale of 1000 millimetres
@@ -59,6 +60,8 @@ class MapCheckParams:
       ``prism_max_gap``).
     - ``max_marker_distance``: m, map markers seen farther than this from the prism track (a 19 cm marker is a
       pixel there) mean a wrong origin or unit, even where no marker can be placed.
+    - ``max_odom_tilt_deg``: the odometry's frame may be tilted up to this (a VO without gravity keeps the
+      platform's starting roll and pitch): estimated with the map→odom yaw, a larger one is not applied.
     """
 
     fit_deg: float = 1.0
@@ -72,6 +75,7 @@ class MapCheckParams:
     max_sightings: int = 3000
     max_prism_gap: float = 0.5
     max_marker_distance: float = 200.0
+    max_odom_tilt_deg: float = 5.0
 
 
 class Sightings(NamedTuple):
@@ -159,6 +163,34 @@ def _rays(s: Sightings, base_T_camera, prism_in_base) -> _Rays:
     return _Rays(s.time, s.id, b, lever)
 
 
+def _tilt_R(w) -> np.ndarray:
+    """The rotation by the small angles ``w`` = (about x, about y) (rad): odom's tilt against the level."""
+    a, b = float(w[0]), float(w[1])
+    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+    return np.array([[cb, sa * sb, ca * sb], [0.0, ca, -sa], [-sb, sa * cb, ca * cb]])
+
+
+def _levelled(rays: _Rays, w) -> _Rays:
+    """``rays`` with odom's axes levelled by the tilt ``w`` (:func:`_tilt_R`)."""
+    R = _tilt_R(w)
+    return _Rays(rays.t, rays.id, rays.b @ R.T, rays.lever @ R.T)
+
+
+def _odom_tilt(rays: _Rays, P: np.ndarray, M: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """The small tilt (about x, about y; rad) of odom's axes that best turns each sighting (map→odom yaw
+    ``delta``) onto the direction from the camera to ``M``: least squares of the linearised misses, robust
+    (sightings more than 3 × the median miss off count less)."""
+    v = M - (P + _rotate_z(rays.lever, delta))
+    r = _rotate_z(v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), -delta) - rays.b
+    b = rays.b
+    # w × b for w = (wx, wy, 0): (wy bz, -wx bz, wx by - wy bx)
+    A = np.stack([np.stack([np.zeros(len(b)), -b[:, 2], b[:, 1]], axis=1),
+                  np.stack([b[:, 2], np.zeros(len(b)), -b[:, 0]], axis=1)], axis=2)
+    size = np.linalg.norm(r, axis=1)
+    w = np.sqrt(1.0 / np.maximum(1.0, size / (3.0 * max(float(np.median(size)), 1e-6))))
+    return np.linalg.lstsq((A * w[:, None, None]).reshape(-1, 2), (r * w[:, None]).ravel(), rcond=None)[0]
+
+
 def _prism_at(track, t: np.ndarray) -> np.ndarray:
     pt, pp = track
     return np.stack([np.interp(t, pt, pp[:, k]) for k in range(3)], axis=1)
@@ -201,7 +233,11 @@ def _as_is(rays: _Rays, track, M: np.ndarray, p: MapCheckParams) -> Tuple[float,
 
     def tried(eps: float) -> None:
         nonlocal best
-        _, off = _fit_yaw(rays, _prism_at(track, rays.t + eps), M, p.knot_spacing)
+        P = _prism_at(track, rays.t + eps)
+        delta, off = _fit_yaw(rays, P, M, p.knot_spacing)
+        tilt = _odom_tilt(rays, P, M, delta)
+        if np.max(np.abs(tilt)) <= math.radians(p.max_odom_tilt_deg):
+            off = np.minimum(off, _fit_yaw(_levelled(rays, tilt), P, M, p.knot_spacing)[1])
         med = float(np.median(off))
         if med < best[0] - 1e-9:
             best = (med, float(eps), off)
@@ -247,11 +283,12 @@ def _triangulate(rays: _Rays, P: np.ndarray, delta: np.ndarray, min_spread: floa
 
 def _misses(rays: _Rays, P: np.ndarray, hats: np.ndarray, where: np.ndarray, x: np.ndarray) -> np.ndarray:
     """(N, 3): each sighting's direction × the unit direction from the camera to its marker (sin of the angle
-    between them), for the map→odom yaw knots and marker positions in ``x`` (``where``: each sighting's
-    marker index)."""
+    between them), for the map→odom yaw knots, odom's tilt (two) and the marker positions in ``x`` (``where``:
+    each sighting's marker index)."""
     k = hats.shape[1]
     delta = hats @ x[:k]
-    v = x[k:].reshape(-1, 3)[where] - (P + _rotate_z(rays.lever, delta))
+    rays = _levelled(rays, x[k:k + 2])
+    v = x[k + 2:].reshape(-1, 3)[where] - (P + _rotate_z(rays.lever, delta))
     return np.cross(_rotate_z(rays.b, delta), v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9))
 
 
@@ -280,8 +317,8 @@ def _place(rays: _Rays, track, p: MapCheckParams) -> _Placed:
     where = np.searchsorted(ids, sub.id)
     hats = _hat_basis(sub.t, p.knot_spacing)
     k = hats.shape[1]
-    x = np.concatenate([np.full(k, start), np.concatenate([placed[i] for i in ids])])
-    steps = np.concatenate([np.full(k, 1e-6), np.full(3 * len(ids), 1e-5)])
+    x = np.concatenate([np.full(k, start), np.zeros(2), np.concatenate([placed[i] for i in ids])])
+    steps = np.concatenate([np.full(k + 2, 1e-6), np.full(3 * len(ids), 1e-5)])
     w = np.ones(len(P))
     cov = np.eye(len(x))
     for _ in range(8):
@@ -296,10 +333,13 @@ def _place(rays: _Rays, track, p: MapCheckParams) -> _Placed:
         x = x + dx
         N = J.T @ (J * (sw ** 2)[:, None])
         cov = np.linalg.pinv(N) * float(np.sum(w * size ** 2) / max(2 * len(P) - len(x), 1))
-        if np.max(np.abs(dx[k:])) < 1e-4 and np.max(np.abs(dx[:k])) < 1e-7:
+        if np.max(np.abs(x[k:k + 2])) > math.radians(p.max_odom_tilt_deg):
+            x[k:k + 2] = 0.0  # not a tilt the odometry can have: the positions without it
+        if np.max(np.abs(dx[k + 2:])) < 1e-4 and np.max(np.abs(dx[:k + 2])) < 1e-7:
             break
-    xyz = x[k:].reshape(-1, 3)
-    sigma = np.array([math.sqrt(max(float(np.trace(cov[k + 3 * j:k + 3 * j + 3, k + 3 * j:k + 3 * j + 3])), 0.0))
+    xyz = x[k + 2:].reshape(-1, 3)
+    j0 = k + 2
+    sigma = np.array([math.sqrt(max(float(np.trace(cov[j0 + 3 * j:j0 + 3 * j + 3, j0 + 3 * j:j0 + 3 * j + 3])), 0.0))
                       for j in range(len(ids))])
     misfit = float(np.median(np.arcsin(np.clip(np.linalg.norm(_misses(sub, P, hats, where, x), axis=1), 0, 1))))
     return _Placed(ids, xyz, sigma, np.bincount(where, minlength=len(ids)), misfit)

@@ -45,13 +45,15 @@ class MarkerMapError(InputFileError):
 class Marker(NamedTuple):
     """One surveyed marker: ``id``, centre ``position`` (3,) in metres (relative to the map's origin),
     black-square ``size`` in metres, survey 1-σ ``sigma`` in metres, ``normal`` (3,) unit vector out
-    of its face or None (not surveyed)."""
+    of its face or None (not surveyed), ``covariance`` (3, 3) m² of its position or None (a survey's
+    ``sigma`` in every direction)."""
 
     id: int
     position: np.ndarray
     size: float
     sigma: float
     normal: Optional[np.ndarray] = None
+    covariance: Optional[np.ndarray] = None
 
     def visible_from(self, point, margin: float = 0.0) -> bool:
         """False when ``point`` (map, relative to the origin) is more than ``margin`` m behind the plane
@@ -148,7 +150,8 @@ class MarkerMap:
                         or not all(_is_finite_number(x) for x in normal) or not 0.9 < np.linalg.norm(normal) < 1.1):
                     raise MarkerMapError(f"{source}: {where}.normal: expected a unit vector [x, y, z], got {normal!r}")
                 normal = np.array(normal, dtype=float) / np.linalg.norm(normal)
-            markers.append(Marker(mid, np.array(pos, dtype=float) - shift, size, sigma, normal))
+            cov = _covariance(item.get("covariance_mm2"), source, where + ".covariance_mm2")
+            markers.append(Marker(mid, np.array(pos, dtype=float) - shift, size, sigma, normal, cov))
         return cls(markers, str(data.get("dictionary", "DICT_4X4_50")), str(data.get("frame_id", "map")),
                    source, origin, grid)
 
@@ -173,6 +176,8 @@ class MarkerMap:
                     "sigma": m.sigma}
             if m.normal is not None:
                 item["normal"] = [round(float(x), 6) for x in m.normal]
+            if m.covariance is not None:
+                item["covariance_mm2"] = [round(1e6 * float(m.covariance[i, j]), 6) for i, j in _UPPER]
             out["markers"].append(item)
         return out
 
@@ -192,6 +197,24 @@ class MarkerMap:
     def positions(self, ids: Optional[List[int]] = None) -> np.ndarray:
         """Marker centres (N, 3) in metres for ``ids`` (default: all, sorted by id)."""
         return np.array([self.markers[i].position for i in (self.ids if ids is None else ids)]).reshape(-1, 3)
+
+
+#: the (row, column) of each of the six numbers of ``covariance_mm2``: xx, xy, xz, yy, yz, zz
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def _covariance(value, source: str, field: str) -> Optional[np.ndarray]:
+    """``covariance_mm2`` (six numbers, mm²) as a symmetric positive-definite 3×3 matrix in m², or None."""
+    if value is None:
+        return None
+    if not isinstance(value, (list, tuple)) or len(value) != 6 or not all(_is_finite_number(x) for x in value):
+        raise MarkerMapError(f"{source}: {field}: expected [xx, xy, xz, yy, yz, zz] in mm², got {value!r}")
+    cov = np.zeros((3, 3))
+    for (i, j), v in zip(_UPPER, value):
+        cov[i, j] = cov[j, i] = 1e-6 * float(v)
+    if not np.all(np.linalg.eigvalsh(cov) > 0):
+        raise MarkerMapError(f"{source}: {field}: not positive definite: expected a covariance, got {value!r}")
+    return cov
 
 
 def _is_finite_number(x) -> bool:

@@ -4,7 +4,8 @@ In: the params dataclasses of the modules they configure (:data:`SECTIONS`: the 
 :data:`aruco_abs_orient.pipeline.PARAM_GROUPS`, ``PipelineParams`` in pipeline.py, ``DetectorParams`` in
 detection/params.py, ``TrackingParams`` in tracking.py, ``FilterParams`` in correction.py, and the time-offset
 estimate's ``TimeSyncParams`` in timesync/coherence.py, the report's ``EvaluationParams`` in evaluation.py and
-``calibrate``'s ``CalibrationParams`` in calibration/model.py; their defaults are written there, once) and, to
+``calibrate``'s ``CalibrationParams`` in calibration/model.py and ``map``'s ``MappingParams`` in
+mapping/model.py; their defaults are written there, once) and, to
 read, a YAML file with any subset of them under the group's section::
 
     tracking:
@@ -35,6 +36,7 @@ from .correction import FilterParams
 from .detection import DetectorParams
 from .errors import AbsOrientError, ConfigurationError
 from .evaluation import EvaluationParams
+from .mapping import MappingParams
 from .pipeline import PARAM_GROUPS, PipelineParams
 from .timesync import TimeSyncParams
 from .tracking import TrackingParams
@@ -45,9 +47,10 @@ __all__ = ["SECTIONS", "ParamsError", "Tunables", "load_params", "parse_params",
 
 #: (section, params class) of every section of cfg/params.yaml, in its order: the pipeline's groups (what
 #: ``AbsOrientPipeline`` and dynamic_reconfigure take), then the time-offset estimate's (``timesync``, the
-#: node's ``~estimate_time_offset``), the report's (``evaluation``) and calibrate's (``calibration``)
+#: node's ``~estimate_time_offset``), the report's (``evaluation``), calibrate's (``calibration``) and map's
+#: (``mapping``)
 SECTIONS = PARAM_GROUPS + (("timesync", TimeSyncParams), ("evaluation", EvaluationParams),
-                           ("calibration", CalibrationParams))
+                           ("calibration", CalibrationParams), ("mapping", MappingParams))
 
 
 class ParamsError(ConfigurationError):
@@ -64,6 +67,7 @@ class Tunables(NamedTuple):
     timesync: TimeSyncParams
     evaluation: EvaluationParams
     calibration: CalibrationParams
+    mapping: MappingParams
 
     def pipeline_kwargs(self) -> dict:
         """Keyword arguments of :class:`~aruco_abs_orient.pipeline.AbsOrientPipeline`."""
@@ -72,8 +76,8 @@ class Tunables(NamedTuple):
 
     def flat(self) -> Dict[str, object]:
         """name → value of every tunable the node reads (names are unique across those sections:
-        dynamic_reconfigure's view); calibrate's own section is not among them."""
-        return {f.name: getattr(obj, f.name) for obj in self if not isinstance(obj, CalibrationParams)
+        dynamic_reconfigure's view); calibrate's and map's own sections are not among them."""
+        return {f.name: getattr(obj, f.name) for obj in self if not isinstance(obj, (CalibrationParams, MappingParams))
                 for f in fields(obj)}
 
 

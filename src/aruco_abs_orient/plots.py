@@ -29,9 +29,9 @@ from .camera import bearing_to_azel
 from .transforms import rpy_to_matrix
 from .tum import atomic_write_bytes
 
-__all__ = ["WIDTH", "HeadingCurve", "Span", "save_figure", "png_title", "plot_time_offset", "plot_marker_agreement",
-           "plot_heading_error", "plot_frame_position", "mounting_turn", "calibration_answer", "plot_calibration",
-           "plot_overview"]
+__all__ = ["WIDTH", "HeadingCurve", "Span", "figure", "save_figure", "png_title", "plot_time_offset",
+           "plot_marker_agreement", "plot_heading_error", "plot_frame_position", "mounting_turn", "calibration_answer",
+           "plot_calibration", "plot_overview"]
 
 WIDTH = 1000                    # px: the width every plot is drawn at (report.md shows it 1:1)
 _STYLE = {"font.size": 12, "axes.titlesize": 12, "axes.labelsize": 12, "xtick.labelsize": 11,
@@ -41,7 +41,7 @@ _BAD = "#c0392b"                # what is wrong: a run's offset off the best one
 _GOOD = "#1f77b4"
 
 
-def _figure(width_px: int, height_px: int, dpi: int = 100):
+def figure(width_px: int, height_px: int, dpi: int = 100):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -153,7 +153,7 @@ def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.nd
     pad = 0.05 * (hi - lo)
     lo, hi = lo - pad, hi + pad
     with _style():
-        fig = _figure(*size)
+        fig = figure(*size)
         rows = 2 if have_cost else 1
         axes = [fig.add_subplot(rows, 1, k + 1) for k in range(rows)]
         if have_cost:
@@ -229,7 +229,7 @@ def plot_marker_agreement(path: str, agreement, pairwise=None, size: Optional[Tu
     typical = math.degrees(agreement.typical_spread) if math.isfinite(agreement.typical_spread) else 0.05
     lim = max(6.0 * typical, 1.1 * float(finite.max()) if finite.size else 0.0, 0.05)
     with _style():
-        fig = _figure(*size)
+        fig = figure(*size)
         height = size[1]
         top = 1.0 - _title(fig, answer) - 34.0 / height            # the legend's row under the title
         bottom = 66.0 / height
@@ -365,7 +365,7 @@ def plot_heading_error(path: str, curves: Sequence[HeadingCurve], spans: Sequenc
     colours = [_GOOD, "#d35400", "#7f3c8d"]
     span_colours = ["#f1c40f", "#95a5a6", "#9b59b6", "#e67e22", "#16a085"]
     with _style():
-        fig = _figure(*size)
+        fig = figure(*size)
         ax = fig.add_subplot(1, 1, 1)
         reasons = list(dict.fromkeys(s.reason for s in spans))
         for s in spans:
@@ -426,7 +426,7 @@ def plot_frame_position(path: str, bias, size: Tuple[int, int] = (WIDTH, 520)) -
               else "yaw error by position in the frame: no bin has enough observations")
     lim = max(float(np.max(np.abs(finite))) if finite.size else 0.0, 0.05)
     with _style():
-        fig = _figure(*size)
+        fig = figure(*size)
         ax = fig.add_subplot(1, 1, 1)
         mesh = ax.pcolormesh(np.degrees(bias.az_edges), np.degrees(bias.el_edges), np.ma.masked_invalid(shown),
                              cmap="coolwarm", vmin=-lim, vmax=lim)
@@ -493,7 +493,7 @@ def plot_calibration(path: str, cal, bearings, base_R_camera=None, size: Tuple[i
     top = float(np.nanpercentile(before[used], 98)) if np.any(used) else 0.1
     top = max(top, float(np.max(model)) if model.size else 0.0) * 1.15 + 1e-3
     with _style():
-        fig = _figure(*size)
+        fig = figure(*size)
         axes = [[fig.add_subplot(2, 2, 2 * r + c + 1) for c in range(2)] for r in range(2)]
         for c, (x, edges, label) in enumerate(((az, np.arange(-180.0, 181.0, 20.0), "azimuth in the frame [deg]"),
                                                (el, np.linspace(np.min(el[used]) if np.any(used) else -30.0,
@@ -547,7 +547,7 @@ def plot_overview(path: str, grey: np.ndarray, found, expected, trajectory, mark
     shown = min(w, int(0.98 * size[0]))                # the axes' pixels: drawn 1:1, no aliasing
     small = cv2.resize(grey, (shown, shown * h // w), interpolation=cv2.INTER_AREA) if shown != w else grey
     with _style():
-        fig = _figure(*size)
+        fig = figure(*size)
         top = 1.0 - _title(fig, headline)
         frame_h = 0.98 * size[0] * h / w / size[1]
         ax = fig.add_axes([0.01, top - 0.035 - frame_h, 0.98, frame_h])

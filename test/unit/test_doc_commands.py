@@ -95,13 +95,13 @@ def _cli(words, box):
 def _inputs_and_outputs(args) -> tuple:
     """Files an aruco-abs-orient command reads and writes (paths as given)."""
     reads, writes = [], []
-    if args.command in ("process", "timesync", "calibrate"):
+    if args.command in ("process", "timesync", "calibrate", "map"):
         reads += args.bag                       # one or several bags (a split recording)
     if args.command == "evaluate":
         reads.append(args.run)
         reads += [p for p in (args.reference, args.fused) if p]
         reads += list(args.overview or [])
-    for name in ("markers", "calibration"):
+    for name in ("markers", "calibration", "control", "compare"):
         if getattr(args, name, None):
             reads.append(getattr(args, name))
     for name in ("out", "plot"):

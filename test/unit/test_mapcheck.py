@@ -73,8 +73,9 @@ def test_the_right_map_fits_whatever_the_world_and_a_wrong_time_offset(seed, pre
      r"2863\.6 km off: a wrong origin \(the map's, \(2600000, 1200000, 400\), and the MS60 driver's ~origin"),
     (lambda m, o: (dict(zip(m, (x.position for x in _scenario(seed=99).markers))), o), r"another site's map"),
 ], ids=["rotated 90", "rotated 5", "shifted 10 m", "mm for m", "wrong origin", "another site"])
-def test_a_wrong_map_is_refused_by_name(seed, change, expected):
-    scen = _scenario(seed=seed)
+@pytest.mark.parametrize("preset", ["ci", "ci-realistic"])  # level odometry; tilted 1.5° (its tilt is estimated)
+def test_a_wrong_map_is_refused_by_name(seed, change, expected, preset):
+    scen = _scenario(preset, seed=seed)
     wrong, origin = change({m.id: m.position.copy() for m in scen.markers}, None)
     v = _check(scen, wrong, origin=origin)
     assert v.status == DOES_NOT_FIT, v.message

@@ -53,6 +53,10 @@ def test_save_load_round_trip(tmp_path):
     ("dictionary: DICT_9X9_1\nsize: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0]}\n",
      "dictionary: unknown ArUco dictionary 'DICT_9X9_1'"),
     ("grid: CH1903\nsize: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0]}\n", "grid: unknown grid 'CH1903'"),
+    ("size: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0], covariance_mm2: [1, 0, 0, 1, 0]}\n",
+     r"markers\[0\]\.covariance_mm2: expected \[xx, xy, xz, yy, yz, zz\] in mm²"),
+    ("size: 0.2\nmarkers:\n  - {id: 1, position: [0, 0, 0], covariance_mm2: [1, 2, 0, 1, 0, 1]}\n",
+     r"markers\[0\]\.covariance_mm2: not positive definite"),
 ])
 def test_bad_maps_name_the_file_and_the_field(tmp_path, text, message):
     path = tmp_path / "bad.yaml"
@@ -60,6 +64,21 @@ def test_bad_maps_name_the_file_and_the_field(tmp_path, text, message):
     with pytest.raises(MarkerMapError, match=message) as e:
         MarkerMap.load(str(path))
     assert str(e.value).startswith(str(path))
+
+
+def test_a_mapped_maps_covariance_and_fields_for_the_surveyor(tmp_path):
+    """``aruco-abs-orient map``'s per-marker covariance is read (mm² → m²) and written back; its other fields are
+    accepted."""
+    path = tmp_path / "mapped.yaml"
+    path.write_text(GOOD.replace("{id: 3, position: [12.031, 4.210, 1.352]}",
+                                 "{id: 3, position: [12.031, 4.210, 1.352], sigma: 0.003, covariance_mm2: [9, 1, 0, 4, "
+                                 "0, 1], views: 120, ellipsoid_3sigma_mm: [9.1, 5.9, 3.0], redundancy: 231.5}"))
+    mm = MarkerMap.load(str(path))
+    np.testing.assert_allclose(mm[3].covariance, [[9e-6, 1e-6, 0], [1e-6, 4e-6, 0], [0, 0, 1e-6]])
+    assert mm[7].covariance is None
+    mm.save(str(tmp_path / "back.yaml"))
+    back = MarkerMap.load(str(tmp_path / "back.yaml"))
+    np.testing.assert_allclose(back[3].covariance, mm[3].covariance)
 
 
 def test_missing_file_is_named():

@@ -12,6 +12,7 @@ from aruco_abs_orient.calibration import CalibrationParams
 from aruco_abs_orient.correction import FilterParams
 from aruco_abs_orient.detection import DetectorParams
 from aruco_abs_orient.evaluation import EvaluationParams
+from aruco_abs_orient.mapping import MappingParams
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.offline.cli import main as cli_main
 from aruco_abs_orient.params import SECTIONS, ParamsError, defaults_yaml, describe, load_params, parse_params
@@ -31,7 +32,7 @@ def test_the_committed_file_is_what_the_generator_writes():
 def test_every_tunable_is_in_the_file_with_a_description_and_reads_back_as_its_default():
     t = load_params(str(COMMITTED))
     assert tuple(t) == (PipelineParams(), DetectorParams(), TrackingParams(), FilterParams(), TimeSyncParams(),
-                        EvaluationParams(), CalibrationParams())
+                        EvaluationParams(), CalibrationParams(), MappingParams())
     assert tuple(section for section, _ in SECTIONS) == t._fields and SECTIONS[:len(PARAM_GROUPS)] == PARAM_GROUPS
     text = COMMITTED.read_text(encoding="utf-8")
     for section, cls in SECTIONS:
@@ -40,7 +41,7 @@ def test_every_tunable_is_in_the_file_with_a_description_and_reads_back_as_its_d
             assert desc, f"{cls.__name__}.{name} has no description (a docstring bullet or an inline comment)"
             assert f"\n  {name}: " in text
     # unique names: dynamic_reconfigure's flat view (what the node reads: not calibrate's section, whose
-    # prism_sigma/prism_max_gap are the pipeline's defaults, set apart for the solve)
+    # prism_sigma/prism_max_gap are the pipeline's defaults, set apart for the solve, nor map's)
     assert len(t.flat()) == len(all_param_fields()) + len(fields(TimeSyncParams)) + len(fields(EvaluationParams))
 
 

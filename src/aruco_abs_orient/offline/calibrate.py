@@ -21,7 +21,7 @@ import numpy as np
 
 from ..calibration import Calibration, CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
 from ..camera import SINGLE_CENTRE, DualFisheye
-from ..detection import DetectionError, DetectorParams, decode_jpeg
+from ..detection import DetectionError, DetectorParams, MarkerDetector, decode_jpeg
 from ..errors import AbsOrientError
 from ..mapcheck import UNDETERMINED, MapVerdict, Sightings, check_map
 from ..markers import MarkerMap
@@ -35,7 +35,8 @@ __all__ = ["CalibrateResult", "collect_observations", "map_check", "calibrate_ba
 class CalibrateResult:
     """Observations of a bag as arrays (see :func:`collect_observations`)."""
 
-    def __init__(self, data: BagData, times, ids, bearings, sigmas, frames: int, skipped: dict, rows=None):
+    def __init__(self, data: BagData, times, ids, bearings, sigmas, frames: int, skipped: dict, rows=None,
+                 corners=None):
         self.data = data
         self.times = np.asarray(times, dtype=float).reshape(-1)          # s, camera clock
         self.ids = np.asarray(ids, dtype=int).reshape(-1)
@@ -43,27 +44,37 @@ class CalibrateResult:
         self.sigmas = np.asarray(sigmas, dtype=float).reshape(-1)        # rad
         # image row of each, v/H − ½ (pipeline.row_fraction): the rolling shutter's time within the frame
         self.rows = np.zeros(len(self.times)) if rows is None else np.asarray(rows, dtype=float).reshape(-1)
+        # corner bearings (N, 4, 3) of each, ArUco order (None: not kept)
+        self.corners = None if corners is None else np.asarray(corners, dtype=float).reshape(-1, 4, 3)
         self.frames = frames                                              # images searched
         self.skipped = skipped
 
 
-def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTopics] = None,
+def collect_observations(bag: str, marker_map: Optional[MarkerMap], topics: Optional[BagTopics] = None,
                          progress: bool = True, detector_params: Optional[DetectorParams] = None,
                          data: Optional[BagData] = None, every: int = 1,
-                         label: str = "calibrate: detect") -> CalibrateResult:
-    """Every marker observation of ``bag``: whole-frame detection of the map's markers in every
-    ``every``-th image (30 fps frames a few cm apart add little but detection time); ``label`` names the
-    progress bar (the command that runs it)."""
+                         label: str = "calibrate: detect", dictionary: str = "DICT_4X4_50") -> CalibrateResult:
+    """Every marker observation of ``bag`` (with its corners): whole-frame detection of the map's markers in every
+    ``every``-th image (30 fps frames a few cm apart add little but detection time), or of every marker of
+    ``dictionary`` when ``marker_map`` is None (a map made from the recording); ``label`` names the progress bar
+    (the command that runs it)."""
     if every < 1:
         raise CalibrationError(f"every: expected an integer ≥ 1, got {every}")
     topics = topics or BagTopics()
     data = data or read_bag_data(bag, topics)
-    tracker = MarkerTracker(marker_map, detector_params)
+    if marker_map is None:
+        find = MarkerDetector(dictionary, detector_params).detect
+    else:
+        tracker = MarkerTracker(marker_map, detector_params)
+
+        def find(grey):
+            return tracker.process(grey, None).observations
     times: List[float] = []
     ids: List[int] = []
     bearings: List[np.ndarray] = []
     sigmas: List[float] = []
     rows: List[float] = []
+    corners: List[np.ndarray] = []
     skipped: dict = {}
     frames = 0
     bar = None
@@ -83,7 +94,7 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
                 if payload is None or not math.isfinite(stamp):
                     raise DetectionError("undecodable image message")
                 grey = decode_jpeg(payload) if isinstance(payload, bytes) else payload
-                found = tracker.process(grey, None).observations
+                found = find(grey)
                 row = row_fraction(np.array([o.centre for o in found]).reshape(-1, 3), grey.shape[0])
             except DetectionError as e:
                 key = f"bad image: {str(e).split(':')[0]}"
@@ -95,10 +106,11 @@ def collect_observations(bag: str, marker_map: MarkerMap, topics: Optional[BagTo
                 bearings.append(o.centre)
                 sigmas.append(o.sigma)
                 rows.append(float(f))
+                corners.append(o.corners)
     finally:
         if bar is not None:
             bar.close()
-    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped, rows)
+    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped, rows, np.array(corners))
 
 
 def _until_broken(images, skipped: dict):

@@ -2,7 +2,7 @@
 
 In: the command line. Out: the sub-command's work and its exit status. The sub-commands are the modules of
 :mod:`aruco_abs_orient.offline.commands` (``process``, ``timesync``, ``evaluate``, ``calibrate``, ``params``,
-``markers``, ``video-to-bag``), each registering its own options; this module builds the parser from
+``markers``, ``map``, ``video-to-bag``), each registering its own options; this module builds the parser from
 :data:`~aruco_abs_orient.offline.commands.COMMANDS`, expands bag globs and dispatches once, inside the one error
 boundary (:func:`aruco_abs_orient.errors.run`): bad input gives one line naming the file/topic/field and exit
 status 2; 1 when nothing useful could be produced.

@@ -126,6 +126,7 @@ class ScenarioConfig:
     odom_levelled: bool = True  # False: odom is base_link's starting pose, roll and pitch too (a VO without gravity)
     survey_noise: float = 0.0  # m per axis: the written marker map's positions off the true ones
     clock_rate_error_ppm: float = 0.0  # camera clock rate (frame rate) error, parts per million
+    moved_marker: Tuple[float, float, float] = (0.0, 0.0, 0.0)  # m: the lowest id moved by this since its survey
 
     def validate(self) -> ScenarioConfig:
         """Check ranges; raises ScenarioError naming the field. Returns self."""
@@ -182,6 +183,7 @@ class ScenarioConfig:
         need(abs(self.crab_deg) <= 10, "crab_deg", "expected |degrees| <= 10")
         need(0 <= self.survey_noise <= 0.05, "survey_noise", "expected metres in [0, 0.05]")
         need(abs(self.clock_rate_error_ppm) <= 1000, "clock_rate_error_ppm", "expected |ppm| <= 1000")
+        need(all(abs(x) <= 1 for x in self.moved_marker), "moved_marker", "expected metres within ±1 per axis")
         return self
 
     #: s from the start to the spin in place (when spin_deg is not 0)
@@ -356,6 +358,9 @@ class Scenario:
         self.prism = self._prism_track(rng)
         # --- the interior around it all (walls, pillars, posters, lights), or None: the easy world's panorama
         self.world = Hall(self, np.random.default_rng([c.seed, 18])) if c.world == "hall" else None
+        if any(c.moved_marker):  # a knocked marker: the truth moves, its survey and the world stay as they were
+            m = self.markers[self.markers.ids[0]]
+            self.markers.markers[m.id] = m._replace(position=m.position + np.asarray(c.moved_marker))
 
     # ---- construction helpers --------------------------------------------------------------
     def _track_point(self, theta) -> np.ndarray:

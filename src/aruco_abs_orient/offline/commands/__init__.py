@@ -9,6 +9,6 @@ arguments' ``handler``; ``run(args)`` parses nothing more, calls the library (``
 there.
 """
 
-from . import calibrate, evaluate, markers, params, process, timesync, video_to_bag
+from . import calibrate, evaluate, map, markers, params, process, timesync, video_to_bag
 
-COMMANDS = (process, timesync, evaluate, calibrate, params, markers, video_to_bag)
+COMMANDS = (process, timesync, evaluate, calibrate, map, params, markers, video_to_bag)

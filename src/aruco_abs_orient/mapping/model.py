@@ -1,0 +1,195 @@
+"""What the marker mapping takes and gives: its error, its knobs, which camera parameters it frees, its result.
+
+In: nothing (types only). Out: :class:`MappingError`, :class:`MappingParams` (the knobs of
+:func:`~aruco_abs_orient.mapping.map_markers`: when a marker is seen enough, the tests of a marker and of a
+control marker against the others; cfg/params.yaml's ``mapping`` section), :class:`MapUnknowns` (which camera
+parameters the network estimates beside the markers and the heading), :class:`MappedMarker` (one marker: its
+centre with its covariance, face normal with its σ, how it was seen, its test, and why it is left out when it
+is) and :class:`MappingResult`.
+
+Units: metres, radians, seconds inside; the report functions give millimetres and degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, NamedTuple, Optional, Tuple
+
+import numpy as np
+
+from ..errors import GeometryError
+from ..paramcheck import Validated, check_non_negative
+
+__all__ = ["MappingError", "MappingParams", "MapUnknowns", "MappedMarker", "MappingResult", "chi2_quantile",
+           "format_xyz"]
+
+
+class MappingError(GeometryError):
+    """The recording cannot place the markers, or the inputs are malformed; the message says why and what to do."""
+
+
+@dataclass
+class MappingParams(Validated):
+    """Knobs of :func:`~aruco_abs_orient.mapping.map_markers` (the network's own model, its knots and gates, is the
+    ``calibration`` section's).
+
+    - ``min_views``: a marker seen in fewer images is refused (not placed), with what to drive.
+    - ``min_baseline``: a marker seen only from camera positions closer together than this (m) is refused.
+    - ``max_sigma``: a marker whose position 1-σ along its worst axis exceeds this (m) is refused; one beyond
+      ``loose_sigma`` (m) is placed (``process`` and the node weigh it by its σ: a far marker placed to a few cm
+      still holds the heading where it is the only one in view) with a warning saying what to drive.
+    - ``max_normal_sigma_deg``: a face normal whose 1-σ exceeds this (degrees) is not written (the marker is;
+      the tracker then looks for it from every side).
+    - ``bias_deg``: the error all sightings of a marker (and of each of its corners) have in common, 1-σ per axis of
+      the image (degrees: the camera's own distortion and stitching, the print, its lighting, the corner fit at the
+      marker's angle), added to its position's and its normal's covariance: no number of sightings averages it
+      away.
+    - ``test_alpha``: the false-alarm rate of the test of each marker against the others (its observations'
+      residuals against their redundancy, an F-like test with the residuals' correlation in time allowed for)
+      and of each control marker against the network.
+    - ``noise_spread``: how much one marker's bearing variance may differ from the network's (its range, blur,
+      the stitching seam) before the test counts it as disagreeing: the test's limit is this times the χ²
+      quantile; a marker whose residuals exceed the network's has its covariance scaled by its test value.
+    - ``compare_alpha``: ``--compare``'s false-alarm rate per marker (a χ² test of its move, 3 degrees of
+      freedom, against both maps' covariances).
+    """
+
+    min_views: int = 10
+    min_baseline: float = 1.0
+    max_sigma: float = 0.05
+    loose_sigma: float = 0.005
+    max_normal_sigma_deg: float = 5.0
+    bias_deg: float = 0.01
+    test_alpha: float = 0.001
+    noise_spread: float = 2.0
+    compare_alpha: float = 0.001
+
+    def validate(self) -> None:
+        check_non_negative(self, MappingError)
+        for name in ("test_alpha", "compare_alpha"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise MappingError(f"MappingParams.{name}: expected a fraction in (0, 1), got {getattr(self, name)!r}")
+
+
+class MapUnknowns(NamedTuple):
+    """Which camera parameters the network estimates beside the markers, the map→odom yaw and the odometry's
+    tilt: the boresight (roll, pitch, yaw), the rolling-shutter readout, the residual time offset, the two lenses'
+    offset and relative rotation. Those left fixed are the calibration's (or the nominal ones)."""
+
+    boresight: bool = False
+    readout: bool = False
+    time_offset: bool = False
+    lenses: bool = False
+
+    def free(self) -> Tuple[int, ...]:
+        """Indices of the free globals in the calibration's vector x (``calibration.model.N_GLOBALS``)."""
+        return (((0, 1, 2) if self.boresight else ()) + ((6,) if self.time_offset else ())
+                + ((7,) if self.readout else ()) + ((8, 9, 10, 11) if self.lenses else ()))
+
+
+@dataclass
+class MappedMarker:
+    """One marker of the recording.
+
+    - ``id``; ``position`` (3,) m in map and its covariance ``cov`` (3, 3) m² (the residuals' correlation in
+      time included); ``normal`` (3,) unit out of the face, or None (no corners, or too loose), and its 1-σ
+      ``normal_sigma`` (rad, the larger of its two tilts);
+    - ``views``: images it was used in; ``baseline`` (m): the largest distance between two camera positions it was
+      seen from; ``ranges`` (min, max) m; ``redundancy``: the redundancy numbers of its observations summed (how
+      many of them are spare); ``test``: its residuals' square sum over their redundancy (about 1 when it agrees
+      with the others), ``test_limit`` the value it was held to; ``outliers``: its observations beyond the gate;
+      ``rms`` (rad): the RMS angle of its residuals; ``cov`` is scaled by ``test`` where it exceeds 1 and holds
+      its sightings' common error (``MappingParams.bias_deg``);
+    - ``control``: None, or (its surveyed position (3,), the normalised difference of the network's estimate from
+      it, √χ² of 3 degrees of freedom, and whether it tied the network);
+    - ``status``: "mapped", "refused" (seen too little) or "left out" (disagrees); ``reason``: why, and what to do.
+    """
+
+    id: int
+    position: np.ndarray
+    cov: np.ndarray
+    normal: Optional[np.ndarray] = None
+    normal_sigma: float = float("nan")
+    views: int = 0
+    baseline: float = 0.0
+    ranges: Tuple[float, float] = (float("nan"), float("nan"))
+    redundancy: float = 0.0
+    test: float = float("nan")
+    test_limit: float = float("nan")
+    outliers: int = 0
+    rms: float = float("nan")
+    control: Optional[Tuple[np.ndarray, float, bool]] = None
+    status: str = "mapped"
+    reason: str = ""
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """1-σ (3,) m along map x, y, z."""
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+    def ellipsoid(self, k: float = 3.0) -> Tuple[np.ndarray, np.ndarray]:
+        """The k-σ ellipsoid: semi-axes (3,) m, largest first, and their unit directions (3, 3) as rows."""
+        w, v = np.linalg.eigh(0.5 * (self.cov + self.cov.T))
+        order = np.argsort(w)[::-1]
+        return k * np.sqrt(np.maximum(w[order], 0.0)), v[:, order].T
+
+
+@dataclass
+class MappingResult:
+    """What :func:`~aruco_abs_orient.mapping.map_markers` found.
+
+    - ``markers``: every marker id seen (:class:`MappedMarker`), by id; those with status "mapped" are the map.
+    - ``boresight`` (3,) rad (roll, pitch, yaw on top of the mounting given) and ``boresight_sigma`` (3,) rad (NaN
+      when fixed); ``readout`` (s, the one used: estimated or given) and ``readout_sigma``; ``time_offset_delta``
+      (s, added to the offset given) and ``time_offset_sigma``; ``lenses`` (the camera's lenses used).
+    - ``variance_factors`` (the network's groups, as the calibration's), ``heading_model`` used.
+    - counts: ``n_observations`` given, ``n_used`` in the network, ``skipped`` reason → count.
+    - ``drive`` (T, 3) m: the camera's positions in map along the recording (for the report's plan).
+    - ``warnings``: one line each.
+    """
+
+    markers: Dict[int, MappedMarker]
+    boresight: np.ndarray
+    boresight_sigma: np.ndarray
+    readout: float
+    readout_sigma: float
+    time_offset_delta: float
+    time_offset_sigma: float
+    lenses: object
+    variance_factors: Dict[str, float]
+    heading_model: str
+    n_observations: int
+    n_used: int
+    skipped: Dict[str, int] = field(default_factory=dict)
+    drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    warnings: List[str] = field(default_factory=list)
+
+    def with_status(self, status: str) -> List[MappedMarker]:
+        """The markers of one status, by id."""
+        return [m for _, m in sorted(self.markers.items()) if m.status == status]
+
+
+def chi2_quantile(dof: float, alpha: float) -> float:
+    """The (1 − ``alpha``) quantile of χ² with ``dof`` (> 0, real) degrees of freedom (Wilson–Hilferty: 3 % high at
+    1 degree of freedom and α = 0.001, within 2 % from 3, within 0.2 % from 10)."""
+    z = _normal_quantile(1.0 - alpha)
+    h = 2.0 / (9.0 * dof)
+    return dof * max(1.0 - h + z * math.sqrt(h), 0.0) ** 3
+
+
+def _normal_quantile(p: float) -> float:
+    """Φ⁻¹(p) by bisection on math.erf (no scipy on the robots' Python)."""
+    lo, hi = -10.0, 10.0
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if 0.5 * (1.0 + math.erf(mid / math.sqrt(2.0))) < p:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def format_xyz(p, digits: int = 3) -> str:
+    """A point (3,) m as ``[x, y, z]`` with ``digits`` decimals."""
+    return "[" + ", ".join(f"{float(v):.{digits}f}" for v in p) + "]"
