@@ -12,7 +12,8 @@ from aruco_abs_orient.geocom.client import wire_time_s
 from aruco_abs_orient.geocom.dispatch import LATE_S
 from aruco_abs_orient.geocom.protocol import BAP_CONT_REF_SYNCHRO, Rpc, encode_request, parse_coordinate, parse_reply
 from aruco_abs_orient.geocom.simulator import FaultRates, Ms60Simulator, SimConfig
-from aruco_abs_orient.geocom.tracker import DOUBLE_PRECISION, Ms60Tracker, TrackerConfig, TrackerError, TrackerState
+from aruco_abs_orient.geocom.tracker import DOUBLE_PRECISION, Ms60Tracker
+from aruco_abs_orient.geocom.tracker_types import TrackerConfig, TrackerError, TrackerState
 
 
 class Run:
