@@ -9,7 +9,8 @@ import threading
 from typing import List, Optional
 
 from ..errors import run
-from .simulator import MODELS, PROFILES, FaultRates, Ms60Simulator, SimConfig, SimulatorError, builtin_track, tum_track
+from .instrument import MODELS, PROFILES, FaultRates, SimConfig, SimulatorError, builtin_track, tum_track
+from .simulator import Ms60Simulator
 
 __all__ = ["main", "parse_faults"]
 

@@ -1,75 +1,35 @@
-"""The MS60 tracking loop: the documented GeoCOM session for kinematic prism tracking.
+"""The MS60 tracking loop: the documented GeoCOM session for kinematic prism tracking, in a thread.
 
-Session (each step cites the GeoCOM reference it follows: "RM1200" = TPS1200+ GeoCOM Reference
-Manual v1.50, "RMCap" = the Captivate TS/MS GeoCOM Reference Manual; sections by chapter and
-function name):
-
-1. connect and check: COM_NullProc (RM1200/RMCap COM chapter), CSV_GetInstrumentName,
-   CSV_GetInstrumentNo, COM_GetSWVersion (GeoCOM release), CSV_GetSWVersion (firmware) (CSV and
-   COM chapters), COM_SetDoublePrecision (COM chapter: decimals of the doubles in the replies);
-2. TMC_DoMeasure(TMC_CLEAR) (TMC chapter, TMC_DoMeasure: "TMC_STOP and clear data"): stops any
-   running program and clears the distance, which TMC_SetStation and TMC_SetOrientation require
-   (TMC chapter, TMC_SetStation / TMC_SetOrientation: distances must be cleared first);
-3. TMC_SetStation and TMC_SetOrientation when configured (TMC chapter);
-4. target and prism: BAP_SetTargetType(BAP_REFL_USE), BAP_SetPrismType, TMC_SetPrismCorr when
-   configured (BAP and TMC chapters);
-5. measurement program: BAP_SetMeasPrg(BAP_CONT_REF_SYNCHRO), synchro tracking, whose angles are
-   taken with the distance; an instrument that refuses it (IVPARAM: its firmware lacks it) gets
-   BAP_CONT_REF_STANDARD, IR tracking (BAP chapter, BAP_SetMeasPrg / BAP_USER_MEASPRG). The EDM
-   mode follows from the program; TMC_SetEdmMode is the TPS1100 interface and not used;
-6. LOCK mode: AUS_SetUserLockState(ON) (AUS chapter: LOCK mode on does not lock by itself);
-7. acquire: after a lost lock, when a prediction of the prism's position is at hand (``predict``: the
-   robot's fused pose and the prism lever arm), AUT_MakePositioning to its direction (AUT chapter:
-   AUT_NORMAL, AUT_POSITION) first; AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field,
-   searching its window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust);
-   without a target AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an
-   instrument without PowerSearch (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust
-   again. Motorised procedures take seconds: they get ``motion_timeout_s``. MOT_ReadLockStatus
-   confirms the lock (MOT chapter);
-8. tracking: TMC_DoMeasure(TMC_RTRK_DIST) (TMC chapter, TMC_MEASURE_PRG: "distance-TRK
-   measurement program"; TMC_TRK_DIST = 2 is TPS1100 only);
-9. poll TMC_GetCoordinate (TMC chapter): the first coordinate and CoordTime belong to the last
-   distance, the continuous coordinate and CoordContTime to this request's angles. The position
-   is stamped with CoordTime mapped to host time; the clock fit uses CoordContTime, the time of
-   a measurement made when the request arrived. A CoordTime not newer than the last one is the
-   same distance again: counted in ``duplicates``, not published.
-
-Polls follow the EDM: once its period is known (from successive CoordTimes), each poll is sent
-so that it reaches the instrument just after the next expected distance; a poll that still gets
-the old distance is repeated at once. Before that, polls run at ``rate_hz``.
-
-States: ``connecting``, ``searching`` (acquiring the prism), ``locked`` (polling), ``lost`` (the
-lock dropped: re-acquiring through step 7 and 8), ``reconnecting`` (the link failed: the session
-again), ``error`` (the instrument refused a step tracking needs, or gives no distance while
-locked: :attr:`Ms60Tracker.error` says which and what to check; the session is retried every
-``error_retry_s``), ``stopped``. Stamps never go backwards and never repeat. The first
-``warmup_samples`` positions only feed the clock fit (its lower envelope needs a few
-low-latency replies received promptly before its stamps can be trusted; on a loaded host the
-loop thread wakes late for some replies).
+In: a :class:`~.tracker_types.TrackerConfig` (a pyserial URL and the session's settings), callbacks for
+samples and state changes, and optionally ``predict`` (where the prism is now, from the robot's fused
+pose). Out: :class:`~.tracker_types.PrismSample` positions stamped with the instrument's measurement
+time mapped to host time, :class:`~.tracker_types.TrackerState` changes and :meth:`Ms60Tracker.stats`.
+Contract: each step of the session follows the TPS1200+ / Captivate GeoCOM references (cited step by
+step in :class:`Ms60Tracker`); stamps never go backwards and never repeat; a refused step is the
+``error`` state with a message saying what to check, tried again after ``error_retry_s``; a failed link
+reconnects and a lost lock is re-acquired without leaving the loop.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
-import enum
 import math
 import statistics
 import threading
 import time
-from typing import Callable, Deque, Dict, NamedTuple, Optional, Tuple
+from typing import Callable, Deque, Dict, Optional, Tuple
 
 import numpy as np
 
 from ..errors import InstrumentError
-from .accuracy import MS60_TRACKING, AccuracyError, InstrumentAccuracy, polar_covariance
+from .accuracy import polar_covariance
 from .client import GeoComClient, GeoComError, GeoComLinkError, GeoComRcError, GeoComTimeout, rpc_name
 from .clock import InstrumentClock
 from .protocol import (
     AUT_CLOCKWISE,
     BAP_CONT_REF_STANDARD,
     BAP_CONT_REF_SYNCHRO,
-    BAP_PRISM_360,
     BAP_REFL_USE,
     MOT_LOCKED_OUT,
     RC,
@@ -81,6 +41,7 @@ from .protocol import (
     Rpc,
     rc_name,
 )
+from .tracker_types import PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 
 __all__ = ["TrackerError", "TrackerState", "TrackerConfig", "PrismSample", "TrackerStats", "Ms60Tracker",
            "DOUBLE_PRECISION", "FINE_ADJUST_WINDOW_RAD", "SEARCH_AREA_RAD"]
@@ -98,128 +59,8 @@ _MAX_REPOLLS = 3       # polls in a row that may repeat the old distance before 
 _POLL_MARGIN_S = 0.003  # a poll reaches the instrument this long after the expected distance
 
 
-class TrackerError(InstrumentError):
-    """Bad tracker settings (names the setting)."""
-
-
 class _SessionError(Exception):
     """The instrument refused a step tracking needs (the message says which and what to do)."""
-
-
-class TrackerState(enum.Enum):
-    CONNECTING = "connecting"
-    SEARCHING = "searching"
-    LOCKED = "locked"
-    LOST = "lost"
-    RECONNECTING = "reconnecting"
-    ERROR = "error"
-    STOPPED = "stopped"
-
-
-class TrackerConfig(NamedTuple):
-    """``url`` pyserial URL; ``baud`` bit/s; ``rate_hz`` nominal position rate (Hz; polls follow
-    the EDM once its period is known); ``timeout_s`` reply timeout of ordinary calls (s);
-    ``motion_timeout_s`` reply timeout of the motorised ones (s); ``max_timeouts`` consecutive
-    timeouts before reconnecting; ``backoff_s`` pause between reconnection attempts (s);
-    ``prism_type`` BAP_PRISMTYPE or None (leave as is); ``prism_constant_m`` additive constant
-    (m) or None; ``station`` (E0, N0, H0, Hi) in metres or None; ``orientation_rad`` Hz
-    orientation (rad) or None; ``min_latency_s`` the instrument's shortest measurement-to-reply
-    time (s) for the clock; ``warmup_samples`` positions that only feed the clock before the
-    first one is published; ``byte_timing`` whether replies cross a serial line byte by byte
-    (None: all ports but socket://); ``no_distance_s`` how long a lock without a new distance is
-    tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s);
-    ``accuracy`` the instrument's accuracy class, each position's covariance (:mod:`.accuracy`);
-    ``reaim_search_after_s`` how long re-aims at a prediction may fail (the prism hidden, or the prediction
-    wrong) before the search sweeps for it all the same (s)."""
-
-    url: str
-    baud: int = 115200
-    rate_hz: float = 20.0
-    timeout_s: float = 0.3
-    motion_timeout_s: float = 30.0
-    max_timeouts: int = 3
-    backoff_s: float = 0.1
-    prism_type: Optional[int] = BAP_PRISM_360
-    prism_constant_m: Optional[float] = None
-    station: Optional[Tuple[float, float, float, float]] = None
-    orientation_rad: Optional[float] = None
-    min_latency_s: float = 0.0
-    warmup_samples: int = 40
-    byte_timing: Optional[bool] = None
-    no_distance_s: float = 2.0
-    error_retry_s: float = 5.0
-    accuracy: InstrumentAccuracy = MS60_TRACKING
-    reaim_search_after_s: float = 10.0
-
-    def validate(self) -> None:
-        """Raise TrackerError naming the first bad setting."""
-        if not isinstance(self.url, str) or not self.url:
-            raise TrackerError("port: an empty pyserial URL")
-        checks = [("baud", self.baud > 0), ("rate", 0 < self.rate_hz <= 100), ("timeout", self.timeout_s > 0),
-                  ("motion_timeout", self.motion_timeout_s >= self.timeout_s),
-                  ("max_timeouts", self.max_timeouts >= 1), ("backoff", self.backoff_s >= 0),
-                  ("min_latency", self.min_latency_s >= 0), ("warmup_samples", self.warmup_samples >= 0),
-                  ("no_distance", self.no_distance_s > 0), ("error_retry", self.error_retry_s >= 0),
-                  ("reaim_search_after", self.reaim_search_after_s >= 0)]
-        for name, ok in checks:
-            if not ok:
-                raise TrackerError(f"{name}: value out of range")
-        if self.prism_constant_m is not None and not abs(self.prism_constant_m) < 1.0:
-            raise TrackerError(f"prism_constant: {self.prism_constant_m} m is not within ±1 m")
-        try:
-            self.accuracy.validate()
-        except AccuracyError as e:
-            raise TrackerError(f"accuracy: {e}") from None
-
-
-class PrismSample(NamedTuple):
-    """One prism position: ``stamp_s`` host time of its distance measurement (s), ``east``,
-    ``north``, ``height`` (m, instrument frame = map), ``instrument_ms`` (raw counter of the
-    distance, ms), ``rc`` (0 or a warning code 1283/1284), ``cov`` its covariance (3×3 m², east, north,
-    height: the accuracy class carried from the station's polar measurement, :func:`.accuracy.polar_covariance`)."""
-
-    stamp_s: float
-    east: float
-    north: float
-    height: float
-    instrument_ms: int
-    rc: int
-    cov: Optional[np.ndarray] = None
-
-    @property
-    def warning(self) -> bool:
-        return self.rc != 0
-
-
-class TrackerStats(NamedTuple):
-    """Counters and clock figures for status and diagnostics (rate in Hz, offset in s, drift
-    dimensionless); ``error`` the message of the error state ("" otherwise), ``notice`` why the
-    prism is not locked ("" otherwise), ``program`` and ``search`` what the instrument accepted, ``reaims``
-    the turns to a predicted position after a lost lock and ``reaims_found`` those the prism was found at."""
-
-    state: str
-    samples: int
-    lost_samples: int
-    rate_hz: float
-    warnings: Dict[int, int]
-    no_position: Dict[int, int]
-    timeouts: int
-    duplicates: int
-    out_of_order: int
-    reconnects: int
-    relocks: int
-    garbage_bytes: int
-    stale_replies: int
-    clock_offset_s: float
-    clock_drift: float
-    instrument: str
-    error: str = ""
-    notice: str = ""
-    program: str = ""
-    search: str = ""
-    edm_period_ms: float = float("nan")
-    reaims: int = 0
-    reaims_found: int = 0
 
 
 class Ms60Tracker:
@@ -227,7 +68,55 @@ class Ms60Tracker:
     new :class:`PrismSample` and ``on_state`` with each new :class:`TrackerState` (from the
     loop's thread). ``predict`` (optional, called from the loop's thread) gives where the prism is now
     ((E, N, H) m in the instrument's frame) or None when it does not know (no pose, or a stale one): after
-    a lost lock the telescope is turned there before the prism is searched for."""
+    a lost lock the telescope is turned there before the prism is searched for.
+
+    Session (each step cites the GeoCOM reference it follows: "RM1200" = TPS1200+ GeoCOM Reference
+    Manual v1.50, "RMCap" = the Captivate TS/MS GeoCOM Reference Manual; sections by chapter and
+    function name):
+
+    1. connect and check: COM_NullProc (RM1200/RMCap COM chapter), CSV_GetInstrumentName,
+       CSV_GetInstrumentNo, COM_GetSWVersion (GeoCOM release), CSV_GetSWVersion (firmware) (CSV and
+       COM chapters), COM_SetDoublePrecision (COM chapter: decimals of the doubles in the replies);
+    2. TMC_DoMeasure(TMC_CLEAR) (TMC chapter, TMC_DoMeasure: "TMC_STOP and clear data"): stops any
+       running program and clears the distance, which TMC_SetStation and TMC_SetOrientation require
+       (TMC chapter, TMC_SetStation / TMC_SetOrientation: distances must be cleared first);
+    3. TMC_SetStation and TMC_SetOrientation when configured (TMC chapter);
+    4. target and prism: BAP_SetTargetType(BAP_REFL_USE), BAP_SetPrismType, TMC_SetPrismCorr when
+       configured (BAP and TMC chapters);
+    5. measurement program: BAP_SetMeasPrg(BAP_CONT_REF_SYNCHRO), synchro tracking, whose angles are
+       taken with the distance; an instrument that refuses it (IVPARAM: its firmware lacks it) gets
+       BAP_CONT_REF_STANDARD, IR tracking (BAP chapter, BAP_SetMeasPrg / BAP_USER_MEASPRG). The EDM
+       mode follows from the program; TMC_SetEdmMode is the TPS1100 interface and not used;
+    6. LOCK mode: AUS_SetUserLockState(ON) (AUS chapter: LOCK mode on does not lock by itself);
+    7. acquire: after a lost lock, when a prediction of the prism's position is at hand (``predict``: the
+       robot's fused pose and the prism lever arm), AUT_MakePositioning to its direction (AUT chapter:
+       AUT_NORMAL, AUT_POSITION) first; AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field,
+       searching its window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust);
+       without a target AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an
+       instrument without PowerSearch (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust
+       again. Motorised procedures take seconds: they get ``motion_timeout_s``. MOT_ReadLockStatus
+       confirms the lock (MOT chapter);
+    8. tracking: TMC_DoMeasure(TMC_RTRK_DIST) (TMC chapter, TMC_MEASURE_PRG: "distance-TRK
+       measurement program"; TMC_TRK_DIST = 2 is TPS1100 only);
+    9. poll TMC_GetCoordinate (TMC chapter): the first coordinate and CoordTime belong to the last
+       distance, the continuous coordinate and CoordContTime to this request's angles. The position
+       is stamped with CoordTime mapped to host time; the clock fit uses CoordContTime, the time of
+       a measurement made when the request arrived. A CoordTime not newer than the last one is the
+       same distance again: counted in ``duplicates``, not published.
+
+    Polls follow the EDM: once its period is known (from successive CoordTimes), each poll is sent
+    so that it reaches the instrument just after the next expected distance; a poll that still gets
+    the old distance is repeated at once. Before that, polls run at ``rate_hz``.
+
+    States: ``connecting``, ``searching`` (acquiring the prism), ``locked`` (polling), ``lost`` (the
+    lock dropped: re-acquiring through step 7 and 8), ``reconnecting`` (the link failed: the session
+    again), ``error`` (the instrument refused a step tracking needs, or gives no distance while
+    locked: :attr:`Ms60Tracker.error` says which and what to check; the session is retried every
+    ``error_retry_s``), ``stopped``. Stamps never go backwards and never repeat. The first
+    ``warmup_samples`` positions only feed the clock fit (its lower envelope needs a few
+    low-latency replies received promptly before its stamps can be trusted; on a loaded host the
+    loop thread wakes late for some replies).
+    """
 
     def __init__(self, config: TrackerConfig, on_sample: Optional[Callable[[PrismSample], None]] = None,
                  on_state: Optional[Callable[[TrackerState], None]] = None,
@@ -375,7 +264,7 @@ class Ms60Tracker:
             raise _SessionError(f"{step} refused: {rpc_name(e.rpc)} returned {rc_name(e.rc)}; {hint}") from None
 
     def _connect(self) -> None:
-        """Session steps 1-6 (see the module docstring), then acquisition or tracking."""
+        """Session steps 1-6 (see the class docstring), then acquisition or tracking."""
         self._close_client()
         c = self.config
         try:

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from aruco_abs_orient.geocom.accuracy import ARCSEC, MS60_TRACKING, InstrumentAccuracy, polar_covariance
 from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig
-from aruco_abs_orient.geocom.tracker import Ms60Tracker, TrackerConfig, TrackerError
+from aruco_abs_orient.geocom.tracker import Ms60Tracker
+from aruco_abs_orient.geocom.tracker_types import TrackerConfig, TrackerError
 
 
 def test_hand_checked():

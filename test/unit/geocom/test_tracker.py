@@ -9,9 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.geocom.client import wire_time_s
+from aruco_abs_orient.geocom.dispatch import LATE_S
 from aruco_abs_orient.geocom.protocol import BAP_CONT_REF_SYNCHRO, Rpc, encode_request, parse_coordinate, parse_reply
-from aruco_abs_orient.geocom.simulator import LATE_S, FaultRates, Ms60Simulator, SimConfig
-from aruco_abs_orient.geocom.tracker import DOUBLE_PRECISION, Ms60Tracker, TrackerConfig, TrackerError, TrackerState
+from aruco_abs_orient.geocom.simulator import FaultRates, Ms60Simulator, SimConfig
+from aruco_abs_orient.geocom.tracker import DOUBLE_PRECISION, Ms60Tracker
+from aruco_abs_orient.geocom.tracker_types import TrackerConfig, TrackerError, TrackerState
 
 
 class Run:
@@ -105,17 +107,17 @@ def test_simulator_sending_late_measures_again_with_its_latency(late_s, seed):
     host) reports a newer tick whose modelled latency ends within a tick of the actual send, so
     the replies the tracker sees keep the instrument's timing; the truth is that newer tick."""
     sim = Ms60Simulator(SimConfig(), seed=seed)
-    sim._byte_timing = True   # as on a pty
+    sim.dispatcher.byte_timing = True   # as on a pty
     sim.locked = sim.tracking = True
     sim._edm_t0_ms = sim._edm_from_ms = sim.instrument_ms_at(sim.t_boot + 1.0)
     t_complete = sim.t_boot + 2.0
-    answer = sim._handle(encode_request(Rpc.TMC_GetCoordinate, (0, 1), 7), t_complete)
+    answer = sim.dispatcher.handle(encode_request(Rpc.TMC_GetCoordinate, (0, 1), 7), t_complete)
     first = answer.truth
     assert first.angles_time_s >= t_complete and answer.send_s == pytest.approx(
         first.angles_time_s + answer.delay_s + wire_time_s(len(answer.data), 115200), abs=1e-9)
     assert 0 <= first.angles_time_s - first.time_s < 0.051  # the last distance of a 20 Hz EDM
     now = answer.send_s + late_s
-    later = sim._remeasured(answer, now)
+    later = sim.dispatcher.remeasured(answer, now)
     if late_s <= LATE_S:
         assert later is None
         return
@@ -181,8 +183,7 @@ def test_lock_mode_switched_off_on_the_instrument_is_an_error_then_recovers():
     run = Run("tcp", error_retry_s=0.5)
     try:
         run.wait_for_samples(5)
-        with run.sim._state_lock:   # LOCK mode switched off on the instrument's keyboard
-            run.sim._execute(Rpc.AUS_SetUserLockState, [0], time.time())
+        run.sim.set_user_lock(False)   # LOCK mode switched off on the instrument's keyboard
         run.wait_for_state(TrackerState.ERROR, 3.0)
         assert "8714 AUT_NOT_ENABLED" in run.tracker.error and "LOCK mode is off" in run.tracker.error
         n = len(run.samples)
@@ -199,7 +200,7 @@ def test_locked_without_new_distances_is_an_error():
     run = Run("tcp", no_distance_s=1.0, error_retry_s=60.0)
     try:
         run.wait_for_samples(5)
-        run.sim._change(lambda: setattr(run.sim, "tracking", False))
+        run.sim.change(lambda: setattr(run.sim, "tracking", False))
         t0 = time.time()
         run.wait_for_state(TrackerState.ERROR, 3.0)
         n = len(run.samples)
