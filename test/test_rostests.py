@@ -1,6 +1,6 @@
 """Runs every rostest in test/*.test (a real roscore, real nodes) as one pytest case each.
 
-`catkin_make run_tests` exits 0 on failures (DESIGN §6), so the rostests run from here and their
+`catkin_make run_tests` exits 0 on failures (doc/design.md §15), so the rostests run from here and their
 result is rostest's own exit status (without --text, which makes it always 0). Needs the workspace
 of `make setup` sourced (tools/env.sh).
 """

@@ -1,6 +1,6 @@
 """Equirectangular camera model and gnomonic (perspective) views.
 
-This is the only module that knows how pixels map to bearings (DESIGN §2).
+This is the only module that knows how pixels map to bearings (doc/design.md §2).
 
 Camera frame of an equirectangular image: x = the image's centre column, y = left,
 z = up. A pixel (u, v) of a W×H image, OpenCV pixel centres (integer u is the centre

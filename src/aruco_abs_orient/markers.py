@@ -1,4 +1,4 @@
-"""The marker map: surveyed ArUco marker centres, loaded from and saved to YAML (DESIGN §3).
+"""The marker map: surveyed ArUco marker centres, loaded from and saved to YAML (doc/design.md §3).
 
 ```yaml
 dictionary: DICT_4X4_50

@@ -4,7 +4,7 @@ The node (``ros/abs_orient_node.py``) converts messages and calls these; here no
 the policy is unit-tested with plain numbers (``test/unit/test_nodestate.py``). Times are float seconds
 on the ROS clock of the messages (sim time during a bag replay); wall-clock durations are named so.
 
-Stamp policy (:class:`MapOdomStamps`), DESIGN §3 and doc/ros_api.md "map → odom":
+Stamp policy (:class:`MapOdomStamps`), doc/design.md §3 and doc/ros_api.md "map → odom":
 
 - map→odom estimated at time ``t`` (an image's time, or the newest odometry stamp when it is re-published)
   is sent stamped ``t + tolerance`` (``~transform_tolerance``, as amcl's ``transform_tolerance``): a

@@ -1,6 +1,6 @@
 """Rotations, quaternions and rigid transforms (the package's one copy of this algebra).
 
-Conventions (DESIGN §2): attitude ``R = Rz(yaw) · Ry(pitch) · Rx(roll)``, angles in radians;
+Conventions (doc/design.md §2): attitude ``R = Rz(yaw) · Ry(pitch) · Rx(roll)``, angles in radians;
 quaternions are ``(x, y, z, w)`` as in ROS/TUM; a 4×4 homogeneous matrix ``a_T_b`` maps
 b-coordinates into a. Functions are vectorised over leading dimensions where noted.
 """

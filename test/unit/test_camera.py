@@ -1,4 +1,4 @@
-"""camera.py: the equirect convention of DESIGN §2 and gnomonic views, checked against
+"""camera.py: the equirect convention of doc/design.md §2 and gnomonic views, checked against
 hand-computed values and by property tests (round trips, the ±180° seam, the poles)."""
 import math
 

@@ -1,6 +1,6 @@
 """debugview: the node's debug image, drawn on a rendered frame with known geometry.
 
-Pixel positions are checked against the DESIGN §2 formula worked by hand (az = π − 2π(u + 0.5)/W,
+Pixel positions are checked against the doc/design.md §2 formula worked by hand (az = π − 2π(u + 0.5)/W,
 el = π/2 − π(v + 0.5)/H), not against camera.py's output.
 """
 import math
@@ -115,7 +115,7 @@ def test_expected_markers_say_why_each_one_was_not_found_or_not_used(scene):
     """The scene's map and five more markers, the camera at the origin: each status against what was made
     true by hand (found and used; found, rejected; found by the frame search only; found 2° off the map's
     position; facing away; seen edge-on; too small; in view, unseen), and the pixel of marker 5 worked from
-    the DESIGN §2 formula."""
+    the doc/design.md §2 formula."""
     image, results, marker_map = scene
     found = {o.observation.id: o.observation.centre for o in results}           # 7 and 3, detected in the frame
     extra = [Marker(9, np.array([80.0, 0.0, 0.0]), 0.30, 0.0),                  # 0.3 m at 80 m: 2.3 px at 3840

@@ -1,5 +1,5 @@
 """The core is ROS-free: nothing in src/aruco_abs_orient/ outside ros/ imports rospy, tf2_ros or
-cv_bridge (DESIGN: the core runs on a robot's Python without a ROS master, and offline).
+cv_bridge (doc/design.md §14: the core runs on a robot's Python without a ROS master, and offline).
 
 An AST scan of every module, so an import inside a function (run only on some path) counts too, as
 does ``importlib.import_module("rospy")`` / ``__import__("rospy")`` with a literal name.

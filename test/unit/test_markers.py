@@ -1,4 +1,4 @@
-"""markers.py: the marker map YAML of DESIGN §3, its validation (file and field named) and round trip."""
+"""markers.py: the marker map YAML of doc/design.md §3, its validation (file and field named) and round trip."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""ArUco markers in 360° equirectangular frames (DESIGN §4 steps 1–2).
+"""ArUco markers in 360° equirectangular frames (doc/design.md §5).
 
 Full-frame detection (:meth:`MarkerDetector.detect`): cv2.aruco tuned for small far
 markers on the whole frame (up to ``pole_overlap_deg`` beyond the polar band); a strip
@@ -20,7 +20,7 @@ the pixel-space intersection of an equirect image is biased toward the horizon b
 corner and up to 1.5× that for an upright one: 0.5–1.3° at 1 m and 45–60° elevation.
 :func:`pixel_centre_bearing` computes that biased centre, for the benchmark and tests only.
 
-Map-guided tracking (DESIGN §4 step 3) lives in :mod:`aruco_abs_orient.tracking`.
+Map-guided tracking (doc/design.md §6) lives in :mod:`aruco_abs_orient.tracking`.
 
 All pixel↔bearing conversions go through :mod:`aruco_abs_orient.camera`. Angles are in
 radians inside the code; the few parameters in degrees say so in their names (``*_deg``).

@@ -77,7 +77,7 @@ class BagReadError(BagError):
 
 @dataclass
 class BagTopics:
-    """Topic and frame names to read (DESIGN §3 defaults)."""
+    """Topic and frame names to read (doc/design.md §3 defaults)."""
 
     image: str = "/camera/image/compressed"
     tf: str = "/tf"

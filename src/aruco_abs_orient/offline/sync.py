@@ -1,7 +1,7 @@
 """``aruco-abs-orient timesync``: the camera/VO ↔ total-station time offset of a recording.
 
 Uses the odometry yaw (``odom → base_link`` on /tf, camera clock) and the prism track (total-station
-clock) of a bag: the phase-coherence estimate of :mod:`aruco_abs_orient.timesync` (DESIGN §4.7,
+clock) of a bag: the phase-coherence estimate of :mod:`aruco_abs_orient.timesync` (doc/design.md §10,
 invariant to the unknown yaw offset), with the paper's cross-correlation printed beside it.
 
 With the marker map, the estimate is refined with the marker bearings: a time offset moves the

@@ -1,7 +1,7 @@
 """``aruco-abs-orient video-to-bag``: a video recording (video + VO trajectory + prism log) as a ROS 1 bag.
 
 For users who want ``rosbag play`` (``postprocess.launch``, rviz): the package's topic layout
-(DESIGN §3, the same as ``aruco-abs-orient-synth`` writes) — ``/camera/image/compressed`` (JPEG at
+(doc/design.md §3, the same as ``aruco-abs-orient-synth`` writes) — ``/camera/image/compressed`` (JPEG at
 ``quality``, frame ``camera``), ``/tf`` (``odom → base_link`` at each frame), ``/tf_static`` (latched
 ``base_link → camera`` and ``base_link → prism``), ``/ms60/prism`` (PointStamped in ``map``). Written
 with rosbags (no ROS needed), read by Noetic's rosbag.

@@ -1,6 +1,6 @@
 """Static lever-arm transforms from a calibration YAML, published on /tf_static (node ``static_tfs``).
 
-The calibration file (written by the calibration tool, DESIGN §4.8) holds the camera's and the prism's
+The calibration file (written by the calibration tool, doc/design.md §11) holds the camera's and the prism's
 pose on the platform, in metres and degrees::
 
     base_link_to_camera: {xyz: [0.10, 0.00, 0.45], rpy_deg: [0.0, 0.0, 0.3]}   # rpy: R = Rz·Ry·Rx

@@ -9,7 +9,7 @@ the frame is a precomputed background panorama (textured or flat grey) rolled by
 Then optional Gaussian blur, sensor noise and a JPEG round trip, as set by a :class:`RenderProfile`.
 
 Units: metres for positions and sizes, radians for angles, pixels for blur, grey levels (DN,
-0–255) for noise. Frames: the camera frame of DESIGN §2 (x = image centre column, y left, z up).
+0–255) for noise. Frames: the camera frame of doc/design.md §1 (x = image centre column, y left, z up).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Time offset between the camera/VO clock and the total-station clock (DESIGN §4.7).
+"""Time offset between the camera/VO clock and the total-station clock (doc/design.md §10).
 
 Sign convention, used everywhere in this package and by its callers:
 

@@ -1,6 +1,6 @@
 """Shared by the calibration tests: exactly simulated recordings (the truth they are checked against).
 
-The recordings are built here from known geometry (DESIGN §2 frames): a non-holonomic platform drives
+The recordings are built here from known geometry (doc/design.md §1 frames): a non-holonomic platform drives
 a loop (base_link x along its velocity), VO gives the tilt exactly and the yaw with an unknown,
 drifting map→odom offset, the prism has total-station noise, and every marker within range gives a
 bearing through the TRUE mounting (boresight B_true · R_nominal, true lever arm) with detection noise.

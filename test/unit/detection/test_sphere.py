@@ -1,5 +1,5 @@
 """detection/sphere.py against exact sphere geometry (property tests) and rendered frames: the centre
-on the sphere is exact, the pixel-space centre is biased as DESIGN §4.2 says, the virtual views turn
+on the sphere is exact, the pixel-space centre is biased as doc/design.md §5 says, the virtual views turn
 onto each marker, and batched refinement/reading treats each marker as it would alone."""
 import math
 
@@ -40,7 +40,7 @@ def test_sphere_centre_is_the_marker_centre(az, el, dist, roll, tilt, size):
 @pytest.mark.parametrize("el_deg", [45.0, 50.0, 55.0, 60.0])
 @pytest.mark.parametrize("roll", [0.0, 0.4, math.pi / 4])
 def test_pixel_space_centre_is_biased_toward_the_horizon(el_deg, roll):
-    # DESIGN §4.2: ≈ δ²·tan(el)/4 (δ the angular size) for a marker standing on a corner;
+    # doc/design.md §5: ≈ δ²·tan(el)/4 (δ the angular size) for a marker standing on a corner;
     # up to 1.5× that for an upright one: 0.5–1.3° at 1 m. The sphere centre is exact.
     eq = Equirect(3840, 1920)
     m = facing_marker(0, 0.19, 1.0 * azel_to_bearing(0.4, el_deg * DEG), roll=roll)
