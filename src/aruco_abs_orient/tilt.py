@@ -109,8 +109,9 @@ def tilt_from_imu(orientation, orientation_cov, linear_acceleration, acceleratio
 class TiltEstimator:
     """The tilt of base_link per frame (see the module docstring)."""
 
-    def __init__(self, params: Optional[TiltParams] = None, odometry_sigma: float = math.radians(0.2)):
-        """``odometry_sigma``: 1-σ of the odometry's roll and pitch before any correction (rad)."""
+    def __init__(self, params: Optional[TiltParams], odometry_sigma: float):
+        """``odometry_sigma``: 1-σ of the odometry's roll and pitch before any correction (rad: the pipeline's
+        ``tilt_sigma_deg``)."""
         self.params = params or TiltParams()
         self.odometry_sigma = odometry_sigma
         self.offset = np.zeros(2)
