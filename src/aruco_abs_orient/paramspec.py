@@ -62,6 +62,18 @@ def _number(x: float) -> str:
     return f"{x:g}"
 
 
+def _bounds(spec: Spec) -> str:
+    """The bounds as written: '[0, 0.2]', '(0, 90)', '≥ 1', '> 0', '≤ 5', or '' when there are none."""
+    lo, hi = spec.low, spec.high
+    if lo is not None and hi is not None:
+        return f"{'(' if spec.low_open else '['}{_number(lo)}, {_number(hi)}{')' if spec.high_open else ']'}"
+    if lo is not None:
+        return f"{'>' if spec.low_open else '≥'} {_number(lo)}"
+    if hi is not None:
+        return f"{'<' if spec.high_open else '≤'} {_number(hi)}"
+    return ""
+
+
 def describe_range(spec: Spec) -> str:
     """What a value must be, for people: 'a number in [0, 0.2]', 'an integer ≥ 1', 'one of 1, 2, 4 or 8'…"""
     if spec.choices:
@@ -72,17 +84,15 @@ def describe_range(spec: Spec) -> str:
     if spec.kind is str:
         return "a string"
     what = {int: "an integer", tuple: "a list of numbers each"}.get(spec.kind, "a number")
-    lo, hi = spec.low, spec.high
-    if lo is not None and hi is not None:
-        text = f"{what} in {'(' if spec.low_open else '['}{_number(lo)}, {_number(hi)}{')' if spec.high_open else ']'}"
-    elif lo is not None:
-        text = (f"a finite non-negative {what.split()[-1]}" if lo == 0 and not spec.low_open and spec.kind is float
-                else f"a positive {what.split()[-1]}" if lo == 0 and spec.low_open and spec.kind is float
-                else f"{what} {'>' if spec.low_open else '≥'} {_number(lo)}")
-    elif hi is not None:
-        text = f"{what} {'<' if spec.high_open else '≤'} {_number(hi)}"
+    noun = what.split()[-1]
+    if spec.kind is float and spec.low == 0 and spec.high is None:
+        text = f"a positive {noun}" if spec.low_open else f"a finite non-negative {noun}"
+    elif spec.low is not None and spec.high is not None:
+        text = f"{what} in {_bounds(spec)}"
+    elif _bounds(spec):
+        text = f"{what} {_bounds(spec)}"
     else:
-        text = f"a finite {what.split()[-1]}" if spec.kind is float else what
+        text = f"a finite {noun}" if spec.kind is float else what
     return text + (", or null (off)" if spec.optional else "")
 
 
@@ -94,17 +104,8 @@ def short_range(spec: Spec) -> str:
         return "true | false"
     if spec.kind is str:
         return "text"
-    lo, hi = spec.low, spec.high
-    if lo is not None and hi is not None:
-        text = f"{'(' if spec.low_open else '['}{_number(lo)}, {_number(hi)}{')' if spec.high_open else ']'}"
-    elif lo is not None:
-        text = f"{'>' if spec.low_open else '≥'} {_number(lo)}"
-    elif hi is not None:
-        text = f"{'<' if spec.high_open else '≤'} {_number(hi)}"
-    else:
-        text = "any"
     prefix = {int: "integer ", tuple: "each "}.get(spec.kind, "")
-    return prefix + text + (" or null" if spec.optional else "")
+    return prefix + (_bounds(spec) or "any") + (" or null" if spec.optional else "")
 
 
 def expected_type(spec: Spec, default) -> str:
