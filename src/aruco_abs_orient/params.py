@@ -54,8 +54,8 @@ SECTIONS = PARAM_GROUPS + (("tilt", TiltParams), ("fit", FitSettings), ("selfche
 #: who reads which section (cfg/params.yaml's header)
 READERS = ("pipeline, detection, tracking, filter, tilt and fit: process and the node (calibrate and timesync "
            "--markers: detection); selfcheck and mapcheck: process and the node (calibrate: mapcheck); timesync: "
-           "timesync and the node's ~estimate_time_offset; evaluation: evaluate; calibration: calibrate and the "
-           "self-checks' calibration model")
+           "timesync and the node's ~estimate_time_offset; evaluation: evaluate; calibration: calibrate and "
+           "process's self-checks (not the node: its ~calibration is the calibration file)")
 
 
 class ParamsError(ConfigurationError):
@@ -183,7 +183,8 @@ def defaults_yaml() -> str:
              "# `aruco-abs-orient params --out cfg/params.yaml`; test/unit/test_params.py checks it is current).",
              "# Give a copy with your changes (any subset) to `aruco-abs-orient process|calibrate|timesync|evaluate",
              "# --params FILE`, or load it into the node's namespace (abs_orient.launch params:=FILE, or",
-             "# <rosparam file=\"FILE\"/> inside its <node>: ~filter/gate_chi2_yaw). Who reads what:"]
+             "# <rosparam command=\"load\" file=\"FILE\"/> first inside its <node>: ~filter/gate_chi2_yaw).",
+             "# Who reads what:"]
     lines += [f"# {line}" for line in textwrap.wrap(READERS + ".", 110)]
     lines += ["# Units: rad, s, m unless the bracket or the name (*_deg, *_px) says otherwise."]
     for section, cls in SECTIONS:
