@@ -344,8 +344,10 @@ class AbsOrientNode:
         except ImportError as e:
             self.rospy.logwarn(f"abs_orient: dynamic_reconfigure unavailable ({e}): parameters fixed at start-up")
             return
-        for name, value in self.config.tunables().flat().items():  # the server starts from the ~section values
-            if name in AbsOrientConfig.defaults:
+        # the server starts from the ~section values, unless its ~name is set already: the node's own
+        # (~markers_only), or what the server set before a respawn
+        for name, value in self.config.tunables().flat().items():
+            if name in AbsOrientConfig.defaults and not self.rospy.has_param("~" + name):
                 self.rospy.set_param("~" + name, value)
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
 
