@@ -83,7 +83,7 @@ ROSTEST_SECONDS = {"abs_orient_consumer_bad.test": 76, "abs_orient_node.test": 7
                    "abs_orient_loop.test": 52, "abs_orient_markers_only.test": 48, "abs_orient_consumer_ekf.test": 48,
                    "abs_orient_chaos.test": 43, "abs_orient_calibration.test": 41, "abs_orient_ekf.test": 35,
                    "ms60_chaos.test": 31, "abs_orient_bad_inputs.test": 26, "ms60.test": 22, "synthetic_bag.test": 18,
-                   "abs_orient_startup.test": 16, "abs_orient_raw.test": 7}
+                   "abs_orient_startup.test": 22, "abs_orient_raw.test": 7}
 
 
 def rostest_lanes(names):

@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Checker of abs_orient_startup.test: bad marker maps / calibrations (and a map of 2 markers with
-``~markers_only``) → one line, exit 2; a good
-calibration → the two lever arms on /tf_static, equal to the file (read back through tf2)."""
+``~markers_only``, a tunable out of its range in the node's ``~filter`` namespace) → one line, exit 2; a good
+calibration → the two lever arms on /tf_static, equal to the file (read back through tf2); a params file loaded
+into the node's namespace (``rosparam load``, what ``<rosparam command="load">`` does) reaches the node."""
 import math
 import os
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 import unittest
 
 import numpy as np
@@ -29,6 +32,7 @@ EXPECTED = {"missing.yaml": "cannot read", "syntax.yaml": "not valid YAML", "no_
 
 
 SCRIPTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scripts")
+MARKERS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "cfg", "markers_example.yaml")
 
 
 def run_node(executable, name, params, timeout=30):
@@ -75,6 +79,31 @@ class Startup(unittest.TestCase):
     def test_no_marker_map_given(self):
         proc = run_node("abs_orient", "abs_orient_no_map", {})
         self._assert_one_fatal_line(proc, "~markers")
+
+    def test_a_tunable_out_of_range_in_its_namespace(self):
+        rospy.set_param("/abs_orient_params_bad/filter", {"gate_chi2_yaw": 2000.0})
+        proc = run_node("abs_orient", "abs_orient_params_bad", {"markers": MARKERS})
+        self._assert_one_fatal_line(proc, "~filter/gate_chi2_yaw: expected a number in [0.01, 1000], got 2000.0")
+
+    def test_a_params_file_loaded_into_the_namespace_reaches_the_node(self):
+        path = self._write("params.yaml", "tracking:\n  gate_deg: 2.5\nfilter:\n  gate_chi2_yaw: 12.0\n")
+        subprocess.run(["rosparam", "load", path, "/abs_orient_params"], check=True, timeout=30)
+        args = [os.path.join(SCRIPTS, "abs_orient"), "__name:=abs_orient_params", f"_markers:={MARKERS}"]
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:  # dynamic_reconfigure's view of the running node's tunables: its ~<name>, from the ~section values
+            deadline = time.monotonic() + 30.0
+            while time.monotonic() < deadline and rospy.get_param("/abs_orient_params/gate_chi2_yaw", None) != 12.0:
+                time.sleep(0.2)
+            self.assertEqual(rospy.get_param("/abs_orient_params/gate_chi2_yaw", None), 12.0)
+            self.assertEqual(rospy.get_param("/abs_orient_params/gate_deg"), 2.5)
+            self.assertIsNone(proc.poll())
+        finally:
+            proc.send_signal(signal.SIGINT)   # as roslaunch stops it
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
 
     def test_calibration_that_fails_to_load(self):
         path = self._write("calib_bad.yaml",

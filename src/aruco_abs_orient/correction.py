@@ -84,6 +84,7 @@ from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .errors import ConfigurationError
+from .paramspec import Params, param
 from .solver import yaw_consensus
 from .transforms import make_T, rot_z, transform_points, wrap_angle, yaw_of
 
@@ -112,50 +113,42 @@ class NotInitialisedError(CorrectionError):
 
 
 @dataclass
-class FilterParams:
-    """Tuning of :class:`MapOdomFilter` (flat scalars: exposed via dynamic_reconfigure)."""
+class FilterParams(Params):
+    """Tuning of :class:`MapOdomFilter` (cfg/params.yaml's ``filter`` section; flat scalars, the live ones in
+    cfg/AbsOrient.cfg). The gates are χ² at p = 0.001 of 1 (a yaw), 3 (a prism position) and 4 (a resection's
+    yaw and position) degrees of freedom."""
 
-    yaw_random_walk: float = math.radians(0.05)     # rad/√s, VO yaw wander beyond its drift rate
-    drift_rate_walk: float = math.radians(0.1) / 60.0   # rad/s/√s, change of the VO yaw drift rate
-    initial_drift_rate_sigma: float = math.radians(10.0) / 60.0  # rad/s, prior σ of the drift rate
-    translation_random_walk: float = 0.01           # m/√s, VO position drift
-    gate_chi2_yaw: float = 10.83                    # χ²(1 dof), p = 0.001
-    gate_chi2_prism: float = 16.27                  # χ²(3 dof), p = 0.001
-    gate_chi2_pose: float = 18.47                   # χ²(4 dof), p = 0.001: a resection's yaw + position
-    standstill_duration: float = 2.0                # s of standstill needed at start-up
-    standstill_odom_tolerance: float = 0.01         # m, odometry displacement within the standstill
-    standstill_yaw_tolerance: float = math.radians(0.5)  # rad, odometry yaw change within it
-    standstill_prism_tolerance: float = 0.01        # m, prism motion (first vs second half mean) within it
-    require_standstill: bool = False                # start only at standstill (default: anywhere)
-    init_min_yaws: int = 3                          # consistent marker yaws needed to (re)initialise
-    init_min_markers: int = 2                       # different markers among them to start while moving
-    lockout_window: float = 1.0                     # s of consistently gated yaws ⇒ reset to their consensus
-    lockout_min_yaws: int = 3                       # gated yaws that must agree for that
-    adapt_rate: float = 0.005                       # adaptive yaw process noise: log-scale step per yaw (0: off)
-    adapt_max_scale: float = 1000.0                 # largest factor on the yaw random walk's variance
-    init_yaw_floor: float = math.radians(0.5)       # rad, consensus tolerance floor
-    reinit_after: float = 30.0                      # s without an accepted yaw ⇒ re-initialise
-    max_delay: float = 1.0                          # s, oldest late measurement still applied
+    error = CorrectionError
 
-    def validate(self) -> None:
-        for name in ("yaw_random_walk", "drift_rate_walk", "initial_drift_rate_sigma", "translation_random_walk",
-                     "adapt_rate",
-                     "standstill_odom_tolerance",
-                     "standstill_yaw_tolerance", "standstill_prism_tolerance", "init_yaw_floor", "max_delay"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise CorrectionError(f"FilterParams.{name}: expected a non-negative number, got {v!r}")
-        for name in ("gate_chi2_yaw", "gate_chi2_prism", "gate_chi2_pose", "standstill_duration", "reinit_after",
-                     "lockout_window"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0):
-                raise CorrectionError(f"FilterParams.{name}: expected a positive number, got {v!r}")
-        if not (isinstance(self.adapt_max_scale, (int, float)) and self.adapt_max_scale >= 1):
-            raise CorrectionError(f"FilterParams.adapt_max_scale: expected a number ≥ 1, got {self.adapt_max_scale!r}")
-        for name in ("init_min_yaws", "init_min_markers", "lockout_min_yaws"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise CorrectionError(f"FilterParams.{name}: expected an integer ≥ 1, got {v!r}")
+    yaw_random_walk: float = param(math.radians(0.05), "VO yaw wander beyond its drift rate", "rad/√s", 0.0, 0.1)
+    drift_rate_walk: float = param(math.radians(0.1) / 60.0, "how fast the VO's yaw drift rate changes",
+                                   "rad/s/√s", 0.0, 0.01)
+    initial_drift_rate_sigma: float = param(math.radians(10.0) / 60.0, "prior 1-σ of the VO's yaw drift rate",
+                                            "rad/s", 0.0, 0.1)
+    translation_random_walk: float = param(0.01, "VO position drift", "m/√s", 0.0, 1.0)
+    gate_chi2_yaw: float = param(10.83, "gate of a marker yaw", "χ², 1 dof", 0.01, 1000.0)
+    gate_chi2_prism: float = param(16.27, "gate of a prism position", "χ², 3 dof", 0.01, 1000.0)
+    gate_chi2_pose: float = param(18.47, "gate of a resection's yaw and position", "χ², 4 dof", above=0.0)
+    standstill_duration: float = param(2.0, "window of the start-up yaws (and of a standstill, when there is one)",
+                                       "s", 0.01, 60.0)
+    standstill_odom_tolerance: float = param(0.01, "odometry displacement within a standstill", "m", 0.0)
+    standstill_yaw_tolerance: float = param(math.radians(0.5), "odometry yaw change within a standstill", "rad",
+                                            0.0)
+    standstill_prism_tolerance: float = param(0.01, "prism motion within a standstill (first vs second half mean)",
+                                              "m", 0.0)
+    require_standstill: bool = param(False, "start only at a standstill (default: start anywhere)")
+    init_min_yaws: int = param(3, "consistent marker yaws needed to (re)initialise", "", 1, 100)
+    init_min_markers: int = param(2, "different markers among them to start while moving", "", 1, 100)
+    lockout_window: float = param(1.0, "gated yaws that agree with each other over this long reset the filter to "
+                                  "their consensus", "s", 0.1, 60.0)
+    lockout_min_yaws: int = param(3, "gated yaws that must agree for that", "", 1)
+    adapt_rate: float = param(0.005, "log-scale step per yaw of the innovation-scaled yaw noise (0: off)", "", 0.0,
+                              1.0)
+    adapt_max_scale: float = param(1000.0, "largest factor on the yaw random walk's variance", "", 1.0)
+    init_yaw_floor: float = param(math.radians(0.5), "consensus tolerance floor of the start-up yaws", "rad", 0.0)
+    reinit_after: float = param(30.0, "without an accepted yaw for this long the filter re-initialises", "s", 0.1,
+                                3600.0)
+    max_delay: float = param(1.0, "oldest late measurement still applied", "s", 0.0, 10.0)
 
 
 @dataclass

@@ -24,7 +24,7 @@ from typing import Any, Dict, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from .errors import InputFileError
-from .paramcheck import Validated, check_non_negative
+from .paramspec import Params, param
 from .plots import png_title
 from .transforms import wrap_angle
 from .tum import atomic_write_text, sorted_series
@@ -62,23 +62,17 @@ class EvaluationError(InputFileError):
 
 
 @dataclass
-class EvaluationParams(Validated):
-    """What ``aruco-abs-orient evaluate`` computes (cfg/params.yaml's ``evaluation`` section).
+class EvaluationParams(Params):
+    """What ``aruco-abs-orient evaluate`` computes (cfg/params.yaml's ``evaluation`` section)."""
 
-    - ``max_gap``: a pose (or a marker yaw) is compared with the reference only where the reference has
-      samples at most this far apart (s) around it: no error is interpolated across a gap.
-    - ``min_gap``: coverage lists the gaps between poses longer than this (s).
-    - ``settle``: the fused output (``--fused``) is judged from this long (s) after its first absolute yaw
-      (the EKF converges), unless ``--after`` says when.
-    """
+    error = EvaluationError
 
-    max_gap: float = 0.2
-    min_gap: float = 0.5
-    settle: float = 1.0
-
-    def validate(self) -> None:
-        """Raise EvaluationError naming the first out-of-range field."""
-        check_non_negative(self, EvaluationError)
+    max_gap: float = param(0.2, "a pose (or a marker yaw) is compared with the reference only where the reference "
+                           "has samples at most this far apart around it: no error is interpolated across a gap",
+                           "s", 0.0)
+    min_gap: float = param(0.5, "coverage lists the gaps between poses longer than this", "s", 0.0)
+    settle: float = param(1.0, "the fused output (--fused) is judged from this long after its first absolute yaw "
+                          "(the EKF converges), unless --after says when", "s", 0.0)
 
 
 def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:

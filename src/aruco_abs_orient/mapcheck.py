@@ -35,6 +35,7 @@ from typing import Deque, Dict, List, Mapping, NamedTuple, Optional, Sequence, T
 
 import numpy as np
 
+from .paramspec import Params, param
 from .selfcheck import _hat_basis, _robust_lsq
 from .transforms import wrap_angle
 
@@ -45,37 +46,30 @@ FITS, DOES_NOT_FIT, UNDETERMINED = "fits", "does_not_fit", "undetermined"
 
 
 @dataclass(frozen=True)
-class MapCheckParams:
-    """Thresholds of the map check.
+class MapCheckParams(Params):
+    """Thresholds of the map check (cfg/params.yaml's ``mapcheck`` section)."""
 
-    - ``fit_deg``: the map fits when the median sighting points within this of its marker (degrees).
-    - ``knot_spacing``: s between the hat functions of the map→odom yaw (the odometry's drift).
-    - ``max_time_error``, ``time_step``: s, the time-offset errors tried (± the first, in steps of the second).
-    - ``min_sightings``: fewer give no verdict; ``min_travel``: m of prism track needed when only one marker
-      was seen (from one place a single bearing fits any map).
-    - ``tolerance``: m, a marker placed within this (+ 3 σ) of where a change of the map puts it agrees.
-    - ``min_ray_spread_deg``: a marker is placed when its rays span at least this angle.
-    - ``max_sightings``: more are thinned evenly in time (the check's cost).
-    - ``max_prism_gap``: s, a sighting between two prism positions further apart is not used (as the pipeline's
-      ``prism_max_gap``).
-    - ``max_marker_distance``: m, map markers seen farther than this from the prism track (a 19 cm marker is a
-      pixel there) mean a wrong origin or unit, even where no marker can be placed.
-    - ``max_odom_tilt_deg``: the odometry's frame may be tilted up to this (a VO without gravity keeps the
-      platform's starting roll and pitch): estimated with the map→odom yaw, a larger one is not applied.
-    """
-
-    fit_deg: float = 1.0
-    knot_spacing: float = 10.0
-    max_time_error: float = 1.0
-    time_step: float = 0.05
-    min_sightings: int = 30
-    min_travel: float = 1.0
-    tolerance: float = 0.3
-    min_ray_spread_deg: float = 5.0
-    max_sightings: int = 3000
-    max_prism_gap: float = 0.5
-    max_marker_distance: float = 200.0
-    max_odom_tilt_deg: float = 5.0
+    fit_deg: float = param(1.0, "the map fits when the median sighting points within this of its marker", "deg",
+                           above=0.0)
+    knot_spacing: float = param(10.0, "spacing of the hat functions of the map→odom yaw (the odometry's drift)",
+                                "s", above=0.0)
+    max_time_error: float = param(1.0, "the time-offset errors tried span ± this", "s", 0.0)
+    time_step: float = param(0.05, "... in steps of this", "s", above=0.0)
+    min_sightings: int = param(30, "fewer sightings give no verdict", "", 1)
+    min_travel: float = param(1.0, "prism track needed when only one marker was seen (from one place a single "
+                              "bearing fits any map)", "m", 0.0)
+    tolerance: float = param(0.3, "a marker placed within this (+ 3 σ) of where a change of the map puts it agrees",
+                             "m", 0.0)
+    min_ray_spread_deg: float = param(5.0, "a marker is placed when its rays span at least this angle", "deg", 0.0)
+    max_sightings: int = param(3000, "more are thinned evenly in time (the check's cost)", "", 1)
+    live_max_sightings: int = param(1000, "the node's window of sightings (0.1–0.2 s of CPU a check)", "", 1)
+    max_prism_gap: float = param(0.5, "a sighting between two prism positions further apart is not used (as the "
+                                 "pipeline's prism_max_gap)", "s", 0.0)
+    max_marker_distance: float = param(200.0, "map markers seen farther than this from the prism track (a 19 cm "
+                                       "marker is a pixel there) mean a wrong origin or unit", "m", above=0.0)
+    max_odom_tilt_deg: float = param(5.0, "the odometry's frame may be tilted up to this (a VO without gravity keeps "
+                                     "the platform's starting roll and pitch); a larger estimate is not applied",
+                                     "deg", 0.0)
 
 
 class Sightings(NamedTuple):
@@ -102,7 +96,7 @@ class SightingSample:
     other one kept dropped) whenever ``2 · size`` are held, so what is kept spans the run evenly (an hour at 30 fps
     holds ``size`` to ``2 · size`` rows, not half a million)."""
 
-    def __init__(self, size: int = 3000):
+    def __init__(self, size: int = MapCheckParams.max_sightings):
         self.size, self.stride, self._seen = int(size), 1, 0
         self._rows: List[tuple] = []
 

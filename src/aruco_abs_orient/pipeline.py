@@ -30,6 +30,7 @@ from .correction import FilterParams, MapOdomFilter
 from .detection import DetectionError, DetectorParams, MarkerObservation, frame_to_grey
 from .errors import ConfigurationError
 from .markers import MarkerMap
+from .paramspec import Params, param
 from .solver import (
     FitSettings,
     Mounting,
@@ -71,78 +72,56 @@ class PipelineError(ConfigurationError):
 
 
 @dataclass
-class PipelineParams:
-    """Knobs of the pipeline itself (detection, tracking and filter knobs live in their own objects).
+class PipelineParams(Params):
+    """Knobs of the pipeline itself (cfg/params.yaml's ``pipeline`` section; detection, tracking, the filter, the
+    tilt and the multi-marker fits have their own). ``tilt_from_markers`` is off by default because the markers
+    measure the CAMERA's attitude: an uncalibrated camera roll or pitch would be taken for a platform tilt (and
+    the self-check could no longer see it); with a calibration file the markers correct the tilt whatever it
+    says, and an IMU wins over both. The lens fields describe the camera without a calibration file
+    (``camera.DualFisheye``); a calibration file's ``camera_lenses`` replace them."""
 
-    - ``prism_sigma``: 1-σ per axis of a total-station prism position that comes without its own covariance (m).
-    - ``prism_max_gap``: largest gap between the two prism samples around an image for
-      interpolation (s); beyond it the frame gives no absolute yaw (counted).
-    - ``prism_max_extrapolation``: how far past the newest prism sample an image may lie (s);
-      used live, where the prism arrives a little after the image.
-    - ``tilt_sigma_deg``: 1-σ of roll and of pitch from the odometry (degrees).
-    - ``lever_sigma``: 1-σ per axis of the camera–prism lever arm (m).
-    - ``min_range``: nearest usable marker (m).
-    - ``elevation_gate``: a marker whose observed elevation disagrees with the map, prism and
-      tilt by more than this many σ is rejected before the filter (a wrong id, a moved marker).
-    - ``fusion_gate``: a marker whose yaw disagrees with the frame's other markers by more than
-      this many σ is left out of the frame's fused yaw (σ).
-    - ``init_search_interval``: before the filter is initialised (no prediction: every search
-      is a full-frame one), search only every n-th image (frames). 1 (every image) by default:
-      the filter starts from three consistent yaws, and a node (re)started while driving should
-      not throw away the frames that give them (live, the newest image wins anyway).
-    - ``jpeg_reduce``: decode JPEGs at 1/1, 1/2, 1/4 or 1/8 resolution (1 = full; accuracy
-      falls with resolution, see bench/detection.py).
-    - ``markers_only``: ignore the prism; every frame's pose comes from a resection on its markers
-      (≥ 3, or ≥ 2 with the tilt from an IMU or the odometry). Without it, frames without a prism
-      position (none configured, or a dropout longer than ``prism_max_gap``) are resected too.
-    - ``resection_min_cone_deg``: a resection whose markers all lie within this angle of each other, seen
-      from the camera, is refused (degrees).
-    - ``attitude_min_spread_deg``: with the prism, a frame whose markers span at least this angle (degrees)
-      also measures roll and pitch (``solver.attitude_from_markers``), a gated update of the tilt.
-    - ``tilt_from_markers``: use that measurement (and, without a prism, a resection's roll and pitch) to
-      correct the odometry's tilt. Off by default: the markers measure the CAMERA's attitude, so an
-      uncalibrated camera roll or pitch (boresight) would be taken for a platform tilt (and the self-check
-      could no longer see it). With a calibration file (``process --calibration``, the node's
-      ``~calibration``) the markers correct the tilt whatever this says; an IMU wins over both.
-    - ``lens_offset``, ``stitch_distance``, ``blend_band_deg``: the camera's two fisheye lenses as known
-      without a calibration file (``camera.DualFisheye``): each lens's centre from the camera origin along
-      its axis (m; 0: one centre), the distance its images are stitched at (m; 0: infinity) and the width of
-      the blend band at the seams (degrees). A calibration file's ``camera_lenses`` replace them; ``calibrate``
-      starts its estimate from them.
-    """
+    error = PipelineError
 
-    prism_sigma: float = 0.005
-    prism_max_gap: float = 0.5
-    prism_max_extrapolation: float = 0.15
-    tilt_sigma_deg: float = 0.2
-    lever_sigma: float = 0.002
-    min_range: float = 0.5
-    elevation_gate: float = 5.0
-    fusion_gate: float = 4.0
-    init_search_interval: int = 1
-    jpeg_reduce: int = 1
-    markers_only: bool = False
-    resection_min_cone_deg: float = 10.0
-    attitude_min_spread_deg: float = 20.0
-    tilt_from_markers: bool = False
-    lens_offset: float = 0.0
-    stitch_distance: float = 0.0
-    blend_band_deg: float = 2.0
+    prism_sigma: float = param(0.005, "1-σ per axis of a total-station prism position that comes without its own "
+                               "covariance", "m", 0.0, 0.2)
+    prism_max_gap: float = param(0.5, "largest gap between the two prism samples around an image for "
+                                 "interpolation; beyond it the frame gives no absolute yaw (counted)", "s", 0.0, 5.0)
+    prism_max_extrapolation: float = param(0.15, "how far past the newest prism sample an image may lie (live, "
+                                           "the prism arrives a little after the image)", "s", 0.0, 2.0)
+    tilt_sigma_deg: float = param(0.2, "1-σ of roll and of pitch from the odometry", "deg", 0.0, 10.0)
+    lever_sigma: float = param(0.002, "1-σ per axis of the camera–prism lever arm", "m", 0.0, 0.1)
+    min_range: float = param(0.5, "nearest usable marker", "m", 0.0, 20.0)
+    elevation_gate: float = param(5.0, "a marker whose observed elevation disagrees with the map, prism and tilt "
+                                  "by more than this is rejected before the filter (a wrong id, a moved marker)",
+                                  "σ", 0.0, 100.0)
+    fusion_gate: float = param(4.0, "a marker whose yaw disagrees with the frame's other markers by more than this "
+                               "is left out of the frame's fused yaw", "σ", 0.0, 100.0)
+    init_search_interval: int = param(1, "before the filter is initialised (every search a full-frame one), "
+                                      "search only every n-th image (1: every image, so that a node started while "
+                                      "driving keeps the frames that start it)", "frames", 1, 100)
+    jpeg_reduce: int = param(1, "decode JPEGs at 1/n resolution (accuracy falls with it: bench/detection.py)", "",
+                             choices=(1, 2, 4, 8))
+    markers_only: bool = param(False, "ignore the prism: every frame's pose from a resection on its markers (≥ 3, or "
+                               "≥ 2 with the tilt); without it only frames without a prism position are resected")
+    resection_min_cone_deg: float = param(10.0, "a resection whose markers all lie within this angle of each other, "
+                                          "seen from the camera, is refused", "deg", 0.0, 90.0)
+    attitude_min_spread_deg: float = param(20.0, "with the prism, a frame whose markers span at least this angle "
+                                           "also measures roll and pitch (a gated update of the tilt; 90: off)",
+                                           "deg", 0.0, 90.0)
+    tilt_from_markers: bool = param(False, "let that measurement (and a resection's roll and pitch) correct the "
+                                    "odometry's tilt without a calibration file (see the class doc)")
+    lens_offset: float = param(0.0, "each fisheye lens's centre from the camera origin along its axis (0: one "
+                               "centre); calibrate starts its estimate from it", "m", 0.0, 0.1)
+    stitch_distance: float = param(0.0, "the distance the camera stitches its two images at (0: infinity)", "m",
+                                   0.0)
+    blend_band_deg: float = param(2.0, "width of the blend band at the stitching seams", "deg", 0.0, 90.0)
 
     def lenses(self) -> DualFisheye:
         """The camera's lenses these parameters describe (``camera.DualFisheye``)."""
         return DualFisheye(self.lens_offset, stitch_distance=self.stitch_distance or math.inf,
                            blend_band=math.radians(self.blend_band_deg))
 
-    def validate(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise PipelineError(f"PipelineParams.{f.name}: expected a finite non-negative number, got {v!r}")
-        if self.init_search_interval < 1:
-            raise PipelineError(f"PipelineParams.init_search_interval: expected ≥ 1, got {self.init_search_interval!r}")
-        if self.jpeg_reduce not in (1, 2, 4, 8):
-            raise PipelineError(f"PipelineParams.jpeg_reduce: expected 1, 2, 4 or 8, got {self.jpeg_reduce!r}")
+    def check_together(self) -> None:
         try:
             self.lenses()
         except ConfigurationError as e:
@@ -277,14 +256,18 @@ class AbsOrientPipeline:
     measured), so the markers' roll and pitch correct the odometry's tilt as with ``tilt_from_markers``;
     ``lenses``: the camera's two lenses (the calibration file's; default the params' ``lenses()``): each
     marker's yaw is solved along the ray of the lens that saw it; ``lens_yaw_sigma`` (front, back) rad: how well
-    the calibration knew each lens's yaw: the markers of the lens known worse count for that much less.
+    the calibration knew each lens's yaw: the markers of the lens known worse count for that much less. The
+    params objects (cfg/params.yaml's sections; their defaults when None): ``params`` the pipeline's,
+    ``detector_params``, ``tracking_params``, ``filter_params``, ``tilt_params`` and ``fit_settings`` (the
+    multi-marker fits).
     """
 
     def __init__(self, marker_map: MarkerMap, base_T_camera, base_T_prism,
                  params: Optional[PipelineParams] = None, detector_params: Optional[DetectorParams] = None,
                  filter_params: Optional[FilterParams] = None, readout: float = 0.0,
                  tracking_params: Optional[TrackingParams] = None, calibrated: bool = False,
-                 lenses: Optional[DualFisheye] = None, lens_yaw_sigma=None):
+                 lenses: Optional[DualFisheye] = None, lens_yaw_sigma=None,
+                 tilt_params: Optional[TiltParams] = None, fit_settings: Optional[FitSettings] = None):
         for name, T in (("base_T_camera", base_T_camera), ("base_T_prism", base_T_prism)):
             T = np.asarray(T, dtype=float)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -301,6 +284,8 @@ class AbsOrientPipeline:
         self.detector_params = detector_params or DetectorParams()
         self.tracking_params = tracking_params or TrackingParams()
         self.filter_params = filter_params or FilterParams()
+        self.tilt_params = tilt_params or TiltParams()
+        self.fit_settings = fit_settings or FitSettings()
         self.lenses = lenses if lenses is not None else self.params.lenses()
         known = np.zeros(2) if lens_yaw_sigma is None else np.asarray(lens_yaw_sigma, dtype=float).reshape(2)
         self._lens_excess = np.sqrt(np.maximum(known ** 2 - np.min(known) ** 2, 0.0))   # rad, front and back
@@ -312,7 +297,7 @@ class AbsOrientPipeline:
         self.tracker = MarkerTracker(self.marker_map, self.detector_params, params=self.tracking_params,
                                      lenses=self.lenses)
         self.filter = MapOdomFilter(self.base_T_prism, self.filter_params)
-        self.tilt = TiltEstimator(TiltParams(odometry_sigma=math.radians(self.params.tilt_sigma_deg)))
+        self.tilt = TiltEstimator(self.tilt_params, math.radians(self.params.tilt_sigma_deg))
         self.last_stamp: Optional[float] = None
         self._last_odom: Optional[Tuple[float, np.ndarray]] = None   # (t, roll/pitch/yaw) of the last frame
         self._uninitialised_frames = 0
@@ -359,10 +344,9 @@ class AbsOrientPipeline:
                 raise PipelineError(f"unknown parameter {k!r}")
             per_group[names[k]][k] = v
         if per_group["pipeline"]:
-            p = replace(self.params, **per_group["pipeline"])
-            p.validate()
+            p = replace(self.params, **per_group["pipeline"])   # checked when made
             self.params = p
-            self.tilt.params.odometry_sigma = math.radians(p.tilt_sigma_deg)
+            self.tilt.odometry_sigma = math.radians(p.tilt_sigma_deg)
         if per_group["detection"] or per_group["tracking"]:
             detector = replace(self.detector_params, **per_group["detection"])  # both validated before either
             tracking = replace(self.tracking_params, **per_group["tracking"])   # is taken
@@ -578,7 +562,8 @@ class AbsOrientPipeline:
                                marker=np.array([self.marker_map[o.id].sigma for o in observations]))
             est = attitude_from_markers(
                 directions, M, prism_p, self._mounting(), noise=noise, tilt=(tilt.roll, tilt.pitch),
-                settings=FitSettings(min_spread=math.radians(self.params.attitude_min_spread_deg)), origins=origins)
+                settings=self.fit_settings, min_spread=math.radians(self.params.attitude_min_spread_deg),
+                origins=origins)
         except SolverError:
             self._count("tilt_from_markers_refused")
             return False
@@ -609,7 +594,7 @@ class AbsOrientPipeline:
             est = resection(directions, np.array([self.marker_map[o.id].position for o in obs]),
                             self.base_T_camera, noise=noise, tilt=(tilt.roll, tilt.pitch),
                             tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA), initial_pose=start,
-                            settings=FitSettings(min_cone=math.radians(self.params.resection_min_cone_deg)),
+                            settings=self.fit_settings, min_cone=math.radians(self.params.resection_min_cone_deg),
                             origins=origins)
         except SolverError as e:
             self._count("resection_degenerate")

@@ -44,6 +44,7 @@ import numpy as np
 from .calibration import CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
 from .camera import SINGLE_CENTRE, DualFisheye, azel_to_bearing
 from .markers import MarkerMap
+from .paramspec import Params, param
 from .transforms import wrap_angle
 from .tum import Trajectory
 
@@ -52,24 +53,35 @@ __all__ = ["SelfCheckParams", "Finding", "YawObservation", "RunContext", "ModelC
 
 
 @dataclass(frozen=True)
-class SelfCheckParams:
-    """Thresholds of the self-checks (a finding needs both the significance and the size)."""
+class SelfCheckParams(Params):
+    """Thresholds of the self-checks (cfg/params.yaml's ``selfcheck`` section): a finding needs both the
+    significance and the size."""
 
-    knot_spacing: float = 5.0          # s, hat functions of the common (filter) part of the residuals
-    sigma_floor: float = math.radians(0.02)  # rad, added to each yaw σ (model errors beyond the pixel noise)
-    significance: float = 5.0          # a finding needs |estimate| > this × its σ
-    tilt_significance: float = 4.0     # the same for the camera tilt (two components, fitted on every yaw)
-    min_offset: float = 0.02           # s, smallest time offset error reported
-    min_tilt: float = math.radians(0.1)    # rad, smallest camera tilt reported
-    min_heading_travel: float = math.radians(0.15)  # rad, smallest heading vs travel difference reported
-    min_marker_bias: float = math.radians(0.5)  # rad, a marker this far off the others is reported
-    min_accepted_share: float = 0.7    # below: the rejections are reported
-    max_normalised_rms: float = 3.0    # above: the σ are reported as too optimistic
-    straight_speed: float = 0.2        # m/s, slower is not "driving straight"
-    straight_turn_rate: float = math.radians(2.0)  # rad/s, faster is turning
-    min_samples: int = 30
-    model_observations: int = 1500     # the calibration model's check takes at most this many (whole frames)
-    model_interval: float = 60.0       # s of wall time between a live node's model checks (a few s of CPU each)
+    knot_spacing: float = param(5.0, "spacing of the hat functions of the common (filter) part of the residuals",
+                                "s", above=0.0)
+    sigma_floor: float = param(math.radians(0.02), "added to each yaw σ (model errors beyond the pixel noise)",
+                               "rad", 0.0)
+    significance: float = param(5.0, "a finding needs |estimate| > this × its σ", "σ", 0.0)
+    tilt_significance: float = param(4.0, "the same for the camera tilt (two components, fitted on every yaw)",
+                                     "σ", 0.0)
+    min_offset: float = param(0.02, "smallest time offset error reported", "s", 0.0)
+    min_tilt: float = param(math.radians(0.1), "smallest camera tilt reported", "rad", 0.0)
+    min_heading_travel: float = param(math.radians(0.15), "smallest heading vs direction of travel difference "
+                                      "reported", "rad", 0.0)
+    min_marker_bias: float = param(math.radians(0.5), "a marker this far off the others is reported", "rad", 0.0)
+    min_accepted_share: float = param(0.7, "below this share of marker yaws accepted the rejections are reported",
+                                      "", 0.0, 1.0)
+    max_normalised_rms: float = param(3.0, "above this RMS of residual/σ the σ are reported as too optimistic", "",
+                                      0.0)
+    straight_speed: float = param(0.2, "slower is not driving straight", "m/s", 0.0)
+    straight_turn_rate: float = param(math.radians(2.0), "faster is turning", "rad/s", 0.0)
+    min_samples: int = param(30, "fewer marker yaws give no finding", "", 1)
+    model_observations: int = param(1500, "the calibration model's check takes at most this many bearings (whole "
+                                    "frames)", "", 1)
+    live_model_observations: int = param(600, "the node's model check takes at most this many (about a second of "
+                                         "CPU a minute, beside the image thread)", "", 1)
+    model_interval: float = param(60.0, "wall time between a live node's model checks (a few s of CPU each)", "s",
+                                  0.0)
 
 
 @dataclass

@@ -39,6 +39,7 @@ import numpy as np
 
 from .camera import angle_between
 from .errors import GeometryError
+from .paramspec import Params, param
 from .transforms import cross3, make_T, matrix_to_rpy, rot_x, rot_y, rot_z, rpy_to_matrix, wrap_angle
 
 __all__ = [
@@ -100,27 +101,28 @@ class NoiseModel:
 
 
 @dataclass(frozen=True)
-class FitSettings:
-    """How :func:`attitude_from_markers` and :func:`resection` fit several markers.
+class FitSettings(Params):
+    """How :func:`attitude_from_markers` and :func:`resection` fit several markers (cfg/params.yaml's ``fit``
+    section): two stages, a robust one that finds the outliers, then plain least squares on the rest."""
 
-    - ``loss``: robust loss of the first stage, 'cauchy', 'huber' or 'none'; ``loss_scale`` in σ.
-    - ``outlier_gate``: markers whose normalised residual (|r|/σ, 2-D) exceeds it after the robust stage are
-      dropped (weight 0) and the rest re-solved by plain least squares (if enough remain); None keeps the
-      robust solution.
-    - ``min_spread``: smallest angle (rad) between marker directions seen from the camera (a resection also
-      refuses markers closer than this to one line).
-    - ``min_cone``: a resection whose markers, seen from the camera, all lie within this angle (rad) of each
-      other (one small cone: range and position poorly determined) is refused.
-    - ``max_iterations``: Gauss-Newton iterations per stage.
-    """
+    error = SolverError
 
-    loss: str = "cauchy"
-    loss_scale: float = 2.0
-    outlier_gate: Optional[float] = 4.0
-    min_spread: float = math.radians(3.0)
-    min_cone: float = math.radians(10.0)
-    max_iterations: int = 50
+    loss: str = param("cauchy", "robust loss of the first stage", choices=("cauchy", "huber", "none"))
+    loss_scale: float = param(2.0, "scale of the robust loss", "σ", above=0.0)
+    outlier_gate: Optional[float] = param(4.0, "markers whose normalised residual (|r|/σ, 2-D) exceeds it after the "
+                                          "robust stage are dropped and the rest re-solved by least squares (if "
+                                          "enough remain); null keeps the robust solution", "σ", above=0.0,
+                                          optional=True)
+    max_iterations: int = param(50, "Gauss-Newton iterations per stage", "", 1)
 
+
+#: the smallest angle (rad) between marker directions seen from the camera that determines an attitude (a
+#: resection also refuses markers closer than it to one line); the pipeline's attitude update asks more
+#: (``attitude_min_spread_deg``)
+MIN_SPREAD = math.radians(3.0)
+#: a resection whose markers, seen from the camera, all lie within this angle (rad) of each other (one small cone:
+#: range and position poorly determined) is refused; the pipeline's is ``resection_min_cone_deg``
+MIN_CONE = math.radians(10.0)
 
 _EXACT = NoiseModel()
 #: the bearing noise assumed by the multi-marker solvers when the caller gives none (rad)
@@ -527,8 +529,6 @@ def _gauss_newton(pb: _Problem, R0: np.ndarray, p0: np.ndarray, settings: FitSet
     u_obs, M, sigma_b, sigma_m, R_bc, a, prior, estimate_p, tilt_prior, min_inliers = pb
     loss, loss_scale, outlier_gate = settings.loss, settings.loss_scale, settings.outlier_gate
     max_iterations = settings.max_iterations
-    if loss not in ("huber", "cauchy", "none"):
-        raise SolverError(f"loss: expected 'huber', 'cauchy' or 'none', got {loss!r}")
     n = len(M)
     npar = 6 if estimate_p else 3
     E = _tangent_basis(u_obs)                                   # (N, 3, 2)
@@ -644,7 +644,8 @@ def yaw_consensus(yaws, sigmas, floor: float = math.radians(0.5)) -> Tuple[float
 
 def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise: NoiseModel = _MULTI_NOISE,
                           tilt: Tuple[float, float] = (0.0, 0.0), initial_yaw: Optional[float] = None,
-                          settings: FitSettings = _FIT, origins=None) -> AttitudeEstimate:
+                          settings: FitSettings = _FIT, min_spread: float = MIN_SPREAD,
+                          origins=None) -> AttitudeEstimate:
     """Full attitude of base_link from ≥ 2 marker bearings and the prism position.
 
     Args:
@@ -658,8 +659,9 @@ def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise
             bearing σ. Default: 1 mrad bearings, the rest exact.
         tilt: (roll, pitch) in rad to start from (VO tilt); yaw starts from the consensus of the
             per-marker closed-form yaws (:func:`yaw_from_marker`), else ``initial_yaw``.
-        settings: the robust loss, the outlier gate (the least-squares stage needs ≥ 2 markers left),
-            ``min_spread`` and the iterations (:class:`FitSettings`; ``min_cone`` is the resection's).
+        settings: the robust loss, the outlier gate (the least-squares stage needs ≥ 2 markers left) and the
+            iterations (:class:`FitSettings`).
+        min_spread: the smallest angle (rad) between the markers' directions from the camera.
         origins: (N, 3) where each bearing's ray starts in the camera frame (m, lens centres); default the origin.
 
     Raises:
@@ -698,7 +700,7 @@ def attitude_from_markers(bearings, markers, prism, mounting: Mounting, *, noise
         raise DegenerateGeometryError("no marker gives a closed-form yaw to start from and no initial_yaw")
     R0 = rpy_to_matrix(roll0, pitch0, yaw0)
     C0 = P + R0 @ (t_cam - t_prism)
-    _check_spread(M - C0, settings.min_spread, "the markers seen from the camera")
+    _check_spread(M - C0, min_spread, "the markers seen from the camera")
 
     estimate_p = bool(np.any(Cp != 0))
     prior = None
@@ -733,7 +735,8 @@ def _scan_yaw(d_level: np.ndarray, M: np.ndarray, steps: int = 720) -> Tuple[flo
 
 def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NOISE,
               tilt: Tuple[float, float] = (0.0, 0.0), tilt_sigma: Optional[float] = None, initial_pose=None,
-              settings: FitSettings = _FIT, origins=None) -> ResectionEstimate:
+              settings: FitSettings = _FIT, min_spread: float = MIN_SPREAD, min_cone: float = MIN_CONE,
+              origins=None) -> ResectionEstimate:
     """Position and attitude of base_link from ≥ 3 marker bearings (no prism), or from ≥ 2 when the
     tilt is known (``tilt_sigma`` given).
 
@@ -747,9 +750,10 @@ def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NO
         initial_pose: optional map_T_base (4×4) start instead of the yaw scan. Two markers with a known tilt
             can have two solutions: give the predicted pose to get the one near it.
         settings: :class:`FitSettings`: the loss and outlier gate (at least 3 inliers, 2 with a known tilt,
-            are needed for the least-squares stage); markers closer than ``min_spread`` (rad) to one line
-            (collinear), or seen from the camera along one line through it, and markers whose directions
-            from the camera all lie within ``min_cone`` (rad) of each other are degenerate.
+            are needed for the least-squares stage).
+        min_spread, min_cone: markers closer than ``min_spread`` (rad) to one line (collinear), or seen from the
+            camera along one line through it, and markers whose directions from the camera all lie within
+            ``min_cone`` (rad) of each other are degenerate.
         origins: (N, 3) where each bearing's ray starts in the camera frame (m, lens centres); default the origin.
 
     Raises:
@@ -772,7 +776,7 @@ def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NO
     roll0, pitch0 = _tilt(tilt)
     centred = M - M.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[0] == 0 or (tilt_sigma is None and sv[1] < math.tan(settings.min_spread) * sv[0]):
+    if sv[0] == 0 or (tilt_sigma is None and sv[1] < math.tan(min_spread) * sv[0]):
         raise DegenerateGeometryError("the markers are (nearly) collinear: the rotation about their line "
                                       "and the position around it are not determined")
     if initial_pose is not None:
@@ -786,7 +790,7 @@ def resection(bearings, markers, base_T_camera, *, noise: NoiseModel = _MULTI_NO
     a = t_cam if origins is None else t_cam + _vecs3(origins, "origins") @ R_bc.T
     fit = _gauss_newton(_Problem(u, M, sb, sm, R_bc, a, None, True, tilt_prior, need), R0, p0, settings)
     used = fit.weights > 0.5 if np.count_nonzero(fit.weights > 0.5) >= need else np.ones(n, bool)
-    _check_cone(M[used] - (fit.p + fit.R @ t_cam), settings.min_spread, settings.min_cone)
+    _check_cone(M[used] - (fit.p + fit.R @ t_cam), min_spread, min_cone)
     K = _rpy_jacobian(fit.R)
     T = np.zeros((6, 6))
     T[:3, 3:] = np.eye(3)          # position block: p (map, additive)

@@ -28,6 +28,7 @@ from typing import List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from .paramspec import Params, param
 from .transforms import matrix_to_rpy, quat_to_matrix, wrap_angle
 
 __all__ = ["TiltParams", "Tilt", "TiltEstimator", "tilt_from_imu", "GRAVITY"]
@@ -36,24 +37,26 @@ GRAVITY = 9.80665  # m/s²
 INITIAL_OFFSET_SIGMA = math.radians(5.0)  # rad, prior σ of the odometry's tilt error
 
 
+#: the σ of an IMU's roll and pitch when it states none: a quarter of the odometry's default tilt σ (0.2°), what an
+#: IMU's attitude filter reaches at least
+IMU_DEFAULT_SIGMA = math.radians(0.2) / 4
+#: the smallest σ of roll and pitch from gravity at standstill: the accelerometer's own axes are not better aligned
+GRAVITY_SIGMA_FLOOR = math.radians(0.02)
+#: at standstill (the acceleration is gravity) when the angular rate is below this (rad/s) ...
+STANDSTILL_GYRO = 0.02
+#: ... and | |a| − g | below this (m/s²): the thresholds of an IMU at rest, not of the platform's motion
+STANDSTILL_ACCEL = 0.1
+
+
 @dataclass
-class TiltParams:
-    """Tuning of :class:`TiltEstimator`.
+class TiltParams(Params):
+    """Tuning of :class:`TiltEstimator` (cfg/params.yaml's ``tilt`` section; the odometry's own tilt σ is the
+    pipeline's ``tilt_sigma_deg``)."""
 
-    - ``odometry_sigma``: 1-σ of the odometry's roll and pitch before any correction (rad).
-    - ``offset_walk``: random walk of the odometry's tilt error (rad/√s): how fast a VO's tilt drifts.
-    - ``gate_chi2``: χ² (2 dof) gate of an absolute tilt against the prediction.
-    - ``imu_max_age``: s, an IMU sample older than this (or further from the frame) is not used for it.
-    - ``standstill_gyro``: rad/s, largest angular rate for gravity from the acceleration.
-    - ``standstill_accel``: m/s², largest | |a| − g | for gravity from the acceleration.
-    """
-
-    odometry_sigma: float = math.radians(0.2)
-    offset_walk: float = math.radians(0.05)
-    gate_chi2: float = 13.82
-    imu_max_age: float = 0.2
-    standstill_gyro: float = 0.02
-    standstill_accel: float = 0.1
+    offset_walk: float = param(math.radians(0.05), "random walk of the odometry's tilt error: how fast a VO's tilt "
+                               "drifts", "rad/√s", 0.0)
+    gate_chi2: float = param(13.82, "gate of an absolute tilt against the prediction", "χ², 2 dof", above=0.0)
+    imu_max_age: float = param(0.2, "an IMU sample further than this from the frame is not used for it", "s", 0.0)
 
 
 class Tilt(NamedTuple):
@@ -66,8 +69,7 @@ class Tilt(NamedTuple):
 
 
 def tilt_from_imu(orientation, orientation_cov, linear_acceleration, acceleration_cov, angular_velocity,
-                  base_R_imu=None, params: Optional[TiltParams] = None
-                  ) -> Tuple[Optional[Tuple[float, float, float]], str]:
+                  base_R_imu=None) -> Tuple[Optional[Tuple[float, float, float]], str]:
     """(roll, pitch, σ) of base_link in rad from one ``sensor_msgs/Imu`` sample, or (None, why not).
 
     ``orientation`` quaternion (x, y, z, w) of the IMU in a gravity-aligned frame; ``orientation_cov`` its
@@ -75,9 +77,8 @@ def tilt_from_imu(orientation, orientation_cov, linear_acceleration, acceleratio
     ``linear_acceleration`` (m/s², specific force: +g up at rest) with ``acceleration_cov`` (m⁴/s⁴);
     ``angular_velocity`` (rad/s); ``base_R_imu`` the IMU's mounting rotation in base_link (None: aligned).
     The orientation is used when known and finite; else the acceleration when the IMU stands still
-    (|ω| < ``standstill_gyro``, | |a| − g | < ``standstill_accel``).
+    (|ω| < :data:`STANDSTILL_GYRO`, | |a| − g | < :data:`STANDSTILL_ACCEL`).
     """
-    p = params or TiltParams()
     R_bi = np.eye(3) if base_R_imu is None else np.asarray(base_R_imu, dtype=float)
     q = np.asarray(orientation, dtype=float)
     oc = np.asarray(orientation_cov, dtype=float).reshape(-1)
@@ -90,26 +91,29 @@ def tilt_from_imu(orientation, orientation_cov, linear_acceleration, acceleratio
         R = quat_to_matrix(q / np.linalg.norm(q)) @ R_bi.T
         roll, pitch, _ = matrix_to_rpy(R)
         var = max(float(oc[0]), float(oc[4])) if oc.size == 9 else 0.0
-        return (float(roll), float(pitch), math.sqrt(var) if var > 0 else p.odometry_sigma / 4), ""
+        return (float(roll), float(pitch), math.sqrt(var) if var > 0 else IMU_DEFAULT_SIGMA), ""
     a = np.asarray(linear_acceleration, dtype=float)
     w = np.asarray(angular_velocity, dtype=float)
     ac = np.asarray(acceleration_cov, dtype=float).reshape(-1)
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(w))) or (ac.size and ac[0] == -1):
         return None, why + "; acceleration not usable"
-    if float(np.linalg.norm(w)) > p.standstill_gyro or abs(float(np.linalg.norm(a)) - GRAVITY) > p.standstill_accel:
+    if float(np.linalg.norm(w)) > STANDSTILL_GYRO or abs(float(np.linalg.norm(a)) - GRAVITY) > STANDSTILL_ACCEL:
         return None, why + "; not at standstill (no gravity from the acceleration)"
     g = R_bi @ a                                  # specific force in base_link: R_tᵀ (0, 0, g)
     roll = math.atan2(g[1], g[2])
     pitch = math.atan2(-g[0], math.hypot(g[1], g[2]))
     sa = math.sqrt(max(float(ac[0]), 0.0)) if ac.size and np.all(np.isfinite(ac)) else 0.0
-    return (roll, pitch, max(sa / GRAVITY, math.radians(0.02))), ""
+    return (roll, pitch, max(sa / GRAVITY, GRAVITY_SIGMA_FLOOR)), ""
 
 
 class TiltEstimator:
     """The tilt of base_link per frame (see the module docstring)."""
 
-    def __init__(self, params: Optional[TiltParams] = None):
+    def __init__(self, params: Optional[TiltParams], odometry_sigma: float):
+        """``odometry_sigma``: 1-σ of the odometry's roll and pitch before any correction (rad: the pipeline's
+        ``tilt_sigma_deg``)."""
         self.params = params or TiltParams()
+        self.odometry_sigma = odometry_sigma
         self.offset = np.zeros(2)
         self.P = np.eye(2) * INITIAL_OFFSET_SIGMA ** 2   # a VO may start tilted by degrees
         self.t = -math.inf
@@ -204,4 +208,4 @@ class TiltEstimator:
             d = self._seen_from(odom_yaw) @ self.offset
             return Tilt(odom_roll + float(d[0]), odom_pitch + float(d[1]),
                         math.sqrt(float(np.linalg.eigvalsh(P)[-1])), self.last_source)
-        return Tilt(odom_roll, odom_pitch, self.params.odometry_sigma, "odometry")
+        return Tilt(odom_roll, odom_pitch, self.odometry_sigma, "odometry")

@@ -45,7 +45,7 @@ from .detection import (
     to_grey,
 )
 from .markers import MarkerMap
-from .paramcheck import Validated, check_non_negative
+from .paramspec import Params, param
 from .transforms import invert_T, rot_z, transform_points, wrap_angle
 
 __all__ = ["TrackingError", "TrackingParams", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
@@ -56,54 +56,36 @@ class TrackingError(DetectionError):
 
 
 @dataclass
-class TrackingParams(Validated):
+class TrackingParams(Params):
     """The knobs of map-guided tracking (cfg/params.yaml's ``tracking`` section; those worth changing live are
-    also in cfg/AbsOrient.cfg, for dynamic_reconfigure). How each ROI view and the sweep are searched is
-    :class:`~aruco_abs_orient.detection.DetectorParams`' (``view_*``).
+    also in cfg/AbsOrient.cfg). How each ROI view and the sweep are searched is
+    :class:`~aruco_abs_orient.detection.DetectorParams`' (``view_*``). An ROI view's field of view is the
+    marker's angular size × (1 + 2·``roi_margin``) + 2·``gate_deg``."""
 
-    - ``roi_margin``: ROI view field of view = angular size × (1 + 2·margin) + 2·gate.
-    - ``roi_min_px``: smallest ROI view side (pixels).
-    - ``roi_target_side_px``: ROI views of small markers are upsampled until the marker's
-      side spans this many pixels (pixels) ...
-    - ``roi_max_upsample``: ... by at most this factor.
-    - ``gate_deg``: largest angle (degrees) between an observed and a predicted centre (a rejected quad in
-      an ROI view is read only within it of the view's centre).
-    - ``min_predicted_side_px``: markers predicted smaller than this (pixels of the
-      equirect) are not tracked.
-    - ``sweep_tile_deg``: width (degrees of azimuth) of the vertical strip searched each
-      frame while tracking, so markers the prediction misses are found.
-    - ``sweep_period_frames``: frames for the sweeping tile to go once around 360°.
-    - ``sweep_every_frames``: the tile is searched on every n-th frame only (and moves by
-      n steps then).
-    - ``sweep_max_el_deg``: the tile spans elevations within this (degrees) of the horizon.
-    - ``max_full_interval``: frames between forced full-frame searches while tracking
-      (0 = only at start-up and after a loss).
-    - ``lost_after_frames``: consecutive frames with predictions but no accepted marker
-      after which tracking falls back to full-frame search.
-    - ``lost_backoff_max_frames``: after a full-frame search that found no marker off its
-      prediction, the next one waits for twice the misses, up to this many frames
-      (``lost_after_frames`` or less: no back-off).
-    """
+    error = TrackingError
 
-    roi_margin: float = 0.5
-    roi_min_px: int = 32
-    roi_target_side_px: float = 16.0
-    roi_max_upsample: float = 3.0
-    gate_deg: float = 1.0
-    min_predicted_side_px: float = 6.0
-    sweep_tile_deg: float = 8.0
-    sweep_period_frames: int = 72
-    sweep_every_frames: int = 2
-    sweep_max_el_deg: float = 60.0
-    max_full_interval: int = 0
-    lost_after_frames: int = 3
-    lost_backoff_max_frames: int = 24
-
-    def validate(self) -> None:
-        """Raise TrackingError naming the first out-of-range field."""
-        check_non_negative(self, TrackingError)
-        if self.sweep_period_frames < 1:
-            raise TrackingError(f"TrackingParams.sweep_period_frames: expected ≥ 1, got {self.sweep_period_frames!r}")
+    roi_margin: float = param(0.5, "margin of an ROI view around the predicted marker, a fraction of its size", "",
+                              0.0)
+    roi_min_px: int = param(32, "smallest ROI view side", "px", 0)
+    roi_target_side_px: float = param(16.0, "ROI views of small markers are upsampled until the marker's side "
+                                      "spans this", "px", 0.0)
+    roi_max_upsample: float = param(3.0, "... by at most this factor", "", 0.0)
+    gate_deg: float = param(1.0, "largest angle between an observed and a predicted centre (a rejected quad in an "
+                            "ROI view is read only within it of the view's centre)", "deg", 0.0, 30.0)
+    min_predicted_side_px: float = param(6.0, "markers predicted smaller than this are not tracked", "px", 0.0)
+    sweep_tile_deg: float = param(8.0, "width of the vertical strip searched each frame while tracking, so that "
+                                  "markers the prediction misses are found", "deg", 0.0)
+    sweep_period_frames: int = param(72, "frames for the sweeping tile to go once around 360°", "frames", 1, 10000)
+    sweep_every_frames: int = param(2, "the tile is searched on every n-th frame only (and moves by n steps then)",
+                                    "frames", 0)
+    sweep_max_el_deg: float = param(60.0, "the tile spans elevations within this of the horizon", "deg", 0.0)
+    max_full_interval: int = param(0, "frames between forced full-frame searches while tracking (0: only at "
+                                   "start-up and after a loss)", "frames", 0)
+    lost_after_frames: int = param(3, "consecutive frames with predictions but no accepted marker after which "
+                                   "tracking falls back to full-frame search", "frames", 1, 1000)
+    lost_backoff_max_frames: int = param(24, "after a full-frame search that found no marker off its prediction, "
+                                         "the next waits for twice the misses, up to this (lost_after_frames or "
+                                         "less: no back-off)", "frames", 0)
 
 
 @dataclass

@@ -217,12 +217,12 @@ def test_reinitialises_after_a_long_loss_with_a_vo_jump():
     late = np.array([abs(e[1]) for e in errs if e[0] >= 60.0])
     assert np.max(late) < math.radians(0.2)
     # one marker that disagrees with the filter cannot overrule it: only the timer does
-    stuck = MapOdomFilter(PRISM_IN_BASE, FilterParams(reinit_after=1e9))
+    stuck = MapOdomFilter(PRISM_IN_BASE, FilterParams(reinit_after=3600.0))   # never, in this drive
     drive().run(stuck, yaw_gap=(15.0, 55.0), marker_ids=(3,))
     assert stuck.stats.reinitialisations == 0 and stuck.stats.lockout_recoveries == 0
     assert stuck.stats.yaw_rejected > 50
     # several markers that agree with each other do, within a second of their return
-    g = MapOdomFilter(PRISM_IN_BASE, FilterParams(reinit_after=1e9))
+    g = MapOdomFilter(PRISM_IN_BASE, FilterParams(reinit_after=3600.0))
     errs = drive().run(g, yaw_gap=(15.0, 55.0))
     assert g.stats.lockout_recoveries == 1
     assert np.max([abs(e[1]) for e in errs if e[0] >= 56.0]) < math.radians(0.2)
@@ -301,9 +301,9 @@ def test_update_result_truthiness_and_params_update():
     d.run(f)
     k = len(d.t) - 1
     assert f.add_yaw(d.t[k], d.heading[k], SIGMA_YAW, d.odom_T_base[k])
-    assert not f.add_yaw(d.t[k], d.heading[k] + 0.5, SIGMA_YAW, d.odom_T_base[k])
-    f.update_params(FilterParams(gate_chi2_yaw=1e9))
-    assert f.add_yaw(d.t[k], d.heading[k] + 0.5, SIGMA_YAW, d.odom_T_base[k]).status == "accepted"
+    assert not f.add_yaw(d.t[k], d.heading[k] + 0.1, SIGMA_YAW, d.odom_T_base[k])
+    f.update_params(FilterParams(gate_chi2_yaw=1000.0))   # the widest gate: 0.1 rad is within 29 σ
+    assert f.add_yaw(d.t[k], d.heading[k] + 0.1, SIGMA_YAW, d.odom_T_base[k]).status == "accepted"
     with pytest.raises(CorrectionError, match="gate_chi2_yaw"):
         f.update_params(FilterParams(gate_chi2_yaw=0.0))
 

@@ -162,7 +162,7 @@ def literal_get_params(module: str) -> dict:
 
 def node_params() -> dict:
     """{node: {param: default}} of every node, from its parameter reader and its literal get_param calls."""
-    from aruco_abs_orient.ros.abs_orient_node import NodeConfig, NodeConfigError
+    from aruco_abs_orient.nodeconfig import NodeConfig, NodeConfigError
     from aruco_abs_orient.ros.ms60_node import config_from_params
 
     out = {node: literal_get_params(mod) for node, mod in node_modules().items()}

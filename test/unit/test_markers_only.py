@@ -168,7 +168,7 @@ def test_tilt_from_imu_orientation_acceleration_and_fallbacks():
 
 
 def test_tilt_estimator_prefers_a_fresh_imu_and_falls_back_to_the_corrected_odometry():
-    est = TiltEstimator()
+    est = TiltEstimator(None, math.radians(PipelineParams().tilt_sigma_deg))
     assert est.tilt(0.0, 0.01, 0.02).source == "odometry"
     est.add_imu(1.0, 0.05, 0.01, 1e-3)
     est.add_imu(1.1, 0.07, 0.01, 1e-3)

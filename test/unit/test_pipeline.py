@@ -134,7 +134,7 @@ def test_elevation_gate_rejects_a_marker_moved_up_and_update_params_opens_it():
     res = pipe.process_observations(1.0, [observation(0), observation(1, seen_at=moved)], ODOM_T_BASE)
     assert reasons(res)[1] == "elevation disagrees with the map (wrong id or moved marker)"
     assert pipe.stats["rejected_elevation"] == 1
-    pipe.update_params(elevation_gate=1e9)
+    pipe.update_params(elevation_gate=100.0)   # the widest
     res = pipe.process_observations(1.1, [observation(0), observation(1, seen_at=moved)], ODOM_T_BASE)
     assert "elevation" not in reasons(res)[1] and pipe.stats["rejected_elevation"] == 1
 
@@ -152,13 +152,13 @@ def test_fusion_gate_leaves_out_the_marker_that_disagrees_with_the_others():
     assert reasons(res)[2] == "disagrees with the other markers of the frame"
     assert pipe.stats["rejected_fusion"] == 1
     assert res.fused_yaw == pytest.approx(YAW, abs=1e-9)
-    # two markers (no consensus step): the gate drops one of them; a gate of 1e9 σ keeps both, and the
+    # two markers (no consensus step): the gate drops one of them; the widest gate (100 σ) keeps both, and the
     # fused yaw lies between theirs
     pair = [observation(0), observation(2, seen_at=turned)]
     res = pipeline().process_observations(1.0, pair, ODOM_T_BASE)
     assert sum(r.reason == "disagrees with the other markers of the frame" for r in res.observations) == 1
     pipe = pipeline()
-    pipe.update_params(fusion_gate=1e9)
+    pipe.update_params(fusion_gate=100.0)   # the widest
     res = pipe.process_observations(1.0, pair, ODOM_T_BASE)
     assert all(r.reason != "disagrees with the other markers of the frame" for r in res.observations)
     assert YAW - math.radians(5.0) + 1e-3 < res.fused_yaw < YAW - 1e-3

@@ -95,7 +95,7 @@ def test_a_filter_knocked_2_degrees_off_recovers_within_a_second(seed):
     from aruco_abs_orient.correction import FilterParams
     sc = Scenario(replace(MOVING, seed=seed, standstill=3.0))
     stuck = AbsOrientPipeline(sc.markers, sc.base_T_camera_nominal, sc.base_T_prism,
-                              filter_params=FilterParams(lockout_window=1e6, adapt_rate=0.0))
+                              filter_params=FilterParams(lockout_min_yaws=10 ** 6, adapt_rate=0.0))
     knocked.clear()
     _, err_stuck, _, stuck = run(replace(MOVING, seed=seed, standstill=3.0), pipeline=stuck, perturb=knock)
     assert math.degrees(np.nanmedian(np.abs(err_stuck[rel >= knocked["t"] + 1.0]))) > 1.0

@@ -181,9 +181,10 @@ def test_bad_pose_or_image_leaves_the_state_alone():
     assert tracker.process(img, pose(0)).stats.mode == "full"
 
 
-@pytest.mark.parametrize("field, value, expected", [("gate_deg", -1.0, "non-negative"),
+@pytest.mark.parametrize("field, value, expected", [("gate_deg", -1.0, r"a number in \[0, 30\], got -1\.0"),
                                                     ("roi_margin", float("nan"), "finite"),
-                                                    ("sweep_period_frames", 0, "≥ 1")])
+                                                    ("sweep_period_frames", 0, r"an integer in \[1, 10000\]"),
+                                                    ("lost_after_frames", 0, r"an integer in \[1, 1000\]")])
 def test_tracking_params_name_the_field_out_of_range(field, value, expected):
     with pytest.raises(TrackingError, match=f"TrackingParams.{field}: expected .*{expected}"):
         TrackingParams(**{field: value})

@@ -21,6 +21,7 @@ import numpy as np
 from ..camera import SINGLE_CENTRE, DualFisheye
 from ..errors import GeometryError
 from ..markers import MarkerMap
+from ..paramspec import Params, param
 from ..pipeline import PipelineParams
 from ..transforms import make_T, rpy_to_matrix
 from ..tum import Trajectory
@@ -43,88 +44,66 @@ class CalibrationError(GeometryError):
 
 
 @dataclass
-class CalibrationParams:
-    """Knobs of :func:`calibrate`.
+class CalibrationParams(Params):
+    """Knobs of :func:`calibrate` (cfg/params.yaml's ``calibration`` section). Every number is positive. The
+    lens priors keep a recording that says little about the lenses near the nominal ones with that σ in the
+    boresight's. ``heading_model`` auto fits both models and keeps the VO's yaw unless the two boresight yaws
+    differ by more than their difference's σ allows (a Hausman test at ``crab_test_chi2``) or the direction of
+    travel is the more precise. With ``vo_tilt`` the odometry's tilt error (its odom frame tilted against
+    gravity: a VO without gravity starts at the platform's tilt, and drifts) is a piecewise-linear rotation about
+    map's x and y with knots every ``tilt_knot_spacing``, each tied to 0 by ``tilt_sigma_deg`` and to its
+    neighbour by ``tilt_drift_sigma_deg``; without it, one constant tilt error."""
 
-    - ``knot_spacing``: spacing (s) of the knots of the piecewise-linear map→odom yaw δ(t).
-    - ``drift_sigma_deg``: 1-σ (degrees) of the change of δ between adjacent knots (weak prior).
-    - ``heading_smooth``: σ (s) of the local quadratic fit of the prism track (``heading_from_track``).
-    - ``heading_step``: spacing (s) of the heading constraints.
-    - ``min_speed``: slowest speed (m/s) whose track heading is used.
-    - ``max_turn_rate_deg``: fastest yaw rate (degrees/s) whose track heading is used.
-    - ``velocity_sigma``: a-priori velocity noise (m/s) of the track; heading σ = it / speed (rad),
-      rescaled by the estimated variance factor.
-    - ``min_moving_time``: least usable driving time (s) to separate the boresight yaw.
-    - ``prism_max_gap``: largest gap (s) between the prism fixes around an observation.
-    - ``prism_sigma``: 1-σ per axis of a prism position (m); enters each bearing as σ / range.
-    - ``min_observations``, ``min_markers``: least usable observations and distinct marker ids.
-    - ``loss_scale``: Cauchy scale (in σ) of the robust stage; ``outlier_gate``: normalised residual
-      beyond which an observation is dropped before the least-squares stage.
-    - ``max_boresight_sigma_deg``, ``max_lever_sigma``, ``max_time_offset_sigma``: a boresight angle
-      (degrees) / lever-arm axis (m) / time offset (s) with a larger 1-σ is not determined:
-      :class:`CalibrationError`.
-    - ``max_readout_sigma``: a rolling-shutter readout time (s) with a larger 1-σ is not determined.
-    - ``lens_offset_prior`` (m), ``lens_rotation_prior_deg``: 1-σ of the lens offset and of each component of the
-      lenses' relative rotation around the nominal ones (what a camera of the kind may differ from its table
-      value), so that a recording that says little about the lenses keeps them near the nominal with that σ in
-      the boresight's; ``max_lens_offset_sigma`` (m), ``max_lens_rotation_sigma_deg``: above these the lenses
-      are reported as loosely determined (a warning saying what to drive), not refused.
-    - ``max_iterations``: Gauss-Newton iterations per stage.
-    - ``vo_tilt``: the odometry's tilt error (its odom frame tilted against gravity: a VO without gravity
-      starts at the platform's tilt, and drifts) drifts too: a piecewise-linear rotation about map's x and
-      y axes with knots every ``tilt_knot_spacing`` s, each knot tied to 0 by ``tilt_sigma_deg`` and to its
-      neighbour by ``tilt_drift_sigma_deg`` (1-σ, degrees); without it one constant tilt error.
-    - ``odom_levelled``: the odometry's tilt is gravity's at the start (wheel odometry with an IMU), so the
-      tilt error starts at 0; otherwise it is estimated, told apart from the camera's roll and pitch by
-      the platform's turns.
-    - ``heading_model``: how the prism track's heading measures the map→odom yaw (``HEADING_MODELS``):
-      against the VO's yaw (precise, but a platform that crabs biases it), against the VO's own direction
-      of travel (right for any platform, noisy when the VO's translation is), or ``auto``: both are
-      fitted and the VO's yaw kept unless the two boresight yaws differ by more than their difference's
-      σ allows (a Hausman test at ``crab_test_chi2``, χ² of 1 degree of freedom), or the direction of
-      travel is the more precise.
-    """
+    error = CalibrationError
 
-    knot_spacing: float = 1.0
-    drift_sigma_deg: float = 1.0
-    heading_smooth: float = 0.25
-    heading_step: float = 0.25
-    min_speed: float = 0.2
-    max_turn_rate_deg: float = 30.0
-    velocity_sigma: float = 0.01
-    min_moving_time: float = 5.0
-    prism_max_gap: float = PipelineParams.prism_max_gap
-    prism_sigma: float = PipelineParams.prism_sigma
-    min_observations: int = 20
-    min_markers: int = 2
-    loss_scale: float = 2.0
-    outlier_gate: float = 4.0
-    max_boresight_sigma_deg: float = 0.1
-    max_lever_sigma: float = 0.02
-    max_time_offset_sigma: float = 0.005
-    max_readout_sigma: float = 0.005
-    lens_offset_prior: float = 0.01
-    lens_rotation_prior_deg: float = 0.2
-    max_lens_offset_sigma: float = 0.002
-    max_lens_rotation_sigma_deg: float = 0.05
-    max_iterations: int = 30
-    heading_model: str = "auto"
-    crab_test_chi2: float = 6.63
-    odom_levelled: bool = False
-    vo_tilt: bool = True
-    tilt_knot_spacing: float = 10.0
-    tilt_sigma_deg: float = 2.0
-    tilt_drift_sigma_deg: float = 0.3
-
-    def validate(self) -> None:
-        if self.heading_model not in HEADING_MODELS:
-            raise CalibrationError(f"CalibrationParams.heading_model: expected one of {', '.join(HEADING_MODELS)}, "
-                                   f"got {self.heading_model!r}")
-        for name, value in self.__dict__.items():
-            if isinstance(value, (bool, str)):
-                continue
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise CalibrationError(f"CalibrationParams.{name}: expected a positive number, got {value!r}")
+    knot_spacing: float = param(1.0, "spacing of the knots of the piecewise-linear map→odom yaw δ(t)", "s",
+                                above=0.0)
+    drift_sigma_deg: float = param(1.0, "1-σ of the change of δ between adjacent knots (a weak prior)", "deg",
+                                   above=0.0)
+    heading_smooth: float = param(0.25, "σ of the local quadratic fit of the prism track (heading_from_track)", "s",
+                                  above=0.0)
+    heading_step: float = param(0.25, "spacing of the heading constraints", "s", above=0.0)
+    min_speed: float = param(0.2, "slowest speed whose track heading is used", "m/s", above=0.0)
+    max_turn_rate_deg: float = param(30.0, "fastest yaw rate whose track heading is used", "deg/s", above=0.0)
+    velocity_sigma: float = param(0.01, "a-priori velocity noise of the track: heading σ = it / speed, rescaled by "
+                                  "the estimated variance factor", "m/s", above=0.0)
+    min_moving_time: float = param(5.0, "least usable driving time to separate the boresight yaw", "s", above=0.0)
+    prism_max_gap: float = param(PipelineParams.prism_max_gap, "largest gap between the prism fixes around an "
+                                 "observation", "s", above=0.0)
+    prism_sigma: float = param(PipelineParams.prism_sigma, "1-σ per axis of a prism position; enters each bearing "
+                               "as σ / range", "m", above=0.0)
+    min_observations: int = param(20, "least usable observations", "", above=0)
+    min_markers: int = param(2, "least distinct marker ids", "", above=0)
+    loss_scale: float = param(2.0, "Cauchy scale of the robust stage", "σ", above=0.0)
+    outlier_gate: float = param(4.0, "normalised residual beyond which an observation is dropped before the "
+                                "least-squares stage", "σ", above=0.0)
+    max_boresight_sigma_deg: float = param(0.1, "a boresight angle with a larger 1-σ is not determined "
+                                           "(CalibrationError)", "deg", above=0.0)
+    max_lever_sigma: float = param(0.02, "a lever-arm axis with a larger 1-σ is not determined", "m", above=0.0)
+    max_time_offset_sigma: float = param(0.005, "a time offset with a larger 1-σ is not determined", "s",
+                                         above=0.0)
+    max_readout_sigma: float = param(0.005, "a rolling-shutter readout time with a larger 1-σ is not determined",
+                                     "s", above=0.0)
+    lens_offset_prior: float = param(0.01, "1-σ of the lens offset around the nominal one (what a camera of the "
+                                     "kind may differ from its table value)", "m", above=0.0)
+    lens_rotation_prior_deg: float = param(0.2, "1-σ of each component of the lenses' relative rotation around "
+                                           "the nominal", "deg", above=0.0)
+    max_lens_offset_sigma: float = param(0.002, "above this the lens offset is reported as loosely determined (a "
+                                         "warning saying what to drive), not refused", "m", above=0.0)
+    max_lens_rotation_sigma_deg: float = param(0.05, "the same for the lenses' relative rotation", "deg", above=0.0)
+    max_iterations: int = param(30, "Gauss-Newton iterations per stage", "", above=0)
+    heading_model: str = param("auto", "how the prism track's heading measures the map→odom yaw: against the VO's "
+                               "yaw (precise; a platform that crabs biases it), its direction of travel (any "
+                               "platform; noisy when its translation is), or auto", choices=HEADING_MODELS)
+    crab_test_chi2: float = param(6.63, "the Hausman test's threshold of auto", "χ², 1 dof", above=0.0)
+    odom_levelled: bool = param(False, "the odometry's tilt is gravity's at the start (wheel odometry with an "
+                                "IMU): its tilt error starts at 0; otherwise it is estimated, told apart from the "
+                                "camera's roll and pitch by the platform's turns")
+    vo_tilt: bool = param(True, "the odometry's tilt error drifts (see the class doc)")
+    tilt_knot_spacing: float = param(10.0, "spacing of the knots of the odometry's tilt error", "s", above=0.0)
+    tilt_sigma_deg: float = param(2.0, "1-σ tying each knot of the tilt error to 0", "deg", above=0.0)
+    tilt_drift_sigma_deg: float = param(0.3, "1-σ tying each knot of the tilt error to its neighbour", "deg",
+                                        above=0.0)
 
 
 @dataclass

@@ -19,7 +19,7 @@ from typing import Dict, List, NamedTuple, Optional, Tuple
 import numpy as np
 
 from ..errors import GeometryError
-from ..paramcheck import Validated, check_non_negative
+from ..paramspec import Params, param
 
 __all__ = ["MappingError", "MappingParams", "MapUnknowns", "MappedMarker", "MappingResult", "chi2_quantile",
            "format_xyz"]
@@ -29,47 +29,34 @@ class MappingError(GeometryError):
     """The recording cannot place the markers, or the inputs are malformed; the message says why and what to do."""
 
 
-@dataclass
-class MappingParams(Validated):
-    """Knobs of :func:`~aruco_abs_orient.mapping.map_markers` (the network's own model, its knots and gates, is the
-    ``calibration`` section's).
+@dataclass(frozen=True)
+class MappingParams(Params):
+    """Knobs of :func:`~aruco_abs_orient.mapping.map_markers` (cfg/params.yaml's ``mapping`` section; the
+    network's own model, its knots and gates, is the ``calibration`` section's). A marker beyond ``loose_sigma``
+    is placed with a warning (``process`` and the node weigh it by its σ: a far marker placed to a few cm still
+    holds the heading where it is the only one in view); ``bias_deg`` is the error all sightings of a marker have
+    in common (the camera's distortion and stitching, the print, its lighting, the corner fit), added to its
+    covariance: no number of sightings averages it away."""
 
-    - ``min_views``: a marker seen in fewer images is refused (not placed), with what to drive.
-    - ``min_baseline``: a marker seen only from camera positions closer together than this (m) is refused.
-    - ``max_sigma``: a marker whose position 1-σ along its worst axis exceeds this (m) is refused; one beyond
-      ``loose_sigma`` (m) is placed (``process`` and the node weigh it by its σ: a far marker placed to a few cm
-      still holds the heading where it is the only one in view) with a warning saying what to drive.
-    - ``max_normal_sigma_deg``: a face normal whose 1-σ exceeds this (degrees) is not written (the marker is;
-      the tracker then looks for it from every side).
-    - ``bias_deg``: the error all sightings of a marker (and of each of its corners) have in common, 1-σ per axis of
-      the image (degrees: the camera's own distortion and stitching, the print, its lighting, the corner fit at the
-      marker's angle), added to its position's and its normal's covariance: no number of sightings averages it
-      away.
-    - ``test_alpha``: the false-alarm rate of the test of each marker against the others (its observations'
-      residuals against their redundancy, an F-like test with the residuals' correlation in time allowed for)
-      and of each control marker against the network.
-    - ``noise_spread``: how much one marker's bearing variance may differ from the network's (its range, blur,
-      the stitching seam) before the test counts it as disagreeing: the test's limit is this times the χ²
-      quantile; a marker whose residuals exceed the network's has its covariance scaled by its test value.
-    - ``compare_alpha``: ``--compare``'s false-alarm rate per marker (a χ² test of its move, 3 degrees of
-      freedom, against both maps' covariances).
-    """
+    error = MappingError
 
-    min_views: int = 10
-    min_baseline: float = 1.0
-    max_sigma: float = 0.05
-    loose_sigma: float = 0.005
-    max_normal_sigma_deg: float = 5.0
-    bias_deg: float = 0.01
-    test_alpha: float = 0.001
-    noise_spread: float = 2.0
-    compare_alpha: float = 0.001
-
-    def validate(self) -> None:
-        check_non_negative(self, MappingError)
-        for name in ("test_alpha", "compare_alpha"):
-            if not 0.0 < getattr(self, name) < 1.0:
-                raise MappingError(f"MappingParams.{name}: expected a fraction in (0, 1), got {getattr(self, name)!r}")
+    min_views: int = param(10, "a marker seen in fewer images is refused (not placed), with what to drive", "", 1)
+    min_baseline: float = param(1.0, "a marker seen only from camera positions closer together than this is "
+                                "refused", "m", 0.0)
+    max_sigma: float = param(0.05, "a marker whose position 1-σ along its worst axis exceeds this is refused", "m",
+                             above=0.0)
+    loose_sigma: float = param(0.005, "a marker placed looser than this (1-σ, worst axis) is kept with a warning",
+                               "m", above=0.0)
+    max_normal_sigma_deg: float = param(5.0, "a face normal whose 1-σ exceeds this is not written (the marker is)",
+                                        "deg", above=0.0)
+    bias_deg: float = param(0.01, "the error all sightings of a marker have in common, 1-σ per image axis", "deg",
+                            0.0)
+    test_alpha: float = param(0.001, "false-alarm rate of the test of each marker (and control marker) against "
+                              "the others", "", above=0.0, below=1.0)
+    noise_spread: float = param(2.0, "factor by which one marker's bearing variance may differ from the network's "
+                                "before its test counts it as disagreeing (× the χ² quantile)", "", above=0.0)
+    compare_alpha: float = param(0.001, "--compare's false-alarm rate per marker (χ² of its move, 3 degrees of "
+                                 "freedom)", "", above=0.0, below=1.0)
 
 
 class MapUnknowns(NamedTuple):

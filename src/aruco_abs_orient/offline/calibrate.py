@@ -23,7 +23,7 @@ from ..calibration import Calibration, CalibrationError, CalibrationParams, Reco
 from ..camera import SINGLE_CENTRE, DualFisheye
 from ..detection import DetectionError, DetectorParams, MarkerDetector, decode_jpeg
 from ..errors import AbsOrientError
-from ..mapcheck import UNDETERMINED, MapVerdict, Sightings, check_map
+from ..mapcheck import UNDETERMINED, MapCheckParams, MapVerdict, Sightings, check_map
 from ..markers import MarkerMap
 from ..pipeline import row_fraction
 from ..tracking import MarkerTracker
@@ -129,16 +129,17 @@ def _until_broken(images, skipped: dict):
         k += 1
 
 
-def map_check(obs: CalibrateResult, marker_map: MarkerMap, time_offset: float) -> MapVerdict:
-    """Whether ``marker_map`` fits the observations (:func:`aruco_abs_orient.mapcheck.check_map`) with the bag's
-    own lever arms, the prism track on its clock (observations at camera time − ``time_offset``)."""
+def map_check(obs: CalibrateResult, marker_map: MarkerMap, time_offset: float,
+              params: Optional[MapCheckParams] = None) -> MapVerdict:
+    """Whether ``marker_map`` fits the observations (:func:`aruco_abs_orient.mapcheck.check_map` with ``params``)
+    with the bag's own lever arms, the prism track on its clock (observations at camera time − ``time_offset``)."""
     d = obs.data
     if len(d.prism_stamps) < 2 or not len(obs.times):
         return MapVerdict(UNDETERMINED, "the marker map is not checked: no prism track or no marker seen", {})
     T, valid = d.odom.transforms_at(obs.times)
     rows = Sightings(obs.times[valid] - time_offset, obs.ids[valid], obs.bearings[valid], T[valid][:, :3, :3])
     return check_map(rows, (d.prism_stamps, d.prism_positions), {m.id: m.position for m in marker_map},
-                     d.base_T_camera, d.base_T_prism[:3, 3], origin=marker_map.origin)
+                     d.base_T_camera, d.base_T_prism[:3, 3], params, origin=marker_map.origin)
 
 
 def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, topics: Optional[BagTopics] = None,

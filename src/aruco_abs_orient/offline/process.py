@@ -40,9 +40,8 @@ from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 
-from ..calibration import CalibrationParams
 from ..detection import DetectionError, decode_jpeg
-from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapVerdict, SightingSample, check_map
+from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapCheckParams, MapVerdict, SightingSample, check_map
 from ..markers import MarkerMap
 from ..north import NorthReference
 from ..params import Tunables, parse_params
@@ -137,7 +136,7 @@ def _done(value) -> Future:
 
 
 def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, summary, bag, pipe: AbsOrientPipeline,
-               calibration_params: CalibrationParams) -> Dict:
+               tunables: Tunables) -> Dict:
     """The run's self-checks (:func:`aruco_abs_orient.selfcheck.check_run`, with calibrate's model on the run's
     bearings and the mounting, lenses and offset the pipeline used) with the commands that fix what they find;
     each finding is also a warning of the summary."""
@@ -149,10 +148,10 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     offset = summary["time_offset_s"]
     odometry = Trajectory(data.odom.stamps - offset, data.odom.positions, data.odom.quats)   # the TS clock
     model = ModelContext(marker_map, odometry, pipe.base_T_camera, pipe.base_T_prism, pipe.lenses, pipe.readout,
-                         calibration_params)
+                         tunables.calibration)
     result = check_run(obs, (data.prism_stamps, data.prism_positions), {m.id: m.position for m in marker_map},
                        (stamps, yaws), RunContext(summary["pipeline_stats"], summary["frames"], offset, commands,
-                                                  pipe.base_T_prism[:3, 3], model))
+                                                  pipe.base_T_prism[:3, 3], model), tunables.selfcheck)
     summary["warnings"] = list(summary["warnings"]) + [f["message"] for f in result["findings"]]
     return result
 
@@ -254,7 +253,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     odom_missing = 0
     timing_sum: Dict[str, float] = {}
     checked: List[tuple] = []  # selfcheck.YawObservation of each marker yaw
-    sighted = SightingSample()  # (t, id, bearing, odom rotation) of the markers seen, evenly thinned: the map check
+    # (t, id, bearing, odom rotation) of the markers seen, evenly thinned: the map check
+    sighted = SightingSample(tunables.mapcheck.max_sightings)
     modes: Dict[str, int] = {}
     tilt_sources: Dict[str, int] = {}
     items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
@@ -322,7 +322,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
                     poses.append(res.map_T_base)
                     sigmas.append(math.nan if res.yaw_sigma is None else res.yaw_sigma)
         stop.set()
-        map_check = _map_check(sighted, data, marker_map, pipe, params.markers_only)
+        map_check = _map_check(sighted, data, marker_map, pipe, params.markers_only, tunables.mapcheck)
         traj_path, extra = os.path.join(out_dir, "trajectory.tum"), []
         if map_check.status == DOES_NOT_FIT and not force:
             for stale in (traj_path, os.path.join(out_dir, "trajectory.csv")):  # an older run's: not this map's
@@ -392,8 +392,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         "meridian_convergence_deg": math.degrees(north.gamma),
     }
     summary["map_check"] = map_check.as_dict()
-    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe,
-                                      tunables.calibration)
+    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe, tunables)
     if map_check.status == DOES_NOT_FIT:  # first: the self-checks' findings follow from it
         found = {f["message"] for f in summary["selfcheck"]["findings"]}
         summary["warnings"] = [map_check.message] + [w for w in summary["warnings"] if w not in found]
@@ -403,14 +402,14 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
 
 
 def _map_check(sighted: SightingSample, data: BagData, marker_map: MarkerMap, pipe: AbsOrientPipeline,
-               markers_only: bool) -> MapVerdict:
+               markers_only: bool, params: MapCheckParams) -> MapVerdict:
     """Whether the marker map fits what the run saw (:func:`aruco_abs_orient.mapcheck.check_map`): the
     sightings along the prism track, with the lever arms the pipeline used (markers only: not checked here)."""
     if markers_only or len(data.prism_stamps) < 2:
         return MapVerdict(UNDETERMINED, "the marker map is not checked without a prism track", {})
     return check_map(sighted.sightings(), (data.prism_stamps, data.prism_positions),
                      {m.id: m.position for m in marker_map}, pipe.base_T_camera, pipe.base_T_prism[:3, 3],
-                     origin=marker_map.origin)
+                     params, origin=marker_map.origin)
 
 
 def write_full_csv(path: str, traj: Trajectory) -> str:

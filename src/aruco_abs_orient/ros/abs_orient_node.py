@@ -77,18 +77,18 @@ import sys
 import threading
 import time
 import traceback
-from dataclasses import dataclass, fields, replace
+from dataclasses import replace
 from functools import cached_property
 from typing import Deque, Dict, Optional, Tuple
 
 import numpy as np
 
-from ..calibration import CalibrationError, load_calibration
 from ..debugview import DebugImageError, debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, frame_to_grey
-from ..errors import AbsOrientError, ConfigurationError
-from ..mapcheck import DOES_NOT_FIT, FITS, MapCheckParams, MapVerdict, RollingMapCheck
+from ..errors import AbsOrientError
+from ..mapcheck import DOES_NOT_FIT, FITS, MapVerdict, RollingMapCheck
 from ..markers import MarkerMap
+from ..nodeconfig import NodeConfig, NodeConfigError
 from ..nodestate import (
     IMAGE_JUMPED_BACK,
     IMAGE_NOT_AFTER,
@@ -101,172 +101,17 @@ from ..nodestate import (
     state_record,
     state_snapshot,
 )
-from ..north import NORTHS, NorthReference
-from ..params import ParamsError, Tunables, load_params
+from ..north import NorthReference
 from ..pipeline import AbsOrientPipeline, FrameResult, PipelineError, all_param_fields
-from ..selfcheck import ModelContext, RollingSelfCheck, SelfCheckParams, YawObservation
+from ..selfcheck import ModelContext, RollingSelfCheck, YawObservation
 from ..timesync import OnlineOffsetEstimator
 from ..transforms import yaw_of
 from ..tum import Trajectory, WriteError, atomic_write_text
 
-__all__ = ["NodeConfig", "NodeConfigError", "Mailbox", "AbsOrientNode", "main"]
+__all__ = ["Mailbox", "AbsOrientNode", "main"]
 
+#: node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)
 RECONFIGURABLE_NODE_PARAMS = ("time_offset",)
-#: the live self-check: calibrate's model on at most 600 bearings of its window (about a second of CPU a minute,
-#: in the diagnostics thread beside the image thread)
-_LIVE_SELFCHECK = SelfCheckParams(model_observations=600)
-"""Node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)."""
-
-
-class NodeConfigError(ConfigurationError):
-    """A node parameter with a bad value: names the parameter."""
-
-
-@dataclass
-class NodeConfig:
-    """Private parameters of the node (names without ``~``); units in the names' docs.
-
-    - ``markers``: marker map YAML path (required).
-    - ``image_transport``: 'compressed' (``camera/image/compressed``) or 'raw' (``camera/image``).
-    - ``time_offset``: s, camera stamps = true time + offset.
-    - ``estimate_time_offset``: estimate the offset live (``timesync.OnlineOffsetEstimator``: VO yaw and
-      marker yaws against the prism track's heading, in a background thread), shown in diagnostics.
-    - ``apply_estimated_time_offset``: use a confident live estimate when it contradicts the offset in
-      use (by more than 5 σ and 20 ms: a forgotten or wrong offset); a good offset is never replaced by
-      a coarser one.
-    - ``calibration``: calibration YAML of ``aruco-abs-orient calibrate`` whose lever arms replace the
-      static tfs ``base_link → camera/prism`` (a bag replayed with its uncalibrated /tf_static), and
-      whose ``camera_readout_ms`` (rolling shutter) is used; empty: the lever arms come from tf, global
-      shutter. Stamp convention of the camera driver: an image's stamp is the capture time of its MIDDLE
-      row; row v of H is captured at stamp + (v/H − ½)·readout.
-    - ``params``: tunables YAML (cfg/params.yaml's sections, any subset: ``aruco-abs-orient params``);
-      empty: the defaults. dynamic_reconfigure starts from its values (an explicit ``~name`` wins).
-    - ``publish_tf``: broadcast ``map → odom`` (false when an EKF owns it).
-    - ``transform_tolerance``: s, map→odom estimated at time t is stamped t + this (future-dated, as amcl).
-    - ``tf_rate``: Hz, re-publication rate of ``map → odom`` while no image is processed.
-    - ``tf_timeout``: s (wall clock), how long to wait for ``odom → base_link`` at an image stamp.
-    - ``time_jump_tolerance``: s, a stamp going back by more than this resets the node.
-    - ``prism_timeout``: s, prism older than this → diagnostics warn.
-    - ``image_timeout``: s (wall clock), no image for this long → diagnostics warn.
-    - ``diagnostics_rate``: Hz.
-    - ``expected_image_rate``, ``expected_prism_rate``: Hz, the rates the frequency statuses of images
-      processed and prism positions expect (± ``rate_tolerance``, a fraction); map→odom's expects
-      ``tf_rate`` to ``max(tf_rate, expected_image_rate)``.
-    - ``debug_rate``: Hz, most ``~debug_image`` frames per second (only drawn while subscribed);
-      ``debug_width``: px, their largest width.
-    - ``max_image_age``: s, an image older than this when processed (ROS time) → its timestamp status errs;
-      the prism stamp offset's limit is ``prism_timeout``.
-    - ``state_file``: JSON file where the map→odom filter's state is kept (written at most once a second);
-      a node (re)started within ``state_max_age`` s of it starts from it and publishes map→odom at once.
-      Empty: none.
-    - ``state_max_age``: s, oldest state restored (in ROS time: a bag replayed later never matches).
-    - ``markers_only``: no total station: each frame's pose from a resection on its markers, published on
-      ``abs_orient/pose_markers`` (a map of fewer than 3 markers is refused at start-up).
-    - ``imu_topic``: ``sensor_msgs/Imu`` for roll and pitch (empty: none; tilt from the markers and odometry).
-    - ``north``: what ``map``'s headings are referred to: ``grid`` (the marker map's y axis, the survey grid's north)
-      or ``true`` (geographic north at the map's origin: the marker map and the prism positions are turned by the
-      grid's meridian convergence, :mod:`aruco_abs_orient.north`; needs the map's ``grid`` and ``origin``).
-    - frames: ``map_frame``, ``odom_frame``, ``base_frame``, ``camera_frame``, ``prism_frame``.
-    """
-
-    markers: str = ""
-    image_transport: str = "compressed"
-    time_offset: float = 0.0
-    estimate_time_offset: bool = True
-    apply_estimated_time_offset: bool = True
-    calibration: str = ""
-    params: str = ""
-    publish_tf: bool = True
-    transform_tolerance: float = 0.1
-    tf_rate: float = 20.0
-    tf_timeout: float = 0.05
-    time_jump_tolerance: float = 0.5
-    prism_timeout: float = 1.0
-    image_timeout: float = 2.0
-    diagnostics_rate: float = 1.0
-    expected_image_rate: float = 30.0
-    expected_prism_rate: float = 20.0
-    rate_tolerance: float = 0.5
-    max_image_age: float = 0.5
-    debug_rate: float = 2.0
-    debug_width: float = 1920.0
-    state_file: str = ""
-    state_max_age: float = 10.0
-    map_frame: str = "map"
-    odom_frame: str = "odom"
-    base_frame: str = "base_link"
-    camera_frame: str = "camera"
-    prism_frame: str = "prism"
-    markers_only: bool = False
-    imu_topic: str = ""
-    north: str = "grid"
-
-    @classmethod
-    def from_params(cls, get_param) -> NodeConfig:
-        """Read ``~name`` for every field through ``get_param(name, default)`` (rospy.get_param) and
-        validate. Raises NodeConfigError naming the parameter."""
-        kw = {}
-        for f in fields(cls):
-            default = f.default
-            value = get_param("~" + f.name, default)
-            if isinstance(default, bool):
-                if not isinstance(value, bool):
-                    raise NodeConfigError(f"~{f.name}: expected true or false, got {value!r}")
-            elif isinstance(default, float):
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                    raise NodeConfigError(f"~{f.name}: expected a number, got {value!r}")
-                value = float(value)
-            elif not isinstance(value, str):
-                raise NodeConfigError(f"~{f.name}: expected a string, got {value!r}")
-            kw[f.name] = value
-        config = cls(**kw)
-        if not config.markers:
-            raise NodeConfigError("~markers: no marker map given (a YAML file, see cfg/markers_example.yaml)")
-        config.calibrated_lever_arms()  # read here, once: a file that does not load is one clear line at start-up
-        config.tunables()
-        if config.north not in NORTHS:
-            raise NodeConfigError(f"~north: expected 'grid' or 'true', got {config.north!r}")
-        if config.image_transport not in ("compressed", "raw"):
-            raise NodeConfigError(f"~image_transport: expected 'compressed' or 'raw', got {config.image_transport!r}")
-        for name in ("tf_rate", "diagnostics_rate", "tf_timeout", "time_jump_tolerance", "prism_timeout",
-                     "image_timeout", "state_max_age", "expected_image_rate", "expected_prism_rate", "max_image_age",
-                     "debug_rate"):
-            if getattr(config, name) <= 0:
-                raise NodeConfigError(f"~{name}: expected a positive number, got {getattr(config, name)!r}")
-        if config.transform_tolerance < 0:
-            raise NodeConfigError(f"~transform_tolerance: expected a number of s >= 0, "
-                                  f"got {config.transform_tolerance!r}")
-        if not 16 <= config.debug_width <= 16384:
-            raise NodeConfigError(f"~debug_width: expected 16 to 16384 px, got {config.debug_width!r}")
-        if not 0 <= config.rate_tolerance < 1:
-            raise NodeConfigError(f"~rate_tolerance: expected a fraction in [0, 1), got {config.rate_tolerance!r}")
-        return config
-
-    def calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
-        """``{"camera": base_T_camera, "prism": base_T_prism}`` of ``calibration`` (None without one),
-        read from the file on the first call only. Raises NodeConfigError naming the file and the key."""
-        return self._calibrated_lever_arms
-
-    def tunables(self) -> Tunables:
-        """The pipeline's tunables from ``params`` (defaults without one), read on the first call only.
-        Raises NodeConfigError naming the file and the key."""
-        return self._tunables
-
-    @cached_property
-    def _tunables(self) -> Tunables:
-        try:
-            return load_params(self.params)
-        except ParamsError as e:
-            raise NodeConfigError(f"~params: {e}") from None
-
-    @cached_property
-    def _calibrated_lever_arms(self) -> Optional[Dict[str, np.ndarray]]:
-        if not self.calibration:
-            return None
-        try:
-            return load_calibration(self.calibration)
-        except CalibrationError as e:
-            raise NodeConfigError(f"~calibration: {e}") from None
 
 
 class Mailbox:
@@ -499,7 +344,9 @@ class AbsOrientNode:
         except ImportError as e:
             self.rospy.logwarn(f"abs_orient: dynamic_reconfigure unavailable ({e}): parameters fixed at start-up")
             return
-        for name, value in self.config.tunables().flat().items():  # the server starts from ~params' values
+        # the server starts from the ~section values, unless its ~name is set already: the node's own
+        # (~markers_only), or what the server set before a respawn
+        for name, value in self.config.tunables().flat().items():
             if name in AbsOrientConfig.defaults and not self.rospy.has_param("~" + name):
                 self.rospy.set_param("~" + name, value)
         self.reconfigure_server = Server(AbsOrientConfig, self._on_reconfigure)
@@ -590,8 +437,10 @@ class AbsOrientNode:
             none = Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))     # the window's, at each check
             model = ModelContext(self.marker_map, none, pipe.base_T_camera, pipe.base_T_prism, pipe.lenses,
                                  pipe.readout, self.config.tunables().calibration)
+        p = self.config.tunables().selfcheck
         return RollingSelfCheck({m.id: m.position for m in self.marker_map}, time_offset=self.time_offset,
-                                prism_lever=lever, model=model, params=_LIVE_SELFCHECK)
+                                prism_lever=lever, model=model,
+                                params=replace(p, model_observations=p.live_model_observations))
 
     def _feed_selfcheck(self, result: FrameResult, odom_T_base: np.ndarray) -> None:
         """The frame's marker yaws and pose for the rolling self-checks (time offset, tilt, moved marker)."""
@@ -669,7 +518,9 @@ class AbsOrientNode:
             if not c.markers_only:
                 self.mapcheck = RollingMapCheck({m.id: m.position for m in self.marker_map},
                                                 self.pipeline.base_T_camera, self.pipeline.base_T_prism[:3, 3],
-                                                self.marker_map.origin, params=MapCheckParams(max_sightings=1000))
+                                                self.marker_map.origin, params=replace(
+                                                    c.tunables().mapcheck,
+                                                    max_sightings=c.tunables().mapcheck.live_max_sightings))
             if c.estimate_time_offset:  # the prism's lever arm turns its track heading in turns (timesync)
                 self.offset_estimator = OnlineOffsetEstimator(prism_in_base=arms[c.prism_frame][:3, 3],
                                                               params=c.tunables().timesync)

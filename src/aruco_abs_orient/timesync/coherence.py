@@ -33,7 +33,7 @@ from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..paramcheck import Validated, check_non_negative
+from ..paramspec import Params, param
 from ..tum import sorted_series
 from .estimate import OffsetEstimate, TimeSyncError, _check_search
 from .heading import _HeadingGrid
@@ -44,36 +44,26 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @dataclass
-class TimeSyncParams(Validated):
+class TimeSyncParams(Params):
     """The knobs of the phase-coherence time-offset estimate (``aruco-abs-orient timesync``, the node's
-    ``~estimate_time_offset``); cfg/params.yaml's ``timesync`` section.
+    ``~estimate_time_offset``); cfg/params.yaml's ``timesync`` section."""
 
-    - ``smooth``: σ (s) of the local-quadratic fit that gives the prism track's direction of travel.
-    - ``min_speed``: below this platform speed (m/s) the track heading is not used.
-    - ``window``: each window (s) of the camera's yaws gets its own yaw offset and VO drift (0: one window).
-    - ``max_drift_deg_per_min``: largest VO yaw drift fitted in a window (degrees per minute).
-    - ``step``: grid of candidate offsets (s), refined by golden section around the best.
-    - ``min_duration``: moving overlap (s) needed at the best offset, else no estimate.
-    - ``min_turn_rate_deg``: RMS variation of the turn rate (degrees/s) needed, else no estimate (driving
-      straight or turning at a constant rate makes a time offset look like a yaw offset).
-    - ``sigma_ref``: σ (s) at which the confidence's sharpness factor 1/(1 + (σ/sigma_ref)²) is ½.
-    """
+    error = TimeSyncError
 
-    smooth: float = 0.5
-    min_speed: float = 0.05
-    window: float = 60.0
-    max_drift_deg_per_min: float = 20.0
-    step: float = 0.02
-    min_duration: float = 10.0
-    min_turn_rate_deg: float = 2.0
-    sigma_ref: float = 0.01
-
-    def validate(self) -> None:
-        """Raise TimeSyncError naming the first out-of-range field."""
-        check_non_negative(self, TimeSyncError)
-        for name in ("smooth", "step", "sigma_ref"):
-            if getattr(self, name) <= 0:
-                raise TimeSyncError(f"TimeSyncParams.{name}: expected a positive number, got {getattr(self, name)!r}")
+    smooth: float = param(0.5, "σ of the local-quadratic fit that gives the prism track's direction of travel", "s",
+                          above=0.0)
+    min_speed: float = param(0.05, "below this platform speed the track heading is not used", "m/s", 0.0)
+    window: float = param(60.0, "each window of the camera's yaws gets its own yaw offset and VO drift (0: one "
+                          "window)", "s", 0.0)
+    max_drift_deg_per_min: float = param(20.0, "largest VO yaw drift fitted in a window", "deg/min", 0.0)
+    step: float = param(0.02, "grid of candidate offsets, refined by golden section around the best", "s",
+                        above=0.0)
+    min_duration: float = param(10.0, "moving overlap needed at the best offset, else no estimate", "s", 0.0)
+    min_turn_rate_deg: float = param(2.0, "RMS variation of the turn rate needed, else no estimate (driving "
+                                     "straight or turning at a constant rate makes a time offset look like a yaw "
+                                     "offset)", "deg/s", 0.0)
+    sigma_ref: float = param(0.01, "σ at which the confidence's sharpness factor 1/(1 + (σ/sigma_ref)²) is ½", "s",
+                             above=0.0)
 
     @property
     def max_drift(self) -> float:

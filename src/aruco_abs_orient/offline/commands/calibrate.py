@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     tunables = load_params(args.params)
     obs = collect_observations(recording, marker_map, topics, progress=not args.quiet, data=data,
                                every=args.every, detector_params=tunables.detection)
-    check = map_check(obs, marker_map, args.time_offset)
+    check = map_check(obs, marker_map, args.time_offset, tunables.mapcheck)
     if check.status == DOES_NOT_FIT:
         if not args.force:
             raise NoResultError(f"{check.message}; not calibrated ({args.markers} against {bag_name(recording)}: "

@@ -17,9 +17,10 @@ __all__ = ["add_parser", "run"]
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "params", help="write the documented defaults of every tunable (cfg/params.yaml)",
-        description="Every tunable (pipeline, detection, tracking, filter, timesync, evaluation) "
-                    "with its default and its description, as the YAML file --params and the node's ~params "
-                    "read. Copy it, keep the lines you change.",
+        description="Every tunable (pipeline, detection, tracking, filter, tilt, fit, selfcheck, mapcheck, "
+                    "timesync, evaluation, calibration) with its default, meaning, unit and range, as the YAML "
+                    "file --params reads and the node takes in its namespace (abs_orient.launch params:=FILE). "
+                    "Copy it, keep the lines you change.",
         epilog="examples:\n  aruco-abs-orient params --out my_params.yaml\n"
                "  aruco-abs-orient process run.bag --markers markers.yaml --out results/ "
                "--params my_params.yaml",
