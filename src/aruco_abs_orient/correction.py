@@ -1,4 +1,4 @@
-"""The map→odom correction (DESIGN §4.6): a small Kalman filter with gating and initialisation.
+"""The map→odom correction (doc/design.md §8): a small Kalman filter with gating and initialisation.
 
 State ``x = (δψ, tx, ty, tz, ω)`` with ``map_T_odom = [Rz(δψ), t]`` (radians, metres) and ω = dδψ/dt
 (rad/s), the odometry's yaw drift rate: visual odometry is smooth but its yaw drifts, mostly at a

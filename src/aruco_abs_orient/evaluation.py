@@ -1,5 +1,5 @@
 """Yaw-only evaluation: APE/RPE against a reference, per-marker agreement, frame-position bias and a
-Markdown + JSON report (DESIGN §4.9; the paper's figs. 11–13); the pictures are :mod:`.plots`'.
+Markdown + JSON report (doc/design.md §12; the paper's figs. 11–13); the pictures are :mod:`.plots`'.
 
 Angles are radians everywhere in this module except in ``report_dict()`` results, the plots and the
 report files, which are in degrees (the edge). Yaw differences are always wrapped to [−π, π), and

@@ -1,4 +1,4 @@
-"""The per-frame core shared by the offline bag tool and the ROS node (DESIGN §4 steps 1–6).
+"""The per-frame core shared by the offline bag tool and the ROS node (doc/design.md §4).
 
 ``AbsOrientPipeline.process_image`` takes one 360° image with its time (total-station/ROS time:
 the camera clock's offset already removed) and the odometry pose ``odom_T_base`` at that time, and

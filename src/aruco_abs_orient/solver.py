@@ -1,6 +1,6 @@
-"""Absolute orientation from marker bearings (DESIGN §4.4–4.5).
+"""Absolute orientation from marker bearings (doc/design.md §7).
 
-Frames (DESIGN §2): ``map`` (markers, prism), ``base_link`` with attitude
+Frames (doc/design.md §1): ``map`` (markers, prism), ``base_link`` with attitude
 ``R = Rz(yaw) · Ry(pitch) · Rx(roll)``, and the camera fixed to base_link by the static
 transform ``base_T_camera`` (rotation ``R_bc``, camera origin ``t_camera`` in base_link);
 the prism sits at ``prism_in_base`` (= ``t_prism``) in base_link. An observation is a ray in the
@@ -373,7 +373,7 @@ def yaw_from_marker(bearing, marker, prism, tilt: Tuple[float, float], mounting:
     Cp = _cov3(noise.prism_cov, "prism_cov")
     roll, pitch = _tilt(tilt)
 
-    l = t_cam - t_prism  # noqa: E741  (the lever arm, as in DESIGN §4.4)
+    l = t_cam - t_prism  # noqa: E741  (the lever arm, as in doc/design.md §7)
     if origin is not None:
         l = l + R_bc @ _vec3(origin, "origin")  # noqa: E741
     b = R_bc @ u

@@ -1,4 +1,4 @@
-"""Map-guided marker tracking in 360° frames (DESIGN §4 step 3): detect, don't search.
+"""Map-guided marker tracking in 360° frames (doc/design.md §6): detect, don't search.
 
 With a predicted camera pose ``map_T_camera`` and the marker map, each marker's bearing and
 angular size are predicted and the marker is looked for only in a small gnomonic view

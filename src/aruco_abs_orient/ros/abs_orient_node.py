@@ -1,5 +1,5 @@
 """The ``abs_orient`` node: marker bearings in 360° images → tf ``map → odom`` and absolute inputs for
-robot_localization (DESIGN §3). A thin shell around :class:`aruco_abs_orient.pipeline.AbsOrientPipeline`.
+robot_localization (doc/design.md §3). A thin shell around :class:`aruco_abs_orient.pipeline.AbsOrientPipeline`.
 
 Inputs: ``camera/image/compressed`` (``sensor_msgs/CompressedImage``) or, with ``~image_transport: raw``,
 ``camera/image`` (``sensor_msgs/Image``); ``ms60/prism`` (``geometry_msgs/PointStamped`` in map), or once
