@@ -329,7 +329,9 @@ def test_tilt_rotation_order_matches_transforms():
 def test_resection_with_a_known_tilt_is_exact_from_two_markers(seed, roll, pitch, yaw, n):
     """The tilt as a measurement (IMU, odometry): 2 markers determine position and yaw, up to a discrete
     ambiguity (two markers with a known vertical can have two solutions): from a start pose near the truth
-    (the filter's prediction) the right one."""
+    (the filter's prediction) the right one. Where the two solutions lie closer together than the start's error
+    (a fold of the two-marker geometry: seed 509080389, 8 cm and 0.22° apart) either may come out, and the
+    covariance says so (yaw σ of hundreds of degrees): never a wrong pose with a small σ."""
     s = Scene(seed, roll, pitch, yaw, n)
     dirs = s.M - s.C
     dirs /= np.linalg.norm(dirs, axis=1)[:, None]
@@ -337,9 +339,28 @@ def test_resection_with_a_known_tilt_is_exact_from_two_markers(seed, roll, pitch
     start = make_T(rpy_to_matrix(roll, pitch, yaw + 0.02), s.p + s.rng.normal(0.0, 0.05, 3))  # a filter prediction
     est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(roll, pitch), tilt_sigma=math.radians(0.1),
                     initial_pose=start)
-    np.testing.assert_allclose(est.position, s.p, atol=1e-6)
-    assert abs(wrap_angle(est.yaw - yaw)) < 1e-7
     assert est.cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(est.cov) > 0)
+    sd = np.sqrt(np.diag(est.cov))
+    if sd[5] < math.radians(1.0):  # determined: the right solution, exactly
+        np.testing.assert_allclose(est.position, s.p, atol=1e-6)
+        assert abs(wrap_angle(est.yaw - yaw)) < 1e-7
+    else:  # a fold: the σ covers whichever solution came out
+        assert abs(wrap_angle(est.yaw - yaw)) < 3.0 * sd[5]
+        assert np.all(np.abs(est.position - s.p) < 3.0 * sd[:3] + 1e-6)
+
+
+@pytest.mark.parametrize("seed,n", [(509080389, 2), (12345, 2)])
+def test_two_markers_with_a_known_tilt_either_exact_or_saying_they_are_undetermined(seed, n):
+    """The fold found by the property above, and a plain two-marker case: the first with a yaw σ > 1°, the second
+    exact with a yaw σ < 1°."""
+    s = Scene(seed, 0.0547, -0.0921, -2.884, n)
+    start = make_T(rpy_to_matrix(0.0547, -0.0921, -2.884 + 0.02), s.p + s.rng.normal(0.0, 0.05, 3))
+    est = resection(s.bearings(), s.M, s.base_T_camera, tilt=(0.0547, -0.0921), tilt_sigma=math.radians(0.1),
+                    initial_pose=start)
+    sd_yaw = math.sqrt(est.cov[5, 5])
+    exact = np.allclose(est.position, s.p, atol=1e-6) and abs(wrap_angle(est.yaw + 2.884)) < 1e-7
+    assert exact or sd_yaw > math.radians(1.0), (est.position - s.p, sd_yaw)
+    assert (sd_yaw > math.radians(1.0)) == (seed == 509080389)
 
 
 def test_resection_with_a_wrong_tilt_measurement_and_three_markers_follows_the_markers():
