@@ -1,10 +1,11 @@
-"""The scenario tests' realistic world (issue 17): the ``ci-realistic`` preset (the demo's hall with pillars,
-posters and lights, exposure changes, blur, JPEG 85, a wandering platform, a VO drifting in yaw and tilt, a
-stitch seam, a camera clock 20 ppm fast and a 30 ms rolling shutter, at ci's size: 1920 px, 15 fps, 20 s)
-through the user's CLI workflow: timesync --markers, calibrate --refine-time-offset, process
-with the calibration, evaluate against the truth. The bounds are about 1.5× what seeds 0-3 gave with the
-rolling shutter left uncorrected (a 20 s drive does not determine the readout): heading RMSE 0.040-0.063°,
-p95 0.068-0.147°, coverage 99.3 %, boresight yaw within 1.5 σ, time offset within 4 ms."""
+"""The scenario tests' realistic world: the ``ci-realistic`` preset (the demo's hall with pillars, posters and
+lights, exposure changes, blur, JPEG 85, a wandering platform, a VO drifting in yaw and tilted as the platform
+started, a camera of two lenses 1 cm off its centre, a camera clock 20 ppm fast and a 30 ms rolling shutter, at
+ci's size: 1920 px, 15 fps, 20 s) through the user's CLI workflow: timesync --markers, calibrate
+--refine-time-offset, process with the calibration, evaluate against the truth. A 20 s drive calibrates the
+boresight yaw to ± 0.05-0.11° (the front lens of seed 0 sees no marker), and that is the heading's floor: seeds
+0-2 gave heading RMSE 0.101°, 0.110°, 0.085° (p95 0.15-0.22°; 0.063° with the true calibration), the boresight
+yaw within 2.3 σ, the time offset within 5 ms. The bounds are about 1.4× those."""
 import json
 import re
 from pathlib import Path
@@ -42,4 +43,4 @@ def test_the_realistic_world_through_the_cli_workflow(scenario_factory, tmp_path
     assert cli_main(["evaluate", str(run), "--reference", scen.truth]) == 0
     ev = json.loads((run / "report.json").read_text())
     assert ev["coverage"]["share"] >= 0.95, ev["coverage"]
-    assert ev["heading_ape"]["rmse_deg"] <= 0.1 and ev["heading_ape"]["p95_deg"] <= 0.2, ev["heading_ape"]
+    assert ev["heading_ape"]["rmse_deg"] <= 0.15 and ev["heading_ape"]["p95_deg"] <= 0.3, ev["heading_ape"]
