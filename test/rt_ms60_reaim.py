@@ -6,7 +6,6 @@ The prism is hidden for 2 s in both; the driver that predicts from tf (namespace
 the prism (AUT_MakePositioning), fine-adjusts and locks in: its positions resume within the simulator's positioning,
 two fine adjustments, the lock-in and 0.5 s of its reappearance; the one without (namespace search) sweeps with
 PowerSearch, later. Both times are printed as [figure] lines."""
-import json
 import math
 import threading
 import time
@@ -16,10 +15,11 @@ import numpy as np
 import rospy
 import rostest
 import tf2_ros
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped, TransformStamped
-from std_msgs.msg import String
 
 from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig
+from aruco_abs_orient.ros.ms60_node import status_values
 
 
 def track(t):
@@ -33,14 +33,14 @@ class Link:
         self.lock = threading.Lock()
         self.arrivals, self.status = [], {}
         rospy.Subscriber(f"/{ns}/ms60/prism", PointStamped, self._on_prism, queue_size=100)
-        rospy.Subscriber(f"/{ns}/ms60/status", String, self._on_status)
+        rospy.Subscriber(f"/{ns}/ms60/status", DiagnosticStatus, self._on_status)
 
     def _on_prism(self, _msg):
         with self.lock:
             self.arrivals.append(time.time())
 
     def _on_status(self, msg):
-        self.status = json.loads(msg.data)
+        self.status = status_values(msg)
 
     def first_after(self, t):
         with self.lock:
