@@ -53,9 +53,9 @@ CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_t
 #: the only reasons a test may skip there: it needs ROS, or geocompy (the independent GeoCOM client of the
 #: tests needs Python ≥ 3.11: it checks the simulator in the main venv)
 #: CORE_TESTS in two parts run side by side (make test: test/conftest.py gives each its own worker), about
-#: equally long: the calibration's least squares and the start-up scenarios (≈ 440 s at load 9), the rest (≈ 470 s)
-CORE_PARTS = (["calibration", "test_startup_anywhere.py"],
-              [name for name in CORE_TESTS if name not in ("calibration", "test_startup_anywhere.py")])
+#: equally long: the calibration's least squares and process's scenarios (≈ 550 s at load 7), the rest (≈ 450 s)
+CORE_PARTS = (["calibration", "offline/test_process.py"],
+              [name for name in CORE_TESTS if name not in ("calibration", "offline/test_process.py")])
 ROS_ONLY = re.compile(r"\brospy\b|\brosbag\b|\bROS\b|\bgeocompy\b")
 DEG = math.pi / 180.0
 
