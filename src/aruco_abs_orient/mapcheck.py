@@ -230,8 +230,8 @@ def _as_is(rays: _Rays, track, M: np.ndarray, p: MapCheckParams) -> Tuple[float,
         P = _prism_at(track, rays.t + eps)
         delta, off = _fit_yaw(rays, P, M, p.knot_spacing)
         tilt = _odom_tilt(rays, P, M, delta)
-        if np.max(np.abs(tilt)) <= math.radians(p.max_odom_tilt_deg):
-            off = np.minimum(off, _fit_yaw(_levelled(rays, tilt), P, M, p.knot_spacing)[1])
+        if np.max(np.abs(tilt)) <= math.radians(p.max_odom_tilt_deg):  # the levelled fit, where it fits better
+            off = min(off, _fit_yaw(_levelled(rays, tilt), P, M, p.knot_spacing)[1], key=np.median)
         med = float(np.median(off))
         if med < best[0] - 1e-9:
             best = (med, float(eps), off)
