@@ -3,6 +3,7 @@
 In: an ``argparse`` parser to add options to, or the parsed ``argparse.Namespace``. Out: the topic and frame
 options (:func:`add_topics` → :class:`~aruco_abs_orient.offline.bagio.BagTopics`), the options of a recording
 without a bag (:func:`add_video_inputs` → :func:`video_recording`), ``--params`` (:func:`add_params_option`),
+``--time-offset`` (:func:`add_time_offset`), the markers' ``--size`` and ``--dictionary`` (:func:`add_marker_kind`),
 an output directory made and checked (:func:`output_directory`) and aligned result lines
 (:func:`print_lines`). Imports no command: the commands import it. Errors: :class:`InputOptionsError` or
 InputFileError, one line naming the option or path.
@@ -15,11 +16,11 @@ import os
 from typing import Optional
 
 from ..errors import ConfigurationError, InputFileError
-from ..markers import MarkerMap
+from ..markers import ARUCO_DICTIONARIES, MarkerMap
 from .bagio import BagTopics
 
 __all__ = ["BAGS_HELP", "InputOptionsError", "add_topics", "topics_from", "add_video_inputs", "video_recording",
-           "add_params_option", "output_directory", "print_lines"]
+           "add_params_option", "add_time_offset", "add_marker_kind", "output_directory", "print_lines"]
 
 BAGS_HELP = ("; several bags (a `rosbag record --split` recording, in any order) or a quoted glob such as "
              "'run_*.bag' are read as one recording in time order")
@@ -96,6 +97,19 @@ def video_recording(a: argparse.Namespace, marker_map: Optional[MarkerMap] = Non
     return VideoRecording(a.video, a.trajectory, a.prism, levers["camera"], levers["prism"], a.trajectory_frame,
                           a.video_start, tuple(float(x) for x in origin), a.prism_format,
                           lever_arms=a.lever_arms or a.calibration)
+
+
+def add_time_offset(p: argparse.ArgumentParser) -> None:
+    """``--time-offset S``: the camera's stamps against the total station's (``timesync``'s result)."""
+    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
+                   help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
+
+
+def add_marker_kind(p: argparse.ArgumentParser) -> None:
+    """``--size M`` (required) and ``--dictionary DICT``: the printed markers."""
+    p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
+    p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
+                   help="ArUco dictionary (default DICT_4X4_50)")
 
 
 def add_params_option(p: argparse.ArgumentParser, sections: str) -> None:

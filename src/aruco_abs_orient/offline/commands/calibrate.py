@@ -31,6 +31,7 @@ from ..calibrate import calibrate_bag, collect_observations, map_check
 from ..commandlines import process_command
 from ..options import (
     add_params_option,
+    add_time_offset,
     add_topics,
     add_video_inputs,
     output_directory,
@@ -68,8 +69,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism; several "
                    "bags or a quoted glob ('run_*.bag') are one split recording")
     p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
-    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
-                   help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
+    add_time_offset(p)
     p.add_argument("--out", required=True, metavar="YAML",
                    help="calibration YAML to write (atomically); the launch file goes beside it (.yaml → .launch)")
     p.add_argument("--lever-arm", action="store_true", help="also estimate the camera lever arm (3 more unknowns)")

@@ -20,12 +20,14 @@ from ...calibration import HEADING_MODELS, load_calibration
 from ...errors import ConfigurationError
 from ...mapping import MapUnknowns
 from ...mapping.model import format_xyz
-from ...markers import ARUCO_DICTIONARIES, MarkerMap
+from ...markers import MarkerMap
 from ...params import load_params
 from ..map import load_control, map_recording, write_map
 from ..options import (
     BAGS_HELP,
+    add_marker_kind,
     add_params_option,
+    add_time_offset,
     add_topics,
     add_video_inputs,
     output_directory,
@@ -62,11 +64,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "drive; markers that disagree (moved during the recording, two with one id) are left out.",
         epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
-    p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
-    p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
-                   help="ArUco dictionary (default DICT_4X4_50)")
-    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
-                   help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
+    add_marker_kind(p)
+    add_time_offset(p)
     p.add_argument("--out", required=True, metavar="YAML",
                    help="markers YAML to write (atomically); the report and plan go beside it (_report.md, _plan.png)")
     p.add_argument("--control", metavar="FILE",

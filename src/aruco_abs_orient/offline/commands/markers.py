@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 
 from ...errors import ConfigurationError
-from ...markers import ARUCO_DICTIONARIES
 from ...table import DECIMAL_MARKS, DELIMITERS
+from ..options import add_marker_kind
 
 __all__ = ["add_parser", "run"]
 
@@ -34,9 +34,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="the CSV's field delimiter: , ; tab or blank (default: detected)")
     p.add_argument("--decimal", choices=DECIMAL_MARKS, metavar="MARK",
                    help="the CSV's decimal mark: . or , (default: detected; a row that reads two ways is refused)")
-    p.add_argument("--size", type=float, required=True, metavar="M", help="black square side, metres")
-    p.add_argument("--dictionary", choices=ARUCO_DICTIONARIES, default="DICT_4X4_50", metavar="DICT",
-                   help="ArUco dictionary (default DICT_4X4_50)")
+    add_marker_kind(p)
     p.add_argument("--tolerance", type=float, default=0.01, metavar="M",
                    help="largest distance of a corner from the fitted square (default 0.01 m)")
     p.add_argument("--sigma", type=float, default=0.002, metavar="M", help="survey 1-σ per marker (default 0.002 m)")

@@ -22,6 +22,7 @@ from ..bagio import bag_name
 from ..options import (
     BAGS_HELP,
     add_params_option,
+    add_time_offset,
     add_topics,
     add_video_inputs,
     output_directory,
@@ -56,8 +57,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("bag", nargs="*", help="ROS 1 bag with the images, /tf, /tf_static and the prism" + BAGS_HELP)
     p.add_argument("--markers", required=True, help="marker map YAML (doc/field_guide.md: The marker map)")
     p.add_argument("--out", required=True, help="output directory (created; files are replaced atomically)")
-    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
-                   help="camera stamps = total-station time + S seconds (see `timesync`; default 0)")
+    add_time_offset(p)
     p.add_argument("--calibration", metavar="YAML",
                    help="lever arms and camera rotation from this calibration file (written by `calibrate`) "
                         "instead of the bag's /tf_static")
