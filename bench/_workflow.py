@@ -72,11 +72,13 @@ def workflow(scen: str, run: str, calibrate_args=(), calib_scen: str = None, pro
     cal_bag, cal_markers = os.path.join(cal_dir, "scenario.bag"), os.path.join(cal_dir, "markers.yaml")
     with open(os.path.join(scen, "hidden.yaml")) as f:
         hidden = yaml.safe_load(f)
-    try:
+    try:   # as a user would: with the marker map, then (refused) without it
         offset = offset_from(cli("timesync", cal_bag, "--markers", cal_markers))
     except RuntimeError:
-        offset = None
-    offset = hidden["camera_time_offset"] if offset is None else offset
+        try:
+            offset = offset_from(cli("timesync", cal_bag))
+        except RuntimeError as e:   # no time offset: the reason is the figure
+            return {"refused": "timesync: " + str(e).strip().splitlines()[-1][-400:]}
     cal = os.path.join(run, "calibration.yaml")
     try:
         text = cli("calibrate", cal_bag, "--markers", cal_markers, "--time-offset", offset, "--refine-time-offset",

@@ -119,8 +119,10 @@ def _offset_answer(best, refined: bool, in_use: Optional[float]) -> Tuple[str, b
     if not refined:
         head = (f"time offset {tau:.1f} ± {sigma:.1f} ms" if used is None else
                 f"time offset in use {used:.1f} ms ({used - tau:+.1f} ms from {tau:.1f} ± {sigma:.1f} ms)")
-        return (head + ": where the VO heading follows the prism track best; refine it with the marker bearings "
-                "(timesync --markers)"), False   # a coarse σ cannot judge an offset refined elsewhere
+        basis = ("the marker bearings agree best on the scan's grid" if best.method == "marker scan" else
+                 "the VO heading follows the prism track best")
+        # a coarse σ cannot judge an offset refined elsewhere
+        return (head + f": where {basis}; refine it with the marker bearings (timesync --markers)"), False
     if used is None:
         return f"time offset {tau:.1f} ± {sigma:.1f} ms: the marker bearings agree best there", False
     if off:
@@ -134,7 +136,8 @@ def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.nd
     """Is the time offset right? The answer in the title (the marker bearings' offset ± σ, or the coarse one's,
     and how far the offset ``in_use`` by a run (s) is from it); below, what it rests on: ``cost`` = (offsets s,
     RMS of the marker bearings' residuals rad with the offset held there) with the minimum and its σ band, and
-    the coarse estimate ``coarse`` (an ``OffsetEstimate`` of the VO heading: its coherence curve) as context,
+    the coarse estimate ``coarse`` (an ``OffsetEstimate`` of the VO heading: its coherence curve; or the marker
+    scan's, method "marker scan": its residual over the whole search) as context,
     with the paper's cross-correlation peak (``baseline``) marked. ``refined``: the marker-bearing
     ``OffsetEstimate`` (None: the coarse one is the answer). Offsets in ms, camera stamp − total-station time."""
     best = refined if refined is not None else coarse
@@ -143,7 +146,10 @@ def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.nd
     def ms(seconds):
         return 1e3 * np.asarray(seconds, dtype=float)
 
+    scan = coarse.method == "marker scan"   # the heading gave none: the marker bearings over the whole search
     spans = [ms(coarse.offset) + ms(coarse.sigma) * np.array([-2.0, 2.0]), ms(best.offset) + np.array([-30.0, 30.0])]
+    if scan and len(coarse.taus):
+        spans.append(ms(coarse.taus))
     have_cost = cost is not None and len(cost[0]) >= 2
     if have_cost:
         spans.append(ms(cost[0]))
@@ -170,11 +176,14 @@ def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.nd
         ax = axes[-1]
         sel = (ms(coarse.taus) >= lo) & (ms(coarse.taus) <= hi)
         if np.any(sel):
-            ax.plot(ms(coarse.taus)[sel], np.asarray(coarse.curve)[sel], "-", color="0.35",
-                    label="phase coherence of the VO heading and the track direction")
+            ax.plot(ms(coarse.taus)[sel], np.degrees(coarse.curve)[sel] if scan else np.asarray(coarse.curve)[sel],
+                    "o-" if scan else "-", color="0.35", ms=3,
+                    label="RMS of the marker bearings' residuals (capped), over the whole search" if scan else
+                    "phase coherence of the VO heading and the track direction")
         for a in axes:
             a.axvspan(ms(coarse.offset - coarse.sigma), ms(coarse.offset + coarse.sigma), color="0.6", alpha=0.25,
-                      lw=0, label=f"the VO heading alone: {ms(coarse.offset):.1f} ± {ms(coarse.sigma):.1f} ms")
+                      lw=0, label=f"{'the marker scan' if scan else 'the VO heading alone'}: "
+                                  f"{ms(coarse.offset):.1f} ± {ms(coarse.sigma):.1f} ms")
             if in_use is not None:
                 a.axvline(ms(in_use), color=_BAD if off else "k", lw=2.5, ls="--",
                           label=f"in use by this run: {ms(in_use):.1f} ms")
@@ -183,10 +192,10 @@ def plot_time_offset(path: str, coarse, refined=None, cost: Optional[Tuple[np.nd
         if baseline is not None and lo <= ms(baseline.offset) <= hi:
             ax.axvline(ms(baseline.offset), color="C2", ls=":", lw=2,
                        label=f"the paper's cross-correlation: {ms(baseline.offset):.0f} ms (one-frame steps)")
-        ax.set_ylabel("coherence (1: follows)")
+        ax.set_ylabel("residual RMS [deg]" if scan else "coherence (1: follows)")
         ax.ticklabel_format(axis="y", style="plain", useOffset=False)
-        ax.set_title("context: the coarse estimate from the VO heading (coherence: the higher, the better)",
-                     loc="left")
+        ax.set_title("context: the marker bearings over the whole search (the VO heading gave none)" if scan else
+                     "context: the coarse estimate from the VO heading (coherence: the higher, the better)", loc="left")
         ax.set_xlabel("time offset: camera stamp − total-station time [ms]")
         for a in axes:
             a.legend(loc="best", fontsize=9.5)

@@ -8,7 +8,9 @@ With the marker map, the estimate is refined with the marker bearings: a time of
 camera along its track by speed × offset, which turns the bearing of every marker by an amount that
 depends on its range and direction; the least squares of :func:`aruco_abs_orient.calibration.calibrate`
 with the offset as an unknown (beside the boresight, which it must not absorb) find it to a fraction
-of a millisecond, where the heading alone is limited by the VO's yaw drift and random walk.
+of a millisecond, where the heading alone is limited by the VO's yaw drift and random walk. Where the
+heading gives no estimate (a drive at a constant turn rate has no phase to follow), the marker bearings
+alone start the refinement: :func:`marker_offset_scan` over the searched offsets.
 
 The plot (``timesync.png``, :func:`aruco_abs_orient.plots.plot_time_offset`) shows what the answer rests on:
 the marker bearings' residual with the offset held at offsets around it (:func:`marker_offset_cost`), the
@@ -34,10 +36,18 @@ from ..tum import atomic_write_text
 from .bagio import BagData, BagTopics, bag_name, read_bag_data
 from .calibrate import calibrate_bag, collect_observations
 
-__all__ = ["estimate_bag_offset", "marker_offset_estimate", "marker_offset_cost", "plot_offset_file"]
+__all__ = ["estimate_bag_offset", "marker_offset_estimate", "marker_offset_cost", "marker_offset_scan",
+           "plot_offset_file"]
 
-# σ (s) at which the confidence of a marker-bearing estimate has fallen to 1/2
-MARKER_SIGMA_REF = 0.005
+#: σ (s) at which the confidence of a marker-bearing estimate has fallen to 1/2: about a frame at 30-50 fps
+MARKER_SIGMA_REF = 0.020
+#: the scan's grid (s) and its most offsets: a grid step moves a marker 3 m away by ≤ 2° at 1 m/s, inside the
+#: refinement's reach; a wider search is sampled evenly with at most that many offsets
+SCAN_STEP, SCAN_MAX = 0.1, 51
+#: a bearing residual counts up to this (rad) in the scan's cost: a far-off offset's outliers do not decide it
+SCAN_CAP = math.radians(2.0)
+#: the refinement's largest accepted 1-σ (s): it is judged by its confidence, not refused at calibrate's 5 ms
+MARKER_MAX_SIGMA = 0.05
 
 
 def marker_offset_estimate(coarse: float, cal: Calibration) -> timesync.OffsetEstimate:
@@ -74,6 +84,39 @@ def marker_offset_cost(bag: str, marker_map: MarkerMap, observations, cal: Calib
             offsets.append(float(tau))
             rms.append(float(np.sqrt(np.mean(r * r))))
     return np.asarray(offsets), np.asarray(rms)
+
+
+def marker_offset_scan(bag: str, marker_map: MarkerMap, observations, search: Tuple[float, float],
+                       topics: Optional[BagTopics] = None) -> timesync.OffsetEstimate:
+    """The offset (s) from the marker bearings alone, where the VO heading gives none: the boresight fitted at
+    offsets :data:`SCAN_STEP` apart over ``search`` (at most :data:`SCAN_MAX`, evenly), each judged by the mean
+    of its squared bearing residuals capped at :data:`SCAN_CAP`; the best, with σ = the grid step (method
+    "marker scan", its cost curve in ``taus``/``curve``, the confidence of that σ), starts
+    :func:`marker_offset_estimate`'s refinement. Raises ``timesync.TimeSyncError`` when no offset of the
+    search can be calibrated."""
+    n = int(min(SCAN_MAX, max(3, math.floor((search[1] - search[0]) / SCAN_STEP) + 1)))
+    params = CalibrationParams(max_boresight_sigma_deg=1.0)
+    taus, cost = [], []
+    for tau in np.linspace(search[0], search[1], n):
+        try:
+            res = calibrate_bag(bag, marker_map, float(tau), topics, progress=False, observations=observations,
+                                params=params)
+        except CalibrationError:
+            continue
+        r = np.asarray(res.residuals_after, dtype=float)
+        r = np.minimum(np.abs(r[np.isfinite(r)]), SCAN_CAP)
+        if len(r):
+            taus.append(float(tau))
+            cost.append(float(np.mean(r * r)))
+    if not taus:
+        raise timesync.TimeSyncError(f"no offset from {search[0]:+.2f} to {search[1]:+.2f} s fits the marker "
+                                     "bearings: check the marker map and the search (--search)")
+    best = int(np.argmin(cost))
+    step = (search[1] - search[0]) / max(n - 1, 1)
+    return timesync.OffsetEstimate(offset=taus[best], sigma=step, coherence=float("nan"),
+                                   confidence=1.0 / (1.0 + (step / MARKER_SIGMA_REF) ** 2),
+                                   taus=np.asarray(taus), curve=np.sqrt(np.asarray(cost)), method="marker scan",
+                                   n_samples=len(observations.times), overlap=float("nan"))
 
 
 def _estimate_dict(est) -> Optional[dict]:
@@ -142,7 +185,9 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
                         progress: bool = False, params: Optional[Tunables] = None) -> Dict[str, object]:
     """``{"timesync": OffsetEstimate, "timesync_baseline": OffsetEstimate or reason}`` of a bag, and
     with ``marker_map`` ``"timesync_markers"``: the estimate refined with the marker bearings of every
-    ``every``-th image (an OffsetEstimate, or the reason it is not possible). ``search``: the offsets
+    ``every``-th image (an OffsetEstimate, or the reason it is not possible). ``"timesync"`` is the VO
+    heading's estimate; where the heading gives none and ``marker_map`` is given, the marker bearings'
+    :func:`marker_offset_scan` (``"heading_refused"``: why the heading gave none). ``search``: the offsets
     searched (default :func:`default_search`). ``params``: the tunables (``load_params``): the estimate's
     ``timesync`` knobs, and the ``detection`` knobs of the marker search (default: every default).
 
@@ -157,27 +202,45 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
     search = search or default_search(data)
     t_vo, yaw_vo = data.odom.stamps, yaw_of(data.odom.rotations)
     t_tr, xy = data.prism_stamps, data.prism_positions[:, :2]
-    est = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, params=params.timesync,
-                                   prism_in_base=data.base_T_prism[:3, 3])
-    out: Dict[str, object] = {"timesync": est}
+    out: Dict[str, object] = {}
+    try:
+        out["timesync"] = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, params=params.timesync,
+                                                   prism_in_base=data.base_T_prism[:3, 3])
+    except timesync.TimeSyncError as e:
+        if marker_map is None:
+            raise
+        out["heading_refused"] = str(e)
     try:
         out["timesync_baseline"] = timesync.cross_correlation_offset(t_vo, yaw_vo, t_tr, xy, search=search,
                                                                      track_heading="smoothed")
     except timesync.TimeSyncError as e:
         out["timesync_baseline"] = {"not_available": str(e)}
     if marker_map is not None:
-        obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data, every=every,
-                                   label="timesync: detect")
-        try:
-            cal = calibrate_bag(bag, marker_map, est.offset, topics, observations=obs,
-                                unknowns=Unknowns(time_offset=True),
-                                params=CalibrationParams(max_boresight_sigma_deg=1.0))
-            refined = marker_offset_estimate(est.offset, cal)
-            out["timesync_markers"] = refined
-            if plot_dir:
-                out["cost"] = marker_offset_cost(bag, marker_map, obs, cal, refined.offset, est, topics)
-        except CalibrationError as e:
-            out["timesync_markers"] = {"not_available": str(e)}
+        _refine_with_markers(out, bag, marker_map, topics, data, search, every, progress, params, plot_dir)
     if plot_dir:
         out["plot"] = _write_plot(plot_dir, out)
     return out
+
+
+def _refine_with_markers(out: Dict[str, object], bag: str, marker_map: MarkerMap, topics, data: BagData,
+                         search: Tuple[float, float], every: int, progress: bool, params: Tunables,
+                         plot_dir: Optional[str]) -> None:
+    """:func:`estimate_bag_offset`'s refinement with the marker bearings, into ``out`` (the scan first where the
+    heading gave no estimate)."""
+    obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data, every=every,
+                               label="timesync: detect")
+    if "timesync" not in out:
+        out["timesync"] = marker_offset_scan(bag, marker_map, obs, search, topics)
+    coarse = out["timesync"]
+    try:
+        cal = calibrate_bag(bag, marker_map, coarse.offset, topics, progress=False, observations=obs,
+                            unknowns=Unknowns(time_offset=True),
+                            params=CalibrationParams(max_boresight_sigma_deg=1.0,
+                                                     max_time_offset_sigma=MARKER_MAX_SIGMA))
+    except CalibrationError as e:
+        out["timesync_markers"] = {"not_available": str(e)}
+        return
+    refined = marker_offset_estimate(coarse.offset, cal)
+    out["timesync_markers"] = refined
+    if plot_dir:
+        out["cost"] = marker_offset_cost(bag, marker_map, obs, cal, refined.offset, coarse, topics)

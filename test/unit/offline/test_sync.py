@@ -2,7 +2,9 @@
 hidden.yaml): the file's timesync section reaches the estimate (a stricter smoothing or overlap changes what
 the command answers); a bad key is one line naming it, before the recording is read."""
 
+import json
 import re
+from pathlib import Path
 
 import pytest
 import yaml
@@ -75,3 +77,30 @@ def test_help_says_what_the_file_is(capsys):
             cli_main([command, "--help"])
         text = " ".join(capsys.readouterr().out.split())
         assert "--params YAML a params file" in text and section in text and "cfg/params.yaml" in text
+
+
+@pytest.mark.parametrize("preset", ["ci", "ci-realistic"])
+def test_the_marker_bearings_find_the_offset_the_heading_cannot(preset, scenario_factory, tmp_path, capsys):
+    """A drive whose turn rate hardly varies gives the VO heading no phase to follow (here forced: a 50 °/s
+    variation asked for); with the marker map the bearings alone scan the search and refine the offset to
+    the hidden one within 3 σ, the command says why the heading gave none and draws the scan."""
+    scen = scenario_factory(preset)
+    hidden = yaml.safe_load(Path(scen.hidden).read_text())["camera_time_offset"]
+    flat = tmp_path / "flat.yaml"
+    flat.write_text("timesync:\n  min_turn_rate_deg: 50\n")
+    assert cli_main(["timesync", scen.bag, "--params", str(flat), "--quiet"]) == 1
+    assert "no time offset" in capsys.readouterr().err
+    plots = tmp_path / "plots"
+    assert cli_main(["timesync", scen.bag, "--params", str(flat), "--markers", scen.markers, "--quiet",
+                     "--plot", str(plots)]) == 0
+    out = capsys.readouterr().out
+    assert "the VO heading gives no time offset" in out and "scanned with the marker bearings" in out, out
+    m = re.search(r"refined with the marker bearings: +([+-][0-9.]+) ms ± ([0-9.]+) ms", out)
+    assert m, out
+    offset, sigma = float(m.group(1)), float(m.group(2))
+    assert sigma < 20.0 and abs(offset - 1e3 * hidden) < 3 * max(sigma, 1.0), (offset, sigma, 1e3 * hidden)
+    use = re.findall(r"--time-offset ([-0-9.]+)", out)
+    assert use and abs(1e3 * float(use[-1]) - offset) < 0.1, out
+    saved = json.loads((plots / "timesync.json").read_text())
+    assert saved["coarse"]["method"] == "marker scan" and len(saved["coarse"]["taus_s"]) >= 15
+    assert (plots / "timesync.png").stat().st_size > 10_000

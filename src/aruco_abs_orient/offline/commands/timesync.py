@@ -1,8 +1,9 @@
 """``aruco-abs-orient timesync``: the camera/VO ↔ total-station time offset of a recording (the arguments).
 
 In: the recording, optionally the marker map (the offset refined with the marker bearings) and a params file.
-Out: the estimates of :func:`aruco_abs_orient.offline.sync.estimate_bag_offset` as lines for people, the plot
-with ``--plot`` and the ``calibrate`` command to run next. Exit status: 0 an offset, 1 none (no motion, too
+Out: the estimates of :func:`aruco_abs_orient.offline.sync.estimate_bag_offset` as lines for people (where the
+VO heading gives none, why, and the marker bearings' scan), the plot with ``--plot`` and the ``calibrate``
+command to run next. Exit status: 0 an offset, 1 none (no motion, too
 short, a weak coherence peak: why), 2 bad input.
 """
 
@@ -25,7 +26,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description="The camera/VO ↔ total-station time offset of a recording: phase coherence of "
                     "the VO yaw with the prism track's heading (the paper's cross-correlation printed beside "
                     "it); with --markers refined with the marker bearings (sub-millisecond where the VO "
-                    "drifts; detects the markers in every N-th image, the slow part).",
+                    "drifts; detects the markers in every N-th image, the slow part), and found with them alone "
+                    "where the heading gives none (a drive at a constant turn rate).",
         epilog="examples:\n  aruco-abs-orient timesync run.bag --plot results/\n"
                "  aruco-abs-orient timesync run.bag --markers markers.yaml --every 3\n"
                "  aruco-abs-orient timesync run.bag --params my_params.yaml\n"
@@ -69,8 +71,13 @@ def run(a: argparse.Namespace) -> int:
     except TimeSyncError as e:
         raise NoResultError(f"no time offset: {e}") from None
     est, base = out["timesync"], out["timesync_baseline"]
-    print(f"time offset (camera = total station + offset): {1e3 * est.offset:+.1f} ms ± {1e3 * est.sigma:.1f} ms "
-          f"(confidence {est.confidence:.2f}, phase coherence)")
+    if "heading_refused" in out:
+        print(f"the VO heading gives no time offset: {out['heading_refused']}")
+        print(f"scanned with the marker bearings:               {1e3 * est.offset:+.1f} ms ± {1e3 * est.sigma:.1f} ms "
+              f"(every {1e3 * est.sigma:.0f} ms over the search)")
+    else:
+        print(f"time offset (camera = total station + offset): {1e3 * est.offset:+.1f} ms ± {1e3 * est.sigma:.1f} ms "
+              f"(confidence {est.confidence:.2f}, phase coherence)")
     if hasattr(base, "offset"):
         print(f"paper's cross-correlation baseline:             {1e3 * base.offset:+.1f} ms (one-frame resolution)")
     else:
