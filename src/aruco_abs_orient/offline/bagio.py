@@ -110,6 +110,12 @@ class BagData:
     imu_tilts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # (K, 3) roll, pitch, σ in rad
     separate_clocks: bool = False          # camera and total station unsynchronised (video input)
 
+    @property
+    def image_rate(self) -> float:
+        """Images per second over the odometry's span (0 when it has none)."""
+        span = float(self.odom.stamps[-1] - self.odom.stamps[0]) if len(self.odom.stamps) > 1 else 0.0
+        return self.image_count / span if span > 0 else 0.0
+
 
 def open_reader(path: Bags):
     """An opened rosbags AnyReader over one bag or the files of one recording; a clear BagError naming

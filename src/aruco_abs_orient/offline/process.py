@@ -143,7 +143,7 @@ def _selfcheck(checked, data: BagData, marker_map: MarkerMap, stamps, poses, sum
     obs = observation_columns(checked)
     bags, markers = bags_for_shell(bag), shlex.quote(marker_map.source)
     commands = {"timesync": f"aruco-abs-orient timesync {bags} --markers {markers}",
-                "calibrate": calibrate_command(bag, marker_map.source, summary["time_offset_s"])}
+                "calibrate": calibrate_command(bag, marker_map.source, summary["time_offset_s"], data.image_rate)}
     yaws = yaw_of(np.array(poses).reshape(-1, 4, 4)[:, :3, :3]).tolist()
     offset = summary["time_offset_s"]
     odometry = Trajectory(data.odom.stamps - offset, data.odom.positions, data.odom.quats)   # the TS clock

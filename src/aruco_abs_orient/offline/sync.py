@@ -35,6 +35,7 @@ from ..transforms import yaw_of
 from ..tum import atomic_write_text
 from .bagio import BagData, BagTopics, bag_name, read_bag_data
 from .calibrate import calibrate_bag, collect_observations
+from .commandlines import calibration_every
 
 __all__ = ["estimate_bag_offset", "marker_offset_estimate", "marker_offset_cost", "marker_offset_scan",
            "plot_offset_file"]
@@ -181,13 +182,16 @@ def default_search(data: BagData, min_overlap: float = 10.0) -> Tuple[float, flo
 
 
 def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Optional[Tuple[float, float]] = None,
-                        plot_dir: Optional[str] = None, marker_map: Optional[MarkerMap] = None, every: int = 3,
+                        plot_dir: Optional[str] = None, marker_map: Optional[MarkerMap] = None,
+                        every: Optional[int] = None,
                         progress: bool = False, params: Optional[Tunables] = None) -> Dict[str, object]:
     """``{"timesync": OffsetEstimate, "timesync_baseline": OffsetEstimate or reason}`` of a bag, and
     with ``marker_map`` ``"timesync_markers"``: the estimate refined with the marker bearings of every
-    ``every``-th image (an OffsetEstimate, or the reason it is not possible). ``"timesync"`` is the VO
+    ``every``-th image (default :func:`~.commandlines.calibration_every`; an OffsetEstimate, or the reason it is
+    not possible). ``"timesync"`` is the VO
     heading's estimate; where the heading gives none and ``marker_map`` is given, the marker bearings'
-    :func:`marker_offset_scan` (``"heading_refused"``: why the heading gave none). ``search``: the offsets
+    :func:`marker_offset_scan` (``"heading_refused"``: why the heading gave none); ``"image_rate"``: images/s.
+    ``search``: the offsets
     searched (default :func:`default_search`). ``params``: the tunables (``load_params``): the estimate's
     ``timesync`` knobs, and the ``detection`` knobs of the marker search (default: every default).
 
@@ -202,7 +206,7 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
     search = search or default_search(data)
     t_vo, yaw_vo = data.odom.stamps, yaw_of(data.odom.rotations)
     t_tr, xy = data.prism_stamps, data.prism_positions[:, :2]
-    out: Dict[str, object] = {}
+    out: Dict[str, object] = {"image_rate": data.image_rate}
     try:
         out["timesync"] = timesync.estimate_offset(t_vo, yaw_vo, t_tr, xy, search=search, params=params.timesync,
                                                    prism_in_base=data.base_T_prism[:3, 3])
@@ -223,12 +227,12 @@ def estimate_bag_offset(bag: str, topics: Optional[BagTopics] = None, search: Op
 
 
 def _refine_with_markers(out: Dict[str, object], bag: str, marker_map: MarkerMap, topics, data: BagData,
-                         search: Tuple[float, float], every: int, progress: bool, params: Tunables,
+                         search: Tuple[float, float], every: Optional[int], progress: bool, params: Tunables,
                          plot_dir: Optional[str]) -> None:
     """:func:`estimate_bag_offset`'s refinement with the marker bearings, into ``out`` (the scan first where the
     heading gave no estimate)."""
-    obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data, every=every,
-                               label="timesync: detect")
+    obs = collect_observations(bag, marker_map, topics, progress, params.detection, data=data,
+                               every=every or calibration_every(data.image_rate), label="timesync: detect")
     if "timesync" not in out:
         out["timesync"] = marker_offset_scan(bag, marker_map, obs, search, topics)
     coarse = out["timesync"]

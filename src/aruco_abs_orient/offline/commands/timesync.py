@@ -37,8 +37,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("bag", nargs="*", help="ROS 1 bag with /tf (odom→base_link) and the prism (and the images, "
                    "with --markers)" + BAGS_HELP)
     p.add_argument("--markers", metavar="YAML", help="marker map: refine the offset with the marker bearings")
-    p.add_argument("--every", type=int, default=3, metavar="N",
-                   help="with --markers: search every N-th image (default 3)")
+    p.add_argument("--every", type=int, metavar="N",
+                   help="with --markers: search every N-th image (default: about 10 a second, every 3rd at 30 fps)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--search", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="offsets searched, seconds (default -1 1 for a bag; for a video every offset at which the "
@@ -60,7 +60,7 @@ def run(a: argparse.Namespace) -> int:
     from ...timesync import TimeSyncError
     from ..sync import estimate_bag_offset
 
-    if a.every < 1:
+    if a.every is not None and a.every < 1:
         raise ConfigurationError(f"--every: expected an integer ≥ 1, got {a.every}")
     tunables = load_params(a.params)
     marker_map = MarkerMap.load(a.markers) if a.markers else None
@@ -98,5 +98,5 @@ def run(a: argparse.Namespace) -> int:
         raise NoResultError(f"no time offset: confidence {est.confidence:.2f} < {a.min_confidence} (the coherence "
                             "peak is weak: record longer, with more turns of varying rate, or give --markers)")
     hint = "" if a.markers else "   (give your marker map)"
-    print(f"use: {calibrate_command(recording, a.markers, est.offset)}{hint}")
+    print(f"use: {calibrate_command(recording, a.markers, est.offset, out['image_rate'])}{hint}")
     return 0
