@@ -16,13 +16,15 @@ import sys
 import time
 
 import numpy as np
+import yaml
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "src"))
 
+from aruco_abs_orient.calibration.io import LENSES_KEY, READOUT_KEY  # noqa: E402
 from aruco_abs_orient.camera import angle_between  # noqa: E402
 from aruco_abs_orient.synthetic.bag import generate  # noqa: E402
-from aruco_abs_orient.transforms import quat_to_matrix  # noqa: E402
+from aruco_abs_orient.transforms import matrix_to_rpy, quat_to_matrix  # noqa: E402
 from aruco_abs_orient.tum import read_tum  # noqa: E402
 
 CLI = [sys.executable, "-m", "aruco_abs_orient.offline.cli"]
@@ -37,6 +39,44 @@ def scenario_dir(config, bench: str, workers: int = 2) -> str:
         print(f"rendering {out}", file=sys.stderr, flush=True)
         generate(config, out, progress=False, force=True, workers=workers)
     return out
+
+
+def hidden_of(scen: str) -> dict:
+    """The scenario's hidden.yaml (its truth)."""
+    with open(os.path.join(scen, "hidden.yaml")) as f:
+        return yaml.safe_load(f)
+
+
+def true_calibration(scen: str) -> str:
+    """The scenario's camera as a calibration file (its true mounting, readout and lenses), in its directory."""
+    hidden = hidden_of(scen)
+    path = os.path.join(scen, "true_calibration.yaml")
+
+    def entry(T):
+        T = np.array(T, dtype=float)
+        return {"xyz": T[:3, 3].tolist(), "rpy_deg": np.degrees(matrix_to_rpy(T[:3, :3])).tolist()}
+
+    lenses = hidden["realism"]["camera_lenses"]
+    with open(path, "w") as f:
+        yaml.safe_dump({"base_link_to_camera": entry(hidden["base_T_camera_true"]),
+                        "base_link_to_prism": entry(hidden["base_T_prism"]),
+                        READOUT_KEY: 1e3 * hidden["config"]["rolling_shutter_readout"],
+                        LENSES_KEY: {"lens_offset_mm": 1e3 * lenses["lens_offset_m"],
+                                     "back_lens_rotation_deg": lenses["back_lens_rotation_deg"],
+                                     "stitch_distance_m": lenses["stitch_distance_m"],
+                                     "blend_band_deg": lenses["blend_band_deg"]}}, f)
+    return path
+
+
+def true_calibration_rmse(scen: str, run: str) -> float:
+    """Heading RMSE (deg) of the scenario processed with its true calibration and time offset into ``run``: the
+    floor a perfect calibration reaches on this recording."""
+    bag, markers = os.path.join(scen, "scenario.bag"), os.path.join(scen, "markers.yaml")
+    cli("process", bag, "--markers", markers, "--out", run, "--time-offset", hidden_of(scen)["camera_time_offset"],
+        "--calibration", true_calibration(scen), "--quiet")
+    cli("evaluate", run, "--reference", os.path.join(scen, "truth.tum"))
+    with open(os.path.join(run, "report.json")) as f:
+        return json.load(f)["heading_ape"]["rmse_deg"]
 
 
 def cli(*args) -> str:
@@ -61,28 +101,26 @@ def tilt_rmse_deg(run: str, truth_path: str) -> float:
 
 
 def workflow(scen: str, run: str, calibrate_args=(), calib_scen: str = None, process_args=()) -> dict:
-    """timesync → calibrate (--refine-time-offset --every 3, plus ``calibrate_args``) → process (plus
+    """timesync → calibrate (the line timesync suggests, plus ``calibrate_args``) → process (plus
     ``process_args``) → evaluate on one scenario, as tools/demo.sh does. With ``calib_scen`` timesync and
     calibrate run on that calibration run instead, and the scenario is processed with its calibration file and
     time offset (the same camera, mounting and clocks)."""
-    import yaml
-
     os.makedirs(run, exist_ok=True)
     cal_dir = calib_scen or scen
     cal_bag, cal_markers = os.path.join(cal_dir, "scenario.bag"), os.path.join(cal_dir, "markers.yaml")
-    with open(os.path.join(scen, "hidden.yaml")) as f:
-        hidden = yaml.safe_load(f)
+    hidden = hidden_of(scen)
     try:   # as a user would: with the marker map, then (refused) without it
-        offset = offset_from(cli("timesync", cal_bag, "--markers", cal_markers))
+        text = cli("timesync", cal_bag, "--markers", cal_markers)
     except RuntimeError:
         try:
-            offset = offset_from(cli("timesync", cal_bag))
+            text = cli("timesync", cal_bag)
         except RuntimeError as e:   # no time offset: the reason is the figure
             return {"refused": "timesync: " + str(e).strip().splitlines()[-1][-400:]}
+    offset, every = offset_from(text), re.findall(r"--every ([0-9]+)", text)
     cal = os.path.join(run, "calibration.yaml")
-    try:
+    try:   # the calibrate line timesync suggests, plus calibrate_args
         text = cli("calibrate", cal_bag, "--markers", cal_markers, "--time-offset", offset, "--refine-time-offset",
-                   "--every", 3, "--out", cal, "--json", *calibrate_args)
+                   "--every", every[-1] if every else 1, "--out", cal, "--json", *calibrate_args)
     except RuntimeError as e:   # refused: the reason is the figure
         return {"refused": str(e).strip().splitlines()[-1][-400:]}
     report = json.loads(next(line for line in text.splitlines() if line.startswith("{")))

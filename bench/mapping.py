@@ -34,17 +34,16 @@ import time
 import tracemalloc
 
 import numpy as np
-import yaml
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "src"))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "test"))
 
-from _workflow import cli, scenario_dir  # noqa: E402
+from _workflow import cli, hidden_of, scenario_dir, true_calibration  # noqa: E402
 
 from aruco_abs_orient.calibration import Recording  # noqa: E402
-from aruco_abs_orient.calibration.io import LENSES_KEY, READOUT_KEY, load_calibration  # noqa: E402
+from aruco_abs_orient.calibration.io import load_calibration  # noqa: E402
 from aruco_abs_orient.mapping import MapUnknowns, map_markers  # noqa: E402
 from aruco_abs_orient.mapping.compare import compare_maps  # noqa: E402
 from aruco_abs_orient.mapping.output import mapped_map  # noqa: E402
@@ -52,44 +51,17 @@ from aruco_abs_orient.markers import Marker, MarkerMap  # noqa: E402
 from aruco_abs_orient.offline.bagio import read_bag_data  # noqa: E402
 from aruco_abs_orient.offline.calibrate import collect_observations  # noqa: E402
 from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario  # noqa: E402
-from aruco_abs_orient.transforms import matrix_to_rpy  # noqa: E402
 
 MOVE = (0.0, 0.03, -0.04)   # m, the knocked marker of the compare pass (5 cm)
 
 
-def true_calibration(scen: str) -> str:
-    """The scenario's camera as a calibration file (its true mounting, readout and lenses), in its directory."""
-    hidden = _hidden(scen)
-    path = os.path.join(scen, "true_calibration.yaml")
-
-    def entry(T):
-        T = np.array(T, dtype=float)
-        return {"xyz": T[:3, 3].tolist(), "rpy_deg": np.degrees(matrix_to_rpy(T[:3, :3])).tolist()}
-
-    lenses = hidden["realism"]["camera_lenses"]
-    with open(path, "w") as f:
-        yaml.safe_dump({"base_link_to_camera": entry(hidden["base_T_camera_true"]),
-                        "base_link_to_prism": entry(hidden["base_T_prism"]),
-                        READOUT_KEY: 1e3 * hidden["config"]["rolling_shutter_readout"],
-                        LENSES_KEY: {"lens_offset_mm": 1e3 * lenses["lens_offset_m"],
-                                     "back_lens_rotation_deg": lenses["back_lens_rotation_deg"],
-                                     "stitch_distance_m": lenses["stitch_distance_m"],
-                                     "blend_band_deg": lenses["blend_band_deg"]}}, f)
-    return path
-
-
 def true_map(scen: str) -> str:
     """hidden.yaml's marker positions and normals as a markers YAML (the map a perfect survey gives)."""
-    hidden, survey = _hidden(scen), MarkerMap.load(os.path.join(scen, "markers.yaml"))
+    hidden, survey = hidden_of(scen), MarkerMap.load(os.path.join(scen, "markers.yaml"))
     path = os.path.join(scen, "true_markers.yaml")
     MarkerMap([Marker(m.id, np.array(hidden["marker_positions"][m.id]), m.size, 0.0005,
                       np.array(hidden["marker_normals"][m.id])) for m in survey], survey.dictionary).save(path)
     return path
-
-
-def _hidden(scen: str) -> dict:
-    with open(os.path.join(scen, "hidden.yaml")) as f:
-        return yaml.safe_load(f)
 
 
 def observations(scen: str):
@@ -101,7 +73,7 @@ def observations(scen: str):
     bag = os.path.join(scen, "scenario.bag")
     data = read_bag_data(bag)
     t0 = time.process_time()
-    obs = collect_observations(bag, None, data=data, progress=False, dictionary=_hidden(scen)["config"]["dictionary"])
+    obs = collect_observations(bag, None, data=data, progress=False, dictionary=hidden_of(scen)["config"]["dictionary"])
     print(f"  detected {len(obs.ids)} sightings in {obs.frames} images: {time.process_time() - t0:.0f} s CPU",
           flush=True)
     with open(cache, "wb") as f:
@@ -112,7 +84,7 @@ def observations(scen: str):
 def network(scen: str, control: MarkerMap = None):
     """map_markers on the cached sightings with the true calibration: (result, CPU s)."""
     obs, data = observations(scen)
-    hidden, cal = _hidden(scen), load_calibration(true_calibration(scen))
+    hidden, cal = hidden_of(scen), load_calibration(true_calibration(scen))
     rec = Recording(obs.times, obs.ids, obs.bearings, obs.sigmas, data.odom,
                     data.prism_stamps + hidden["camera_time_offset"], data.prism_positions,
                     control if control is not None else MarkerMap([]), cal["camera"], cal["prism"], obs.rows,
@@ -134,7 +106,7 @@ def errors(res, hidden: dict) -> list:
 
 def heading_rmse(scen: str, markers: str, run: str) -> float:
     cli("process", os.path.join(scen, "scenario.bag"), "--markers", markers, "--out", run, "--time-offset",
-        _hidden(scen)["camera_time_offset"], "--calibration", true_calibration(scen), "--quiet")
+        hidden_of(scen)["camera_time_offset"], "--calibration", true_calibration(scen), "--quiet")
     cli("evaluate", run, "--reference", os.path.join(scen, "truth.tum"))
     with open(os.path.join(run, "report.json")) as f:
         import json
@@ -150,7 +122,7 @@ def pass_rendered(seeds) -> None:
     for seed in seeds:
         scen = scenario_dir(dataclasses.replace(PRESETS["demo"], seed=seed), "mapping", ARGS.workers)
         res, cpu = network(scen)
-        hidden = _hidden(scen)
+        hidden = hidden_of(scen)
         err = errors(res, hidden)
         mm = mapped_map(res, hidden["config"]["marker_size"], hidden["config"]["dictionary"])
         path = os.path.join(scen, "mapped_markers.yaml")
@@ -184,7 +156,7 @@ def pass_control(seeds) -> None:
         survey = MarkerMap.load(os.path.join(scen, "markers.yaml"))
         control = MarkerMap([survey[i] for i in survey.ids[:2]], survey.dictionary)
         res, _ = network(scen, control)
-        err = [e for e in errors(res, _hidden(scen)) if e[0] not in control]
+        err = [e for e in errors(res, hidden_of(scen)) if e[0] not in control]
         for mid in control.ids:
             m = res.markers.get(mid)
             c = m.control if m is not None else None
@@ -197,13 +169,13 @@ def pass_compare(seeds) -> None:
     seed = seeds[0]
     before = scenario_dir(dataclasses.replace(PRESETS["demo"], seed=seed), "mapping", ARGS.workers)
     after = scenario_dir(dataclasses.replace(PRESETS["demo"], seed=seed, moved_marker=MOVE), "mapping", ARGS.workers)
-    hidden = _hidden(before)
+    hidden = hidden_of(before)
     maps = []
     for scen in (before, after):
         res, _ = network(scen)
         maps.append(mapped_map(res, hidden["config"]["marker_size"], hidden["config"]["dictionary"]))
     comp = compare_maps(maps[1], maps[0])
-    knocked = Scenario.from_hidden(os.path.join(before, "hidden.yaml")).markers.ids[0]
+    knocked = Scenario.fromhidden_of(os.path.join(before, "hidden.yaml")).markers.ids[0]
     print(f"\n## compare: seed {seed} recorded again with marker {knocked} knocked by {MOVE} m")
     for m in comp.moves:
         print(f"  marker {m.id}: {1e3 * m.distance:.1f} mm, {m.chi:.1f} σ (limit {comp.limit:.1f}) "
