@@ -1,22 +1,12 @@
-"""Roll and pitch of base_link (gravity), from the best source at hand (issue 15).
+"""Roll and pitch of base_link (gravity), from the best source at hand (doc/design.md §9).
 
-The odometry's roll and pitch drift (a VO that started tilted, or drifts in tilt), and a tilt error
-biases the marker yaw through the marker's elevation and the lever arm. A VO's tilt error is a tilt of
-its odom frame against gravity, fixed in odom while the platform turns under it: base_link's roll and
-pitch error is that tilt seen from the platform's heading ψ, ``(roll, pitch)_true − (roll, pitch)_odom =
-Rz(−ψ)·δ`` to first order. :class:`TiltEstimator` keeps ``δ`` (rad, about odom's x and y axes) as a random
-walk in a two-state Kalman filter, updated by absolute tilts with χ² gating:
-
-* an IMU (``sensor_msgs/Imu``): its orientation's roll and pitch, or, when the orientation is unknown
-  (REP-145: covariance[0] = −1) or not finite, gravity from its acceleration at standstill
-  (:func:`tilt_from_imu`);
-* the markers: the attitude of a frame with ≥ 2 well-spread markers (:func:`solver.attitude_from_markers`
-  with the prism, :func:`solver.resection` without).
-
-The tilt of a frame (:meth:`TiltEstimator.tilt`) is the IMU's, interpolated, when a recent IMU sample
-exists (source ``imu``); else the odometry's corrected by the offset (source ``markers`` or ``imu``: the
-absolute source that corrected it last); else the odometry's (source ``odometry``). numpy only, Python 3.8, no ROS.
-Units: seconds, radians, m/s².
+In: the odometry's attitude, IMU samples (``sensor_msgs/Imu``'s orientation, or gravity from its acceleration at
+standstill when the orientation is unknown: :func:`tilt_from_imu`) and the attitudes of frames with ≥ 2
+well-spread markers. Out: :meth:`TiltEstimator.tilt`, a frame's roll and pitch with its source: the IMU's,
+interpolated, when a recent sample exists; else the odometry's corrected by the tilt of its odom frame against
+gravity (``δ``, about odom's x and y, fixed in odom while the platform turns under it: the error seen from
+heading ψ is ``Rz(−ψ)·δ``), kept as a random walk in a two-state Kalman filter updated by the absolute tilts
+with χ² gating; else the odometry's. Seconds, radians, m/s²; numpy only, Python 3.8, no ROS.
 """
 
 from __future__ import annotations

@@ -1,28 +1,13 @@
 """Map-guided marker tracking in 360° frames (doc/design.md §6): detect, don't search.
 
-With a predicted camera pose ``map_T_camera`` and the marker map, each marker's bearing and
-angular size are predicted and the marker is looked for only in a small gnomonic view
-around the prediction (upsampled for small far markers; all views of a frame stacked into
-one mosaic searched by one OpenCV call; a view is reused while the camera turns about its
-vertical axis), instead of in the whole equirect frame. The whole frame is searched
-(:meth:`MarkerDetector.detect`) at start-up, when no pose is given, after a loss and every
-``max_full_interval`` frames if set; while
-tracking, a vertical strip of the equirect sweeps around the panorama (one
-``sweep_tile_deg`` tile every ``sweep_every_frames`` frames, once around in
-``sweep_period_frames`` frames) so
-markers the prediction misses are still found. Ids not in the map are rejected, and so is
-any observation farther than ``gate_deg`` from its prediction — except in the full-frame
-search after a loss (``lost_after_frames`` frames with predictions and no accepted marker,
-gated ones included): the prediction is then what is suspect (a filter that ran away), so
-every map id is accepted, as without a pose, for the caller's own gates to judge. A recovery
-search that finds no marker beyond ``gate_deg`` of its prediction (nothing, or only markers
-where they were predicted: the prediction is right, the markers are hidden or too far for the
-views) doubles the misses the next one waits for, up to ``lost_backoff_max_frames``; a tracked
-frame with an accepted marker, or a recovery that finds a marker off its prediction, resets it
-(a whole-frame search costs as much as 40 tracked frames).
-
-Units: metres for positions, radians for angles inside the code (``*_deg`` parameters are
-degrees), milliseconds for the reported times. Python 3.8 compatible; numpy and OpenCV only.
+In: a frame, the predicted ``map_T_camera`` (or none) and the marker map. Out: the map's markers found in small
+gnomonic views around their predicted bearings (all views of a frame in one mosaic, one OpenCV call), gated by
+``gate_deg`` against the prediction, plus a vertical strip sweeping the panorama for markers the prediction
+misses. The whole frame is searched (:meth:`MarkerDetector.detect`) at start-up, without a pose, every
+``max_full_interval`` frames if set, and after a loss, when every map id is accepted (the prediction is what is
+suspect) and the next recovery waits longer, up to ``lost_backoff_max_frames``, while it finds only what was
+predicted. Metres, radians (``*_deg`` parameters in degrees), milliseconds for the reported times; Python 3.8,
+numpy and OpenCV only.
 """
 
 from __future__ import annotations

@@ -1,34 +1,12 @@
 """The calibration problem set up from a recording: the observation model and what it is fitted to.
 
-In: a :class:`~.model.Recording`, :class:`~.model.CalibrationParams` and the prism clock shift of this
-pass. Out: a :class:`Setup` (the usable observations with everything interpolated to their times, the
-track-heading constraints, the knots of δ(t) and of the odometry's tilt, the markers, and what was
-skipped and why) that ``solve`` fits; :class:`CalibrationError` when the recording lacks what it needs.
-
-A marker bearing u (camera frame) at time t is predicted from the prism P(t), the odometry attitude
-``odom_R_base(t)``, the map→odom yaw δ(t) and the odometry's tilt error θ(t) (its odom frame tilted
-against gravity: a VO without gravity starts at the platform's tilt and drifts)::
-
-    map_R_base = Rz(δ(t)) · exp([θ(t)]×) · odom_R_base(t)
-    q          = (B R_bc)ᵀ (map_R_baseᵀ (M + ΔM − P) − (t_cam + Δl − t_prism))
-    u_pred     = lenses.project(q)          (camera.DualFisheye: each lens's centre and rotation)
-
-B the boresight, Δl the lever arm's correction, ΔM the marker's offset from its survey (a random effect
-of the survey's σ), and the lenses' offset and relative rotation; Δτ moves P along the track by V·Δτ, a
-rolling-shutter readout Δρ moves each observation in time by its row. The residual is ``u × u_pred``
-with σ ``sqrt(σ_u² + σ_P² / range²)`` per axis. δ(t) is piecewise linear (knots every ``knot_spacing``
-s, a random-walk prior); θ(t) likewise (``tilt_knot_spacing``, or one constant), each knot tied to 0 by
-``tilt_sigma_deg`` (the first fixed at 0 with ``odom_levelled``): the platform's turns tell θ, fixed in
-map, from the boresight roll and pitch, fixed in base_link.
-
-The boresight yaw is told from δ by the prism track's direction of travel while driving: against the
-VO's yaw (``heading_model`` "vo_yaw": base_link x is the direction of travel; the lever arm's swing with
-the VO's rates removed) or against the VO's own direction of travel ("vo_track"), each weighted by speed
-(σ = noise / speed), left out at standstill and in fast turns. Markers at several ranges and directions
-separate the lever arm, Δτ (|V|Δτ/r, different per marker), the lenses (their parallax changes sign
-between the hemispheres and with 1/r) and the boresight (the same for all).
-
-Units: metres, radians, seconds. numpy only, Python 3.8.
+In: a :class:`~.model.Recording`, :class:`~.model.CalibrationParams` and the prism clock shift of this pass.
+Out: a :class:`Setup` that ``solve`` fits: the usable observations with everything interpolated to their times,
+the track-heading constraints (against the VO's yaw or its own direction of travel, by ``heading_model``,
+weighted by speed, none at standstill or in fast turns), the knots of the map→odom yaw δ(t) and of the
+odometry's tilt error θ(t), the markers, and what was skipped and why; :class:`CalibrationError` when the
+recording lacks what it needs. The observation model, its unknowns and what separates them are doc/design.md
+§11. Metres, radians, seconds; numpy only, Python 3.8.
 """
 
 from __future__ import annotations

@@ -1,42 +1,17 @@
 """ArUco markers in 360° equirectangular frames (doc/design.md §5).
 
-Full-frame detection (:meth:`MarkerDetector.detect`): cv2.aruco tuned for small far
-markers on the whole frame (up to ``pole_overlap_deg`` beyond the polar band); a strip
-around the ±180° seam searched again with its halves swapped (the image rolled by W/2
-there), for markers straddling the seam (only what reaches across the seam is refined and
-read there); two gnomonic (perspective) views of the polar bands, where equirect shapes
-are too distorted for OpenCV. The seam and polar searches run in threads beside the full
-pass when OpenCV has threads (``cv2.setNumThreads``); the results do not depend on it.
-Then this module's own steps: every marker's corners are refined by fitting straight lines
-to its four edges in a gnomonic view (never in the equirect, where they are curved), every
-id OpenCV read is checked by reading the cells again, and the quads OpenCV rejected —
-small far markers whose 1–2 px cells it cannot threshold, close markers too curved for it
-— are refined and read here (:func:`decode_quad`).
+In: an equirect frame (grey or colour, or JPEG bytes) and :class:`DetectorParams`. Out: one
+:class:`MarkerObservation` per marker: its id, the four corners refined on straight edges in a gnomonic view,
+the centre's bearing as the intersection of the diagonals on the sphere (not in pixels, which is biased toward
+the horizon), and the bearing's σ. The whole frame, the ±180° seam and the polar bands are searched
+(:meth:`MarkerDetector.detect`); map-guided tracking is :mod:`aruco_abs_orient.tracking`. Every pixel↔bearing
+conversion goes through :mod:`aruco_abs_orient.camera`. OpenCV 4.2–4.6 (function API) and ≥ 4.7
+(``ArucoDetector``); Python 3.8; radians inside (``*_deg`` parameters in degrees).
 
-Each marker becomes a :class:`MarkerObservation` whose centre is the intersection of the
-diagonals **on the sphere** (great circles through opposite corners), not in pixel space:
-the pixel-space intersection of an equirect image is biased toward the horizon by about
-δ²·tan(el)/4 (δ the marker's angular size, el its elevation) for a marker standing on a
-corner and up to 1.5× that for an upright one: 0.5–1.3° at 1 m and 45–60° elevation.
-:func:`pixel_centre_bearing` computes that biased centre, for the benchmark and tests only.
-
-Map-guided tracking (doc/design.md §6) lives in :mod:`aruco_abs_orient.tracking`.
-
-All pixel↔bearing conversions go through :mod:`aruco_abs_orient.camera`. Angles are in
-radians inside the code; the few parameters in degrees say so in their names (``*_deg``).
-Works with both OpenCV ArUco APIs: ``cv2.aruco.ArucoDetector`` (OpenCV ≥ 4.7) and the
-function API (``detectMarkers``/``DetectorParameters_create``) of OpenCV 4.2–4.6.
-Python 3.8 compatible; numpy and OpenCV only.
-
-The package, one module per stage (each says what goes in and what comes out):
-
-- :mod:`.params`: :class:`DetectorParams` (every detection knob) and :class:`DetectionError`;
-- :mod:`.images`: frames in (:func:`to_grey`, :func:`decode_jpeg`, :func:`frame_to_grey`);
-- :mod:`.backend`: the OpenCV adapter (:class:`ArucoBackend`);
-- :mod:`.quads`: corner refinement and cell reading of quads in a perspective image;
-- :mod:`.sphere`: centre geometry on the sphere, and the quad stages run in virtual views;
-- :mod:`.observation`: :class:`MarkerObservation`, its noise model, de-duplication;
-- :mod:`.detector`: :class:`MarkerDetector`, which chains them.
+One module per stage: :mod:`.params` (the knobs, :class:`DetectionError`), :mod:`.images` (frames in),
+:mod:`.backend` (the OpenCV adapter), :mod:`.quads` (corner refinement and cell reading), :mod:`.sphere` (centre
+geometry, quads in virtual views), :mod:`.observation` (:class:`MarkerObservation`, its noise model), and
+:mod:`.detector` (:class:`MarkerDetector`, which chains them).
 """
 
 from .backend import ArucoBackend
