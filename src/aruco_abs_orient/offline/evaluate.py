@@ -306,15 +306,18 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
             results["per_marker_agreement"] = {"not_available": str(e)}
         acc = obs["accepted"]
         res_ok = acc & np.isfinite(obs["residual"])
+        # a frame's yaw from a resection (no prism) carries no per-marker σ
+        z_ok = res_ok & np.isfinite(obs["yaw_sigma"]) & (obs["yaw_sigma"] > 0)
         if np.any(res_ok):
             rs = ev.error_stats(obs["residual"][res_ok])
             results["residuals"] = rs
-            z = ev.normalised_residuals(obs["residual"][res_ok], obs["yaw_sigma"][res_ok])
-            results["normalised_residuals"] = z
             rep.headline.append(("residuals (each accepted marker yaw − filtered yaw)",
                                  f"RMS {ev.fmt_angle(rs.rmse)}, p95 {ev.fmt_angle(rs.p95)}; "
                                  f"{100 * float(np.mean(acc)):.0f} % of marker yaws accepted", "–",
                                  _doc("time-offset", "time offset", out_dir)))
+        if np.any(z_ok):
+            z = ev.normalised_residuals(obs["residual"][z_ok], obs["yaw_sigma"][z_ok])
+            results["normalised_residuals"] = z
             rep.headline.append(("σ consistency (RMS of residual/σ; 1 = honest σ)",
                                  f"{z['rms']:.2f}; {100 * z['share_within_2_sigma']:.0f} % within 2σ", "–",
                                  _doc("time-offset", "time offset, calibration", out_dir)))
@@ -322,7 +325,8 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
         for mid in sorted(series):
             sel = obs["id"] == mid
             good = sel & res_ok
-            z_m = ev.normalised_residuals(obs["residual"][good], obs["yaw_sigma"][good]) if np.any(good) else None
+            z_m = ev.normalised_residuals(obs["residual"][sel & z_ok], obs["yaw_sigma"][sel & z_ok]) \
+                if np.any(sel & z_ok) else None
             r = obs["residual"][good]
             table.append([mid, int(sel.sum()), f"{100 * float(np.mean(acc[sel])):.0f} %",
                          ev.fmt_angle(float(np.mean(r))) if len(r) else "–",

@@ -95,3 +95,19 @@ def test_the_stretches_without_an_absolute_update_say_why():
     assert [(round(s.start, 3), round(s.end, 3), s.reason) for s in spans] == [
         (2.0, 5.0, "tracking gate: far from its predicted bearing"), (6.0, 8.0, "no marker seen")]
     assert no_update_spans(obs, 0.0, 8.0, min_gap=3.5) == []
+
+
+def test_frames_without_a_per_marker_sigma_are_judged_on_the_rest(run, tmp_path):
+    """A frame's yaw from a resection (no prism at that time) is written without a per-marker σ: the σ
+    consistency is computed from the rows that have one (hand-made: residual 0.02° against σ 0.04° → RMS 0.5),
+    the residuals from all accepted rows, and a marker seen only in such frames has no σ column of its own."""
+    run_dir, truth, est_t = run
+    head = ("time,id,method,azimuth_deg,elevation_deg,pixel_u,pixel_v,angular_size_deg,bearing_sigma_deg,range_m,"
+            "yaw_deg,yaw_sigma_deg,residual_deg,accepted,reason\n")
+    rows = [f"{t:.3f},{mid},tracked,10,0,1,1,2,0.01,{rng},0.5,{sigma},{res},1,\n"
+            for t in est_t[:20] for mid, rng, sigma, res in ((3, "5.0", "0.04", "0.02"), (7, "", "", "0.06"))]
+    (run_dir / "observations.csv").write_text(head + "".join(rows))
+    report = evaluate(run_dir, truth, tmp_path / "out")
+    z = report["normalised_residuals"]
+    assert z["n"] == 20 and z["rms"] == pytest.approx(0.5, rel=1e-6)
+    assert report["residuals"]["rmse_deg"] == pytest.approx(math.sqrt((0.02 ** 2 + 0.06 ** 2) / 2), rel=1e-6)
