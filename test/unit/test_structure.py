@@ -5,6 +5,8 @@ import importlib.util
 import textwrap
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("check_structure", ROOT / "tools" / "check_structure.py")
 check = importlib.util.module_from_spec(_spec)
@@ -55,3 +57,21 @@ def test_no_import_cycle_in_the_package():
     assert not any("offline.cli" in edges for edges in graph.values()), "nothing imports the CLI's dispatch"
     found = check.cycles(graph)
     assert not found, f"import cycles in src/aruco_abs_orient: {found}"
+
+
+def test_sizes_warn_only_prints_sizes_and_fails_only_on_cycles(tmp_path, capsys):
+    body = "\n".join(f"    x{i} = {i}" for i in range(check.MAX_FUNCTION_LINES))
+    long = {"__init__.py": "", "long.py": f"def long():\n{body}\n"}
+    root = _package(tmp_path / "sizes", long)
+    assert check.main([str(root)]) == 1
+    assert check.main(["--sizes-warn-only", str(root)]) == 0
+    assert "warning: pkg/long.py:1: function long" in capsys.readouterr().out
+    cyclic = _package(tmp_path / "cycle", {**long, "a.py": "from . import b\n", "b.py": "from . import a\n"})
+    assert check.main(["--sizes-warn-only", str(cyclic)]) == 1
+
+
+@pytest.mark.xfail(strict=False, reason="the functions and modules over the limits are being split (make lint "
+                                        "prints them while STRUCTURE_SIZES=--sizes-warn-only)")
+def test_no_module_or_function_over_the_limits():
+    found = check.all_size_offences(check.PACKAGE_DIR)
+    assert not found, "over the limits:\n" + "\n".join(found)
