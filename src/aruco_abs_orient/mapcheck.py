@@ -36,8 +36,8 @@ from typing import Deque, Dict, List, Mapping, NamedTuple, Optional, Sequence, T
 import numpy as np
 
 from .paramspec import Params, param
-from .selfcheck import _hat_basis, _robust_lsq
 from .transforms import wrap_angle
+from .yawfit import hat_basis, robust_lsq
 
 __all__ = ["MapCheckParams", "Sightings", "SightingSample", "MapVerdict", "check_map", "RollingMapCheck", "FITS",
            "DOES_NOT_FIT", "UNDETERMINED"]
@@ -194,8 +194,8 @@ def _yaw_track(t: np.ndarray, y: np.ndarray, w: np.ndarray, spacing: float) -> n
     """The map→odom yaw at each sighting: ``y`` (rad, wrapped) fitted robustly by hat functions in time."""
     centre = float(np.angle(np.sum(w * np.exp(1j * y))))
     z = wrap_angle(y - centre)
-    A = _hat_basis(t, spacing)
-    x, _ = _robust_lsq(A, z, w)
+    A = hat_basis(t, spacing)
+    x, _ = robust_lsq(A, z, w)
     return centre + A @ x
 
 
@@ -309,7 +309,7 @@ def _place(rays: _Rays, track, p: MapCheckParams) -> _Placed:
     ok = np.isin(rays.id, ids)
     sub, P = _Rays(*(v[ok] for v in rays)), P[ok]
     where = np.searchsorted(ids, sub.id)
-    hats = _hat_basis(sub.t, p.knot_spacing)
+    hats = hat_basis(sub.t, p.knot_spacing)
     k = hats.shape[1]
     x = np.concatenate([np.full(k, start), np.zeros(2), np.concatenate([placed[i] for i in ids])])
     steps = np.concatenate([np.full(k + 2, 1e-6), np.full(3 * len(ids), 1e-5)])

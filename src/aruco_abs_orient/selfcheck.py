@@ -47,6 +47,7 @@ from .markers import MarkerMap
 from .paramspec import Params, param
 from .transforms import wrap_angle
 from .tum import Trajectory
+from .yawfit import FitData, bearing_rate, moved_markers, tilt_fit
 
 __all__ = ["SelfCheckParams", "Finding", "YawObservation", "RunContext", "ModelContext", "bearing_rate",
            "observation_columns", "check_run", "RollingSelfCheck"]
@@ -96,55 +97,6 @@ class Finding:
 
     def as_dict(self) -> Dict[str, object]:
         return {"kind": self.kind, "message": self.message, "doc": self.doc, "value": self.value}
-
-
-def bearing_rate(t, marker_xyz, prism_t, prism_xyz, h: float = 0.1) -> np.ndarray:
-    """k = d/dt az(M − P(t)) (rad/s) at times ``t`` (s) for markers at ``marker_xyz`` (N×3, m), the
-    prism track (``prism_t`` sorted s, ``prism_xyz`` M×3 m) differenced over ±``h`` s; NaN outside it."""
-    t = np.asarray(t, dtype=float)
-    m = np.asarray(marker_xyz, dtype=float).reshape(-1, 3)
-    pt = np.asarray(prism_t, dtype=float)
-    pp = np.asarray(prism_xyz, dtype=float).reshape(-1, 3)
-    if len(pt) < 2:
-        return np.full(len(t), np.nan)
-
-    def az(tq):
-        x = np.interp(tq, pt, pp[:, 0])
-        y = np.interp(tq, pt, pp[:, 1])
-        return np.arctan2(m[:, 1] - y, m[:, 0] - x)
-
-    k = wrap_angle(az(t + h) - az(t - h)) / (2 * h)
-    k[(t - h < pt[0]) | (t + h > pt[-1])] = np.nan
-    return k
-
-
-def _hat_basis(t: np.ndarray, spacing: float) -> np.ndarray:
-    """Piecewise-linear hat functions on knots every ``spacing`` s over the span of ``t`` (N×K)."""
-    lo, hi = float(t.min()), float(t.max())
-    n = max(int(math.ceil((hi - lo) / spacing)), 1) + 1
-    knots = np.linspace(lo, hi if hi > lo else lo + 1.0, n)
-    step = knots[1] - knots[0]
-    return np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / step, 0.0, None)
-
-
-def _robust_lsq(A: np.ndarray, y: np.ndarray, w: np.ndarray, iterations: int = 5) -> Tuple[np.ndarray, np.ndarray]:
-    """Huber-weighted least squares of y ≈ A x with prior weights ``w`` (1/σ²): x and its covariance
-    (scaled by the robust scale of the normalised residuals)."""
-    wr = np.ones(len(y))
-    sw = np.sqrt(w)
-    x = np.zeros(A.shape[1])
-    scale = 1.0
-    for _ in range(iterations):
-        ww = np.sqrt(wr) * sw
-        x, *_ = np.linalg.lstsq(A * ww[:, None], y * ww, rcond=None)
-        z = (y - A @ x) * sw
-        scale = max(1.4826 * float(np.median(np.abs(z))), 1e-9)
-        a = np.abs(z) / (1.345 * scale)
-        wr = np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-12))
-    ww = wr * w
-    N = A.T @ (A * ww[:, None])
-    cov = np.linalg.pinv(N) * scale ** 2
-    return x, cov
 
 
 def _deg(x: float) -> str:
@@ -263,34 +215,10 @@ def _offset_error_significant(error: float, sigma: float, p: SelfCheckParams) ->
     return abs(error) > max(p.significance * sigma, p.min_offset)
 
 
-def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Sequence[float]], poses=((), ()),
-              run: Optional[RunContext] = None, params: Optional[SelfCheckParams] = None) -> Dict[str, object]:
-    """The self-checks of a run (see the module docstring).
-
-    ``obs``: per marker observation with a yaw, the arrays of :class:`YawObservation`'s fields
-    (:func:`observation_columns`; ``yaw`` and ``odom_yaw`` optional: with them the time offset and tilt are
-    fitted to their difference, the map→odom yaw, independent of what the filter accepted); ``prism``: the
-    prism track (stamps (M,) s, positions (M, 3) m); the marker map's positions {id: [x, y, z]}; ``poses``:
-    the filtered poses' (stamps, yaws (rad)); ``run``: :class:`RunContext` (with its ``model``, the time offset,
-    tilt and boresight yaw are :func:`model_check`'s). Returns a JSON-able dict with the estimates (degrees,
-    seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
-    """
-    prism_t, prism_xyz = prism
-    pose_t, pose_yaw = poses
-    stats, frames, time_offset, commands, prism_lever, model = run or RunContext()
-    commands = dict(commands or {})
-    p = params or SelfCheckParams()
-    out: Dict[str, object] = {}
-    findings: List[Finding] = []
-    t = np.asarray(obs.get("time", ()), dtype=float)
-    ids = np.asarray(obs.get("id", ()), dtype=int)
-    res = np.asarray(obs.get("residual", ()), dtype=float)
-    sig = np.asarray(obs.get("yaw_sigma", ()), dtype=float)
-    acc = np.asarray(obs.get("accepted", ()), dtype=bool)
-    az = np.asarray(obs.get("azimuth", ()), dtype=float)
-    el = np.asarray(obs.get("elevation", ()), dtype=float)
-    ok = np.isfinite(res) & np.isfinite(sig) & (sig > 0)
-    out["observations"] = int(len(t))
+def _rates(out: Dict[str, object], findings: List[Finding], acc: np.ndarray, res: np.ndarray, sig: np.ndarray,
+           ok: np.ndarray, stats, frames: int, p: SelfCheckParams) -> None:
+    """The share accepted, the rejections per frame (a finding when too few are accepted) and the RMS of
+    residual/σ, into ``out`` and ``findings``."""
     out["accepted_share"] = float(np.mean(acc)) if len(acc) else None
     if stats:
         out["rejections_per_frame"] = {k: v / max(frames, 1) for k, v in sorted(stats.items())
@@ -304,73 +232,96 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
     z_all = wrap_angle(res[ok & acc]) / np.hypot(sig[ok & acc], p.sigma_floor) if np.any(ok & acc) else np.zeros(0)
     out["normalised_residual_rms"] = float(np.sqrt(np.mean(z_all ** 2))) if len(z_all) else None
 
-    # one robust fit: a smooth common part + time offset + camera tilt; a marker off it is moved
+
+def _fit_data(obs: Mapping[str, np.ndarray], t: np.ndarray, ids: np.ndarray, res: np.ndarray, ok: np.ndarray,
+              sig: np.ndarray, prism, marker_xyz) -> Tuple[FitData, np.ndarray]:
+    """(the fits' data, which yaws can be fitted): the map→odom yaw of each marker yaw when ``obs`` has the
+    odometry's yaws (else the residual), with the bearing rate of its marker from the prism track."""
+    prism_t, prism_xyz = prism
     y, fit_ok = res, ok
     if "odom_yaw" in obs and len(obs["odom_yaw"]) == len(t):  # the map→odom yaw of each marker yaw
         y = wrap_angle(np.asarray(obs["yaw"], dtype=float) - np.asarray(obs["odom_yaw"], dtype=float))
         if np.any(np.isfinite(y)):  # centred: the fit's linear terms need no wrap
             y = wrap_angle(y - float(np.angle(np.mean(np.exp(1j * y[np.isfinite(y)])))))
         fit_ok = np.isfinite(y) & np.isfinite(sig) & (sig > 0)
-    have_track = prism_t is not None and len(prism_t) >= 2 and len(t) > 0
-    if have_track:
+    if prism_t is not None and len(prism_t) >= 2 and len(t) > 0:
         mxyz = np.array([marker_xyz.get(int(i), (np.nan, np.nan, np.nan)) for i in ids], dtype=float).reshape(-1, 3)
         k = bearing_rate(t, mxyz, prism_t, prism_xyz)
     else:
         k = np.full(len(t), np.nan)
-    base = fit_ok & np.isfinite(k) & (np.abs(el) < math.radians(60))
-    moved: List[int] = []
-    x = cov = None
-    per_marker: Dict[int, Tuple[float, int, float]] = {}
+    az = np.asarray(obs.get("azimuth", ()), dtype=float)
+    el = np.asarray(obs.get("elevation", ()), dtype=float)
+    return FitData(t, ids, y, sig, k, az, el), fit_ok
 
-    def offsets_fit(mask):
-        """(x, cov, {marker: (offset from the middle one rad, yaws, σ)}) of the fit over ``mask``."""
-        seen, counts = np.unique(ids[mask], return_counts=True)
-        te = np.tan(el[mask])
-        hats = _hat_basis(t[mask], p.knot_spacing)
-        ref = seen[int(np.argmax(counts))]
-        others = [m for m in seen if m != ref]
-        A = np.column_stack([k[mask], -te * np.cos(az[mask]), -te * np.sin(az[mask]), hats]
-                            + [(ids[mask] == m).astype(float) for m in others])
-        xs, cs = _robust_lsq(A, wrap_angle(y[mask]), 1.0 / (sig[mask] ** 2 + p.sigma_floor ** 2))
-        n0 = 3 + hats.shape[1]
-        offsets = {int(ref): (0.0, 0.0)}
-        offsets.update({int(m): (float(xs[n0 + i]), float(math.sqrt(max(cs[n0 + i, n0 + i], 0.0))))
-                        for i, m in enumerate(others)})
-        middle = float(np.median([v[0] for v in offsets.values()]))
-        return xs, cs, {int(m): (offsets[int(m)][0] - middle, int(n), offsets[int(m)][1])
-                        for m, n in zip(seen, counts)}
 
-    if base.sum() >= p.min_samples:
-        # a yaw offset per marker (the most seen one is the common part's): a moved marker shows in its own
-        # offset, while the time offset and the tilt come from how each marker's yaw varies. The worst marker
-        # off the others is taken out and the rest fitted again (a moved marker's error varies along the
-        # track and would otherwise leak into the others'), until the rest agree.
-        x, cov, per_marker = offsets_fit(base)
-        out["marker_offset_deg"] = {m: math.degrees(v[0]) for m, v in per_marker.items()}
-        current = dict(per_marker)
-        while len(current) >= 3:  # "off the others" needs a majority to agree
-            off = {m: d for m, (d, n, sd) in current.items()
-                   if n >= 5 and abs(d) > max(p.min_marker_bias, p.significance * sd)}
-            if not off:
-                break
-            worst = max(off, key=lambda m: abs(off[m]))
-            moved.append(worst)
-            per_marker[worst] = current[worst]
-            rest = base & ~np.isin(ids, moved)
-            if rest.sum() < p.min_samples:
-                break
-            _, _, current = offsets_fit(rest)
-            per_marker.update(current)
-        out["marker_offset_deg"].update({m: math.degrees(per_marker[m][0]) for m in per_marker})
-    tilt_fit = None
-    keep = base & ~np.isin(ids, moved)
-    if x is not None and keep.sum() >= p.min_samples:
-        # the tilt from all markers together: a marker's own offset would absorb it (each marker is seen from
-        # a narrow range of directions), so this fit has none (the markers found off the others are left out)
-        te = np.tan(el[keep])
-        B = np.column_stack([k[keep], -te * np.cos(az[keep]), -te * np.sin(az[keep]),
-                             _hat_basis(t[keep], p.knot_spacing)])
-        tilt_fit = _robust_lsq(B, wrap_angle(y[keep]), 1.0 / (sig[keep] ** 2 + p.sigma_floor ** 2))
+def _offset_and_tilt(out: Dict[str, object], findings: List[Finding], fits, samples: int, time_offset: float,
+                     commands: Mapping[str, str], p: SelfCheckParams) -> None:
+    """The time offset's error and the camera tilt from the run's own fits (``fits``: (x, cov) with the
+    per-marker offsets, and the tilt fit or None), their findings (the tilt not while the offset is off)."""
+    (x, cov), own_tilt = fits
+    eps, eps_sigma = float(x[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
+    xt, ct = own_tilt if own_tilt is not None else (x, cov)
+    tilt = np.array(xt[1:3])
+    tilt_sigma = float(math.sqrt(max(ct[1, 1] + ct[2, 2], 0.0) / 2))
+    suggested = time_offset + eps
+    out["time_offset"] = {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
+                          "suggested_s": suggested, "samples": samples}
+    out["camera_tilt_deg"] = {"roll": math.degrees(tilt[0]), "pitch": math.degrees(tilt[1]),
+                              "sigma": math.degrees(tilt_sigma)}
+    if _offset_error_significant(eps, eps_sigma, p):
+        fix = commands.get("timesync", "aruco-abs-orient timesync")
+        findings.append(Finding("time_offset", f"observations disagree with a time offset: this run suggests "
+                                f"{suggested:+.2f} s (in use {time_offset:+.3f} s, error {1e3 * eps:+.0f} ± "
+                                f"{1e3 * eps_sigma:.0f} ms); run `{fix}`", "time-offset", suggested))
+    size = float(np.hypot(*tilt))
+    offset_found = findings and findings[-1].kind == "time_offset"  # it biases the tilt: fix it first
+    if size > max(p.tilt_significance * tilt_sigma, p.min_tilt) and not offset_found:
+        fix = commands.get("calibrate", "aruco-abs-orient calibrate")
+        findings.append(Finding("camera_tilt", f"marker yaws depend on where the marker is in the image: the "
+                                f"camera looks tilted by {math.degrees(size):.2f}° (roll {_deg(tilt[0])}, "
+                                f"pitch {_deg(tilt[1])}) against its lever arms; calibrate the boresight: "
+                                f"run `{fix}`", "heading-wrong-by-180", math.degrees(size)))
+
+
+def _heading_vs_travel(out: Dict[str, object], findings: List[Finding], poses, prism, prism_lever,
+                       commands: Mapping[str, str], p: SelfCheckParams) -> None:
+    """Boresight yaw: on straight stretches the heading of base_link against the direction the prism track runs
+    in (the prism's swing in turns taken out with ``prism_lever``)."""
+    prism_t, prism_xyz = prism
+    pose_t = np.asarray(poses[0], dtype=float)
+    pose_yaw = np.asarray(poses[1], dtype=float)
+    if not (len(pose_t) > 10 and prism_t is not None and len(prism_t) >= 2):
+        return
+    pt, pp = np.asarray(prism_t, dtype=float), np.asarray(prism_xyz, dtype=float).reshape(-1, 3)
+    h = 0.25
+    inside = (pose_t - h >= pt[0]) & (pose_t + h <= pt[-1])
+    vx = (np.interp(pose_t + h, pt, pp[:, 0]) - np.interp(pose_t - h, pt, pp[:, 0])) / (2 * h)
+    vy = (np.interp(pose_t + h, pt, pp[:, 1]) - np.interp(pose_t - h, pt, pp[:, 1])) / (2 * h)
+    rate = np.gradient(np.unwrap(pose_yaw), pose_t) if len(pose_t) > 1 else np.zeros(0)
+    if prism_lever is not None:  # base_link origin's velocity: the prism's minus ω ẑ × (Rz(ψ) · lever)
+        lx, ly = float(prism_lever[0]), float(prism_lever[1])
+        c, s = np.cos(pose_yaw), np.sin(pose_yaw)
+        vx = vx + rate * (s * lx + c * ly)
+        vy = vy - rate * (c * lx - s * ly)
+    straight = inside & (np.hypot(vx, vy) > p.straight_speed) & (np.abs(rate) < p.straight_turn_rate)
+    if straight.sum() < p.min_samples:
+        return
+    d = wrap_angle(pose_yaw[straight] - np.arctan2(vy[straight], vx[straight]))
+    med = float(np.median(d))
+    sem = 1.4826 * float(np.median(np.abs(d - med))) / math.sqrt(len(d))
+    out["heading_minus_travel_deg"] = {"median": math.degrees(med), "sigma": math.degrees(sem),
+                                       "samples": int(straight.sum())}
+    if abs(med) > max(p.min_heading_travel, p.significance * sem):
+        fix = commands.get("calibrate", "aruco-abs-orient calibrate")
+        findings.append(Finding("boresight_yaw", f"on straight stretches the heading differs from the "
+                                f"direction of travel by {_deg(med)} ({int(straight.sum())} poses): the "
+                                f"camera's mounting yaw (or a platform that crabs); run `{fix}`",
+                                "heading-wrong-by-180", math.degrees(med)))
+
+
+def _marker_findings(findings: List[Finding], moved: List[int], per_marker, ids: np.ndarray,
+                     acc: np.ndarray) -> None:
+    """A finding per marker off the others (moved or wrongly surveyed)."""
     for mid in moved:
         med, n, _ = per_marker[mid]
         share = float(np.mean(acc[ids == mid]))
@@ -378,66 +329,12 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
                                 f"({n} yaws, {100 * share:.0f} % accepted): moved or wrongly surveyed; "
                                 "re-survey its centre or take it out of the marker map", "jumps-in-the-heading",
                                 math.degrees(med)))
-    if model is not None:   # the time offset, tilt and boresight yaw as calibrate's own model sees them
-        estimates, model_findings = model_check(obs, prism, model, time_offset, commands, p)
-        out["model_check"] = estimates
-        if "time_offset" in estimates:
-            out["time_offset"] = estimates["time_offset"]
-        findings += model_findings
-    elif x is not None:
-        eps, eps_sigma = float(x[0]), float(math.sqrt(max(cov[0, 0], 0.0)))
-        xt, ct = tilt_fit if tilt_fit is not None else (x, cov)
-        tilt = np.array(xt[1:3])
-        tilt_sigma = float(math.sqrt(max(ct[1, 1] + ct[2, 2], 0.0) / 2))
-        use = base
-        suggested = time_offset + eps
-        out["time_offset"] = {"in_use_s": time_offset, "error_s": eps, "sigma_s": eps_sigma,
-                              "suggested_s": suggested, "samples": int(use.sum())}
-        out["camera_tilt_deg"] = {"roll": math.degrees(tilt[0]), "pitch": math.degrees(tilt[1]),
-                                  "sigma": math.degrees(tilt_sigma)}
-        if _offset_error_significant(eps, eps_sigma, p):
-            fix = commands.get("timesync", "aruco-abs-orient timesync")
-            findings.append(Finding("time_offset", f"observations disagree with a time offset: this run suggests "
-                                    f"{suggested:+.2f} s (in use {time_offset:+.3f} s, error {1e3 * eps:+.0f} ± "
-                                    f"{1e3 * eps_sigma:.0f} ms); run `{fix}`", "time-offset", suggested))
-        size = float(np.hypot(*tilt))
-        offset_found = findings and findings[-1].kind == "time_offset"  # it biases the tilt: fix it first
-        if size > max(p.tilt_significance * tilt_sigma, p.min_tilt) and not offset_found:
-            fix = commands.get("calibrate", "aruco-abs-orient calibrate")
-            findings.append(Finding("camera_tilt", f"marker yaws depend on where the marker is in the image: the "
-                                    f"camera looks tilted by {math.degrees(size):.2f}° (roll {_deg(tilt[0])}, "
-                                    f"pitch {_deg(tilt[1])}) against its lever arms; calibrate the boresight: "
-                                    f"run `{fix}`", "heading-wrong-by-180", math.degrees(size)))
 
-    # boresight yaw: heading vs the direction of travel on straight stretches
-    pose_t = np.asarray(pose_t, dtype=float)
-    pose_yaw = np.asarray(pose_yaw, dtype=float)
-    if model is None and len(pose_t) > 10 and prism_t is not None and len(prism_t) >= 2:
-        pt, pp = np.asarray(prism_t, dtype=float), np.asarray(prism_xyz, dtype=float).reshape(-1, 3)
-        h = 0.25
-        inside = (pose_t - h >= pt[0]) & (pose_t + h <= pt[-1])
-        vx = (np.interp(pose_t + h, pt, pp[:, 0]) - np.interp(pose_t - h, pt, pp[:, 0])) / (2 * h)
-        vy = (np.interp(pose_t + h, pt, pp[:, 1]) - np.interp(pose_t - h, pt, pp[:, 1])) / (2 * h)
-        rate = np.gradient(np.unwrap(pose_yaw), pose_t) if len(pose_t) > 1 else np.zeros(0)
-        if prism_lever is not None:  # base_link origin's velocity: the prism's minus ω ẑ × (Rz(ψ) · lever)
-            lx, ly = float(prism_lever[0]), float(prism_lever[1])
-            c, s = np.cos(pose_yaw), np.sin(pose_yaw)
-            vx = vx + rate * (s * lx + c * ly)
-            vy = vy - rate * (c * lx - s * ly)
-        straight = inside & (np.hypot(vx, vy) > p.straight_speed) & (np.abs(rate) < p.straight_turn_rate)
-        if straight.sum() >= p.min_samples:
-            d = wrap_angle(pose_yaw[straight] - np.arctan2(vy[straight], vx[straight]))
-            med = float(np.median(d))
-            sem = 1.4826 * float(np.median(np.abs(d - med))) / math.sqrt(len(d))
-            out["heading_minus_travel_deg"] = {"median": math.degrees(med), "sigma": math.degrees(sem),
-                                               "samples": int(straight.sum())}
-            if abs(med) > max(p.min_heading_travel, p.significance * sem):
-                fix = commands.get("calibrate", "aruco-abs-orient calibrate")
-                findings.append(Finding("boresight_yaw", f"on straight stretches the heading differs from the "
-                                        f"direction of travel by {_deg(med)} ({int(straight.sum())} poses): the "
-                                        f"camera's mounting yaw (or a platform that crabs); run `{fix}`",
-                                        "heading-wrong-by-180", math.degrees(med)))
-    if any(f.kind == "time_offset" for f in findings):  # a wrong offset biases each marker's yaws: fix it first
+
+def _concluded(out: Dict[str, object], findings: List[Finding], p: SelfCheckParams) -> List[Finding]:
+    """The findings as reported: no marker finding beside a time offset one (a wrong offset biases each
+    marker's yaws: fix it first), then σ's when the residuals are larger than their σ say, naming the causes."""
+    if any(f.kind == "time_offset" for f in findings):
         findings = [f for f in findings if f.kind != "marker"]
     rms = out["normalised_residual_rms"]
     if rms is not None and rms > p.max_normalised_rms:
@@ -445,7 +342,59 @@ def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Seq
                            ("time_offset", "camera_tilt", "boresight_yaw", "marker")) or "none of the checks above"
         findings.append(Finding("sigma", f"the residuals are {rms:.1f} times their predicted σ (1 when honest); "
                                 f"likely cause: {causes}", "time-offset", rms))
-    out["findings"] = [f.as_dict() for f in findings]
+    return findings
+
+
+def check_run(obs: Mapping[str, np.ndarray], prism, marker_xyz: Mapping[int, Sequence[float]], poses=((), ()),
+              run: Optional[RunContext] = None, params: Optional[SelfCheckParams] = None) -> Dict[str, object]:
+    """The self-checks of a run (see the module docstring).
+
+    ``obs``: per marker observation with a yaw, the arrays of :class:`YawObservation`'s fields
+    (:func:`observation_columns`; ``yaw`` and ``odom_yaw`` optional: with them the time offset and tilt are
+    fitted to their difference, the map→odom yaw, independent of what the filter accepted); ``prism``: the
+    prism track (stamps (M,) s, positions (M, 3) m); the marker map's positions {id: [x, y, z]}; ``poses``:
+    the filtered poses' (stamps, yaws (rad)); ``run``: :class:`RunContext` (with its ``model``, the time offset,
+    tilt and boresight yaw are :func:`model_check`'s). Returns a JSON-able dict with the estimates (degrees,
+    seconds) and ``findings`` (a list of :class:`Finding` dicts; empty when the run agrees with itself).
+    """
+    stats, frames, time_offset, commands, prism_lever, model = run or RunContext()
+    commands = dict(commands or {})
+    p = params or SelfCheckParams()
+    out: Dict[str, object] = {}
+    findings: List[Finding] = []
+    t = np.asarray(obs.get("time", ()), dtype=float)
+    ids = np.asarray(obs.get("id", ()), dtype=int)
+    res = np.asarray(obs.get("residual", ()), dtype=float)
+    sig = np.asarray(obs.get("yaw_sigma", ()), dtype=float)
+    acc = np.asarray(obs.get("accepted", ()), dtype=bool)
+    ok = np.isfinite(res) & np.isfinite(sig) & (sig > 0)
+    out["observations"] = int(len(t))
+    _rates(out, findings, acc, res, sig, ok, stats, frames, p)
+
+    # one robust fit: a smooth common part + time offset + camera tilt; a marker off it is moved
+    d, fit_ok = _fit_data(obs, t, ids, res, ok, sig, prism, marker_xyz)
+    base = fit_ok & np.isfinite(d.k) & (np.abs(d.el) < math.radians(60))
+    moved: List[int] = []
+    x = cov = own_tilt = None
+    per_marker: Dict[int, Tuple[float, int, float]] = {}
+    if base.sum() >= p.min_samples:
+        x, cov, per_marker, moved = moved_markers(d, base, p)
+        out["marker_offset_deg"] = {m: math.degrees(v[0]) for m, v in per_marker.items()}
+    keep = base & ~np.isin(ids, moved)
+    if x is not None and keep.sum() >= p.min_samples:
+        own_tilt = tilt_fit(d, keep, p)
+    _marker_findings(findings, moved, per_marker, ids, acc)
+    if model is not None:   # the time offset, tilt and boresight yaw as calibrate's own model sees them
+        estimates, model_findings = model_check(obs, prism, model, time_offset, commands, p)
+        out["model_check"] = estimates
+        if "time_offset" in estimates:
+            out["time_offset"] = estimates["time_offset"]
+        findings += model_findings
+    elif x is not None:
+        _offset_and_tilt(out, findings, ((x, cov), own_tilt), int(base.sum()), time_offset, commands, p)
+    if model is None:
+        _heading_vs_travel(out, findings, poses, prism, prism_lever, commands, p)
+    out["findings"] = [f.as_dict() for f in _concluded(out, findings, p)]
     return out
 
 
