@@ -21,7 +21,7 @@ import json
 import math
 import os
 from collections import Counter
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from ..transforms import wrap_angle, yaw_of
 from ..tum import TumError, read_tum
 
 __all__ = ["EvaluateError", "read_observations", "read_summary", "parse_after", "evaluate_run", "odometry_from_bag",
-           "topic_stamps", "fused_errors", "no_update_spans", "overview_figure"]
+           "topic_stamps", "fused_errors", "no_update_spans"]
 
 
 class EvaluateError(InputFileError):
@@ -226,41 +226,24 @@ def _timesync_and_calibration(run_dir: str, out_dir: str, offset: float) -> Dict
     return {captions[k]: v for k, v in found.items()}
 
 
-def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optional[str] = None,
-                 params: Optional[ev.EvaluationParams] = None, fused: Optional[str] = None,
-                 fused_clock_offset: Optional[float] = None, after: Optional[Tuple[str, float]] = None,
-                 overview: Optional[str] = None) -> Dict[str, object]:
-    """Evaluate ``run_dir`` (outputs of ``process``), against the TUM file ``reference`` when given.
+class _RunFacts(NamedTuple):
+    """What summary.json says of the run, for the report: its start (s, total-station clock), time offset (s),
+    images, images with a pose and duration (s)."""
 
-    Without a reference: what a user can check on the run alone (the paper's own evaluation): the
-    markers' yaw agreement (pairwise, per-marker trajectories), the residuals and their σ consistency,
-    coverage and gaps, the run's self-checks. With it: the heading/position errors too. ``fused``: a bag
-    of ``postprocess.launch record:=`` whose ``/odometry/filtered`` is judged against the reference, its
-    stamps minus ``fused_clock_offset`` (default: the run's time offset, from summary.json), from
-    ``after`` (("since_start", s) or ("absolute", s); default ``params.settle`` s after its first absolute yaw)
-    on. ``params``: :class:`~aruco_abs_orient.evaluation.EvaluationParams` (the gaps, the settling time).
-    ``overview``: path of an overview PNG to show first. Writes ``report.md``, ``report.json`` and
-    PNG plots into ``out_dir`` (default ``run_dir``); returns the results.
-    """
-    out_dir = out_dir or run_dir
-    params = params or ev.EvaluationParams()
-    max_gap = params.max_gap
-    os.makedirs(out_dir, exist_ok=True)
-    summary = read_summary(run_dir)
-    try:
-        est = read_tum(os.path.join(run_dir, "trajectory.tum"))
-        ref = read_tum(reference) if reference else None
-    except TumError as e:
-        raise EvaluateError(str(e)) from None
-    t0 = float(summary.get("recording_start_s", est.stamps[0] if len(est.stamps) else 0.0))
-    offset = float(summary.get("time_offset_s", 0.0))
+    t0: float
+    offset: float
+    frames: int
+    with_pose: int
+    duration: float
+
+
+def _start_report(run_dir: str, reference: Optional[str], summary, facts: _RunFacts, out_dir: str,
+                  overview: Optional[str]) -> ev.Report:
+    """The report's title, introduction, notes (the run's warnings and self-check findings) and overview."""
     bag_name = os.path.basename(str(summary.get("bag", ""))) or "?"
     rep = ev.Report(title=f"aruco_abs_orient report: {bag_name} ({os.path.basename(os.path.abspath(run_dir))})")
-    results: Dict[str, object] = {}
-    frames, with_pose = int(summary.get("frames", 0)), int(summary.get("frames_with_pose", len(est.stamps)))
-    duration = float(summary.get("bag_duration_s", 0.0))
-    rep.intro = (f"Recording `{summary.get('bag', '?')}`: {duration:.1f} s, {frames} images, time offset "
-                 f"{1e3 * offset:+.1f} ms, lever arms from {summary.get('lever_arms', '?')}; "
+    rep.intro = (f"Recording `{summary.get('bag', '?')}`: {facts.duration:.1f} s, {facts.frames} images, time offset "
+                 f"{1e3 * facts.offset:+.1f} ms, lever arms from {summary.get('lever_arms', '?')}; "
                  + (f"reference `{reference}`." if reference else "no reference: the figures below are what the "
                     "run shows by itself.") + " Times are seconds since the start of the recording.")
     findings = (summary.get("selfcheck") or {}).get("findings", [])
@@ -271,12 +254,13 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
         rep.notes.append(f"{c['message']} ({_doc(c.get('doc', 'time-offset'), 'troubleshooting', out_dir)})")
     if overview:
         rep.plots["overview: a frame with its markers, the trajectory"] = overview
+    return rep
 
-    # coverage and gaps: what the run delivered
-    if len(est.stamps) == 0:
-        reason = "; ".join(summary.get("warnings") or []) or "its summary.json says what it counted"
-        raise EvaluateError(f"{run_dir}/trajectory.tum: no poses (the run never initialised: {reason})")
-    end = t0 + duration if duration else None
+
+def _coverage(rep: ev.Report, results: Dict[str, object], est, facts: _RunFacts, params, out_dir: str):
+    """Coverage and gaps, what the run delivered: into ``results`` and the headline; returns the gaps."""
+    t0, frames, with_pose = facts.t0, facts.frames, facts.with_pose
+    end = t0 + facts.duration if facts.duration else None
     holes = ev.gaps(est.stamps, params.min_gap, end=end)
     results["coverage"] = {"frames": frames, "frames_with_pose": with_pose,
                            "share": with_pose / frames if frames else None,
@@ -287,142 +271,159 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
              + (f"longest gap {longest[1] - longest[0]:.1f} s at {longest[0] - t0:.1f} s" if longest else
                 f"no gap over {params.min_gap:g} s"))
     rep.headline.append(("coverage", cover, "–", _doc("no-markers-found", "no markers found", out_dir)))
+    return holes
 
-    obs_path = os.path.join(run_dir, "observations.csv")
-    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
-    obs = None if rows is None else {k: v[np.isfinite(rows["yaw"])] for k, v in rows.items()}   # with a marker yaw
-    series, pw = {}, None
-    if obs is not None and len(obs["time"]):
-        series = ev.per_marker_series(obs["time"], obs["id"], obs["yaw"])
-        try:
-            pw = ev.pairwise_differences(series)
-            results["per_marker_agreement"] = pw
-            st = pw.stats
-            rep.headline.append(("markers' yaws agree (pairwise, same image)",
-                                 f"median {ev.fmt_angle(st.median)}, mean {ev.fmt_angle(st.mean)}, "
-                                 f"std {ev.fmt_angle(st.std)}", PAPER["agreement"],
-                                 _doc("jumps-in-the-heading", "a moved or wrongly surveyed marker", out_dir)))
-        except ev.EvaluationError as e:
-            results["per_marker_agreement"] = {"not_available": str(e)}
-        acc = obs["accepted"]
-        res_ok = acc & np.isfinite(obs["residual"])
-        # a frame's yaw from a resection (no prism) carries no per-marker σ
-        z_ok = res_ok & np.isfinite(obs["yaw_sigma"]) & (obs["yaw_sigma"] > 0)
-        if np.any(res_ok):
-            rs = ev.error_stats(obs["residual"][res_ok])
-            results["residuals"] = rs
-            rep.headline.append(("residuals (each accepted marker yaw − filtered yaw)",
-                                 f"RMS {ev.fmt_angle(rs.rmse)}, p95 {ev.fmt_angle(rs.p95)}; "
-                                 f"{100 * float(np.mean(acc)):.0f} % of marker yaws accepted", "–",
-                                 _doc("time-offset", "time offset", out_dir)))
-        if np.any(z_ok):
-            z = ev.normalised_residuals(obs["residual"][z_ok], obs["yaw_sigma"][z_ok])
-            results["normalised_residuals"] = z
-            rep.headline.append(("σ consistency (RMS of residual/σ; 1 = honest σ)",
-                                 f"{z['rms']:.2f}; {100 * z['share_within_2_sigma']:.0f} % within 2σ", "–",
-                                 _doc("time-offset", "time offset, calibration", out_dir)))
-        table = []
-        for mid in sorted(series):
-            sel = obs["id"] == mid
-            good = sel & res_ok
-            z_m = ev.normalised_residuals(obs["residual"][sel & z_ok], obs["yaw_sigma"][sel & z_ok]) \
-                if np.any(sel & z_ok) else None
-            r = obs["residual"][good]
-            table.append([mid, int(sel.sum()), f"{100 * float(np.mean(acc[sel])):.0f} %",
-                         ev.fmt_angle(float(np.mean(r))) if len(r) else "–",
-                         ev.fmt_angle(float(np.std(r))) if len(r) else "–",
-                         f"{z_m['rms']:.2f}" if z_m else "–"])
-        per_marker_cols = ["marker", "observations", "accepted", "residual mean", "residual std", "RMS residual/σ"]
-        per_marker_rows = table
-        judged = np.array([not r.startswith("filter: buffered") for r in obs["reason"]], dtype=bool)  # not before
-        agreement = ev.marker_agreement(obs["time"][judged], obs["id"][judged], obs["residual"][judged],
-                                        acc[judged], obs["reason"][judged])                       # the filter ran
-        results["marker_agreement"] = agreement
-        rep.plots["do the markers agree? each marker's yaw against the frame's consensus, the pairs"] = \
-            plots.plot_marker_agreement(os.path.join(out_dir, "marker_yaws.png"), agreement, pw)
+
+def _per_marker_table(obs: Dict[str, np.ndarray], markers, res_ok: np.ndarray, z_ok: np.ndarray) -> List[list]:
+    """A row per marker: its observations, the share accepted, its residuals' mean and std, RMS residual/σ."""
+    table = []
+    for mid in sorted(markers):
+        sel = obs["id"] == mid
+        good = sel & res_ok
+        z_m = ev.normalised_residuals(obs["residual"][sel & z_ok], obs["yaw_sigma"][sel & z_ok]) \
+            if np.any(sel & z_ok) else None
+        r = obs["residual"][good]
+        table.append([mid, int(sel.sum()), f"{100 * float(np.mean(obs['accepted'][sel])):.0f} %",
+                     ev.fmt_angle(float(np.mean(r))) if len(r) else "–",
+                     ev.fmt_angle(float(np.std(r))) if len(r) else "–",
+                     f"{z_m['rms']:.2f}" if z_m else "–"])
+    return table
+
+
+def _marker_sections(rep: ev.Report, results: Dict[str, object], obs: Dict[str, np.ndarray], out_dir: str):
+    """What the marker yaws show without a reference: the pairwise agreement, the residuals, their σ consistency
+    (from the rows with a finite positive σ), the per-marker table and the agreement plot. Returns (the pairwise
+    differences or None, the per-marker table's rows)."""
+    series = ev.per_marker_series(obs["time"], obs["id"], obs["yaw"])
+    pw = None
+    try:
+        pw = ev.pairwise_differences(series)
+        results["per_marker_agreement"] = pw
+        st = pw.stats
+        rep.headline.append(("markers' yaws agree (pairwise, same image)",
+                             f"median {ev.fmt_angle(st.median)}, mean {ev.fmt_angle(st.mean)}, "
+                             f"std {ev.fmt_angle(st.std)}", PAPER["agreement"],
+                             _doc("jumps-in-the-heading", "a moved or wrongly surveyed marker", out_dir)))
+    except ev.EvaluationError as e:
+        results["per_marker_agreement"] = {"not_available": str(e)}
+    acc = obs["accepted"]
+    res_ok = acc & np.isfinite(obs["residual"])
+    # a frame's yaw from a resection (no prism) carries no per-marker σ
+    z_ok = res_ok & np.isfinite(obs["yaw_sigma"]) & (obs["yaw_sigma"] > 0)
+    if np.any(res_ok):
+        rs = ev.error_stats(obs["residual"][res_ok])
+        results["residuals"] = rs
+        rep.headline.append(("residuals (each accepted marker yaw − filtered yaw)",
+                             f"RMS {ev.fmt_angle(rs.rmse)}, p95 {ev.fmt_angle(rs.p95)}; "
+                             f"{100 * float(np.mean(acc)):.0f} % of marker yaws accepted", "–",
+                             _doc("time-offset", "time offset", out_dir)))
+    if np.any(z_ok):
+        z = ev.normalised_residuals(obs["residual"][z_ok], obs["yaw_sigma"][z_ok])
+        results["normalised_residuals"] = z
+        rep.headline.append(("σ consistency (RMS of residual/σ; 1 = honest σ)",
+                             f"{z['rms']:.2f}; {100 * z['share_within_2_sigma']:.0f} % within 2σ", "–",
+                             _doc("time-offset", "time offset, calibration", out_dir)))
+    table = _per_marker_table(obs, series, res_ok, z_ok)
+    judged = np.array([not r.startswith("filter: buffered") for r in obs["reason"]], dtype=bool)  # not before
+    agreement = ev.marker_agreement(obs["time"][judged], obs["id"][judged], obs["residual"][judged],
+                                    acc[judged], obs["reason"][judged])                       # the filter ran
+    results["marker_agreement"] = agreement
+    rep.plots["do the markers agree? each marker's yaw against the frame's consensus, the pairs"] = \
+        plots.plot_marker_agreement(os.path.join(out_dir, "marker_yaws.png"), agreement, pw)
+    return pw, table
+
+
+def _heading_and_position(rep: ev.Report, results: Dict[str, object], est, ref, reference: str, max_gap: float,
+                          out_dir: str):
+    """The heading's APE and 1 s RPE and the position error against the reference (results and headline).
+    Returns the heading APE."""
+    yaw_est, yaw_ref = yaw_of(est.rotations), yaw_of(ref.rotations)
+    try:
+        ape = ev.yaw_ape(est.stamps, yaw_est, ref.stamps, yaw_ref, max_gap=max_gap)
+        rpe = ev.yaw_rpe(est.stamps, yaw_est, ref.stamps, yaw_ref, delta=1.0, max_gap=max_gap)
+    except ev.EvaluationError as e:
+        raise EvaluateError(f"{reference}: {e}") from None
+    results["heading_ape"], results["heading_rpe_1s"] = ape, rpe
+    rep.headline.insert(0, ("heading of base_link vs reference",
+                            f"RMSE {ev.fmt_angle(ape.stats.rmse)}, p95 {ev.fmt_angle(ape.stats.p95)} "
+                            f"({100 * ape.stats.coverage:.1f} % of the poses compared)", "–",
+                            _doc("time-offset", "time offset", out_dir) + ", "
+                            + _doc("heading-wrong-by-180", "180°", out_dir)))
+    p_ref, _, ok = ref.interpolate(est.stamps)
+    if np.any(ok):
+        d = np.linalg.norm(est.positions[ok] - p_ref[ok], axis=1)
+        results["position"] = {"rmse_m": float(np.sqrt(np.mean(d * d))), "median_m": float(np.median(d)),
+                               "p95_m": float(np.percentile(d, 95)), "n": int(ok.sum())}
+        rep.headline.insert(1, ("position of base_link vs reference",
+                                f"RMSE {1e3 * results['position']['rmse_m']:.1f} mm", "–",
+                                _doc("no-markers-found", "prism, lever arms", out_dir)))
+    return ape
+
+
+def _fused_section(rep: ev.Report, results: Dict[str, object], fused: str, clock: float, reference: str,
+                   after: Optional[Tuple[str, float]], t0: float, params, out_dir: str, plotted) -> None:
+    """The robot_localization EKF's output recorded in ``fused`` (stamps minus ``clock`` s) against the reference,
+    from ``after`` or ``params.settle`` s after its first absolute yaw on; its heading curve and the stretches
+    the node gave it no absolute yaw join ``plotted`` (the heading plot's (curves, spans))."""
+    curves, spans = plotted
+    max_gap = params.max_gap
+    traj, ekf_sigma = odometry_from_bag(fused, clock_offset=clock)
+    fed = topic_stamps(fused, clock_offset=clock)   # the absolute yaws the node gave the EKF
+    first = float(fed[0]) if len(fed) else None
+    link = "[robot_localization.md](" + os.path.relpath(os.path.join(DOC_DIR, "robot_localization.md"),
+                                                        os.path.abspath(out_dir)) + ")"
+    if after is None and first is None:
+        why = (f"not judged: {os.path.basename(fused)} has no abs_orient/orientation, the EKF had no absolute "
+               "yaw (the replay's last line says why)")
+        results["fused_ekf"] = {"not_available": why}
+        rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)", why, "–",
+                                _doc("a-replay-that-ends-or-fails", "replay", out_dir)))
+        return
+    if after is None:
+        start = first + params.settle
+        how = f"from {start - t0:.1f} s: {params.settle:g} s after its first absolute yaw"
     else:
-        per_marker_cols, per_marker_rows = [], []
+        start = after[1] + (t0 if after[0] == "since_start" else 0.0)
+        how = f"from {start - t0:.1f} s (--after)"
+    f = fused_errors(traj, reference, after=start, max_gap=max_gap)
+    f["clock_offset_s"] = clock
+    results["fused_ekf"] = f
+    curves.append(plots.HeadingCurve("robot_localization EKF", f["heading_ape"],
+                                     np.interp(f["heading_ape"].t, traj.stamps, ekf_sigma)))
+    spans += [plots.Span(a, b, "the node gave the EKF no absolute yaw")
+              for a, b in ev.gaps(fed[fed >= start], params.min_gap, start, float(traj.stamps[-1]))]
+    rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)",
+                            f"heading RMSE {ev.fmt_angle(f['heading_ape'].stats.rmse)}, position RMSE "
+                            f"{1e3 * f['position']['rmse_m']:.1f} mm ({how})", "–", link))
 
-    if ref is not None:
-        yaw_est, yaw_ref = yaw_of(est.rotations), yaw_of(ref.rotations)
-        try:
-            ape = ev.yaw_ape(est.stamps, yaw_est, ref.stamps, yaw_ref, max_gap=max_gap)
-            rpe = ev.yaw_rpe(est.stamps, yaw_est, ref.stamps, yaw_ref, delta=1.0, max_gap=max_gap)
-        except ev.EvaluationError as e:
-            raise EvaluateError(f"{reference}: {e}") from None
-        results["heading_ape"], results["heading_rpe_1s"] = ape, rpe
-        rep.headline.insert(0, ("heading of base_link vs reference",
-                                f"RMSE {ev.fmt_angle(ape.stats.rmse)}, p95 {ev.fmt_angle(ape.stats.p95)} "
-                                f"({100 * ape.stats.coverage:.1f} % of the poses compared)", "–",
-                                _doc("time-offset", "time offset", out_dir) + ", "
-                                + _doc("heading-wrong-by-180", "180°", out_dir)))
-        own = read_heading_sigma(run_dir)
-        curves = [plots.HeadingCurve("processed heading", ape,
-                                     None if own is None or not len(own[0]) else np.interp(ape.t, *own))]
-        spans = [] if rows is None else no_update_spans(rows, float(est.stamps[0]), float(est.stamps[-1]),
-                                                        params.min_gap)
-        p_ref, _, ok = ref.interpolate(est.stamps)
-        if np.any(ok):
-            d = np.linalg.norm(est.positions[ok] - p_ref[ok], axis=1)
-            results["position"] = {"rmse_m": float(np.sqrt(np.mean(d * d))), "median_m": float(np.median(d)),
-                                   "p95_m": float(np.percentile(d, 95)), "n": int(ok.sum())}
-            rep.headline.insert(1, ("position of base_link vs reference",
-                                    f"RMSE {1e3 * results['position']['rmse_m']:.1f} mm", "–",
-                                    _doc("no-markers-found", "prism, lever arms", out_dir)))
-        if fused:
-            clock = offset if fused_clock_offset is None else fused_clock_offset
-            traj, ekf_sigma = odometry_from_bag(fused, clock_offset=clock)
-            fed = topic_stamps(fused, clock_offset=clock)   # the absolute yaws the node gave the EKF
-            first = float(fed[0]) if len(fed) else None
-            link = "[robot_localization.md](" + os.path.relpath(os.path.join(DOC_DIR, "robot_localization.md"),
-                                                                os.path.abspath(out_dir)) + ")"
-            if after is None and first is None:
-                why = (f"not judged: {os.path.basename(fused)} has no abs_orient/orientation, the EKF had no absolute "
-                       "yaw (the replay's last line says why)")
-                results["fused_ekf"] = {"not_available": why}
-                rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)", why, "–",
-                                        _doc("a-replay-that-ends-or-fails", "replay", out_dir)))
-            else:
-                if after is None:
-                    start = first + params.settle
-                    how = f"from {start - t0:.1f} s: {params.settle:g} s after its first absolute yaw"
-                else:
-                    start = after[1] + (t0 if after[0] == "since_start" else 0.0)
-                    how = f"from {start - t0:.1f} s (--after)"
-                f = fused_errors(traj, reference, after=start, max_gap=max_gap)
-                f["clock_offset_s"] = clock
-                results["fused_ekf"] = f
-                curves.append(plots.HeadingCurve("robot_localization EKF", f["heading_ape"],
-                                                 np.interp(f["heading_ape"].t, traj.stamps, ekf_sigma)))
-                spans += [plots.Span(a, b, "the node gave the EKF no absolute yaw")
-                          for a, b in ev.gaps(fed[fed >= start], params.min_gap, start, float(traj.stamps[-1]))]
-                rep.headline.insert(2, ("robot_localization EKF (odometry/filtered)",
-                                        f"heading RMSE {ev.fmt_angle(f['heading_ape'].stats.rmse)}, position RMSE "
-                                        f"{1e3 * f['position']['rmse_m']:.1f} mm ({how})", "–", link))
-        rejected = [] if obs is None else [
-            (float(t), str(r)) for t, r, a in zip(obs["time"], obs["reason"], obs["accepted"])
-            if not a and r and not r.startswith("filter: buffered")]
-        rep.plots["is the heading right? its error, the filter's own ±2σ, the stretches without updates"] = \
-            plots.plot_heading_error(os.path.join(out_dir, "heading_error.png"), curves, spans, rejected, t0=t0)
-        if obs is not None and len(obs["time"]):
-            truth_at, ok = ev.interp_yaw(obs["time"], ref.stamps, yaw_ref, max_gap)
-            err = wrap_angle(obs["yaw"] - truth_at)
-            per = {}
-            for row in per_marker_rows:
-                sel = ok & (obs["id"] == row[0])
-                st = ev.error_stats(err[sel]) if np.any(sel) else None
-                per[f"marker {row[0]}"] = st
-                row += [ev.fmt_angle(st.bias) if st else "–", ev.fmt_angle(st.rmse) if st else "–"]
-            per_marker_cols += ["vs reference: bias", "vs reference: RMSE"]
-            results["per_marker_yaw_vs_reference"] = {k: v for k, v in per.items() if v is not None}
-            if np.any(ok):
-                bias = ev.error_by_frame_position(obs["azimuth"][ok], obs["elevation"][ok], err[ok])
-                results["error_by_frame_position"] = bias
-                rep.plots["yaw error by position in the frame (paper fig. 13)"] = plots.plot_frame_position(
-                    os.path.join(out_dir, "frame_position.png"), bias)
-    rep.plots.update(_timesync_and_calibration(run_dir, out_dir, offset))
-    rep.headline.append(("time offset in use (camera − total station)", f"{1e3 * offset:+.1f} ms", PAPER["time_offset"],
-                         _doc("time-offset", "time offset", out_dir)))
+
+def _markers_vs_reference(rep: ev.Report, results: Dict[str, object], obs: Dict[str, np.ndarray], ref,
+                          per_marker_rows: List[list], max_gap: float, out_dir: str) -> bool:
+    """Each marker's yaw error against the reference (two more columns of the per-marker rows) and the error by
+    position in the frame (paper fig. 13). Returns whether the columns were added."""
+    if obs is None or not len(obs["time"]):
+        return False
+    truth_at, ok = ev.interp_yaw(obs["time"], ref.stamps, yaw_of(ref.rotations), max_gap)
+    err = wrap_angle(obs["yaw"] - truth_at)
+    per = {}
+    for row in per_marker_rows:
+        sel = ok & (obs["id"] == row[0])
+        st = ev.error_stats(err[sel]) if np.any(sel) else None
+        per[f"marker {row[0]}"] = st
+        row += [ev.fmt_angle(st.bias) if st else "–", ev.fmt_angle(st.rmse) if st else "–"]
+    results["per_marker_yaw_vs_reference"] = {k: v for k, v in per.items() if v is not None}
+    if np.any(ok):
+        bias = ev.error_by_frame_position(obs["azimuth"][ok], obs["elevation"][ok], err[ok])
+        results["error_by_frame_position"] = bias
+        rep.plots["yaw error by position in the frame (paper fig. 13)"] = plots.plot_frame_position(
+            os.path.join(out_dir, "frame_position.png"), bias)
+    return True
+
+
+def _tables(rep: ev.Report, results: Dict[str, object], per_marker, pw, holes, t0: float, summary) -> None:
+    """The report's tables: per marker (``per_marker``: (columns, rows)), marker pairs, heading errors, gaps,
+    the pipeline's counters."""
+    per_marker_cols, per_marker_rows = per_marker
     if per_marker_rows:
         rep.tables.append(("Per marker", per_marker_cols, per_marker_rows))
     if isinstance(pw, ev.PairwiseDifferences):
@@ -445,103 +446,74 @@ def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optiona
     if stats:
         rep.tables.append(("Pipeline counters (summary.json pipeline_stats)", ["counter", "count"],
                            [[k, v] for k, v in sorted(stats.items())]))
+
+
+def evaluate_run(run_dir: str, reference: Optional[str] = None, out_dir: Optional[str] = None,
+                 params: Optional[ev.EvaluationParams] = None, fused: Optional[str] = None,
+                 fused_clock_offset: Optional[float] = None, after: Optional[Tuple[str, float]] = None,
+                 overview: Optional[str] = None) -> Dict[str, object]:
+    """Evaluate ``run_dir`` (outputs of ``process``), against the TUM file ``reference`` when given.
+
+    Without a reference: what a user can check on the run alone (the paper's own evaluation): the
+    markers' yaw agreement (pairwise, per-marker trajectories), the residuals and their σ consistency,
+    coverage and gaps, the run's self-checks. With it: the heading/position errors too. ``fused``: a bag
+    of ``postprocess.launch record:=`` whose ``/odometry/filtered`` is judged against the reference, its
+    stamps minus ``fused_clock_offset`` (default: the run's time offset, from summary.json), from
+    ``after`` (("since_start", s) or ("absolute", s); default ``params.settle`` s after its first absolute yaw)
+    on. ``params``: :class:`~aruco_abs_orient.evaluation.EvaluationParams` (the gaps, the settling time).
+    ``overview``: path of an overview PNG to show first. Writes ``report.md``, ``report.json`` and
+    PNG plots into ``out_dir`` (default ``run_dir``); returns the results.
+    """
+    out_dir = out_dir or run_dir
+    params = params or ev.EvaluationParams()
+    os.makedirs(out_dir, exist_ok=True)
+    summary = read_summary(run_dir)
+    try:
+        est = read_tum(os.path.join(run_dir, "trajectory.tum"))
+        ref = read_tum(reference) if reference else None
+    except TumError as e:
+        raise EvaluateError(str(e)) from None
+    facts = _RunFacts(float(summary.get("recording_start_s", est.stamps[0] if len(est.stamps) else 0.0)),
+                      float(summary.get("time_offset_s", 0.0)), int(summary.get("frames", 0)),
+                      int(summary.get("frames_with_pose", len(est.stamps))), float(summary.get("bag_duration_s", 0.0)))
+    t0, offset = facts.t0, facts.offset
+    rep = _start_report(run_dir, reference, summary, facts, out_dir, overview)
+    results: Dict[str, object] = {}
+    if len(est.stamps) == 0:
+        reason = "; ".join(summary.get("warnings") or []) or "its summary.json says what it counted"
+        raise EvaluateError(f"{run_dir}/trajectory.tum: no poses (the run never initialised: {reason})")
+    holes = _coverage(rep, results, est, facts, params, out_dir)
+    obs_path = os.path.join(run_dir, "observations.csv")
+    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
+    obs = None if rows is None else {k: v[np.isfinite(rows["yaw"])] for k, v in rows.items()}   # with a marker yaw
+    pw, per_marker_cols, per_marker_rows = None, [], []
+    if obs is not None and len(obs["time"]):
+        pw, per_marker_rows = _marker_sections(rep, results, obs, out_dir)
+        per_marker_cols = ["marker", "observations", "accepted", "residual mean", "residual std", "RMS residual/σ"]
+    if ref is not None:
+        ape = _heading_and_position(rep, results, est, ref, reference, params.max_gap, out_dir)
+        own = read_heading_sigma(run_dir)
+        curves = [plots.HeadingCurve("processed heading", ape,
+                                     None if own is None or not len(own[0]) else np.interp(ape.t, *own))]
+        spans = [] if rows is None else no_update_spans(rows, float(est.stamps[0]), float(est.stamps[-1]),
+                                                        params.min_gap)
+        if fused:
+            clock = offset if fused_clock_offset is None else fused_clock_offset
+            _fused_section(rep, results, fused, clock, reference, after, t0, params, out_dir, (curves, spans))
+        rejected = [] if obs is None else [
+            (float(t), str(r)) for t, r, a in zip(obs["time"], obs["reason"], obs["accepted"])
+            if not a and r and not r.startswith("filter: buffered")]
+        rep.plots["is the heading right? its error, the filter's own ±2σ, the stretches without updates"] = \
+            plots.plot_heading_error(os.path.join(out_dir, "heading_error.png"), curves, spans, rejected, t0=t0)
+        if _markers_vs_reference(rep, results, obs, ref, per_marker_rows, params.max_gap, out_dir):
+            per_marker_cols += ["vs reference: bias", "vs reference: RMSE"]
+    rep.plots.update(_timesync_and_calibration(run_dir, out_dir, offset))
+    rep.headline.append(("time offset in use (camera − total station)", f"{1e3 * offset:+.1f} ms", PAPER["time_offset"],
+                         _doc("time-offset", "time offset", out_dir)))
+    _tables(rep, results, (per_marker_cols, per_marker_rows), pw, holes, t0, summary)
     rep.data = {"recording_start_s": t0, "time_offset_s": offset, "reference": reference, **results,
                 "selfcheck": summary.get("selfcheck"), "warnings": summary.get("warnings", [])}
     md, js = ev.write_report(out_dir, rep)
     results["report_md"], results["report_json"], results["headline"] = md, js, rep.headline
     results["notes"] = rep.notes
     return results
-
-
-def _overview_answer(found, expected, when: Optional[float]) -> str:
-    """The overview's title: how many of the map's markers were found and used in the frame (at ``when`` s since
-    the start; None: a video's middle frame), and why not the others (grouped by their reason)."""
-    markers = f"{len(found)} marker{'s' if len(found) != 1 else ''}"
-    if when is None:
-        return (f"{markers} found in the middle frame of the video (where the map's markers should be is drawn for "
-                "bags: their lever arms are in the bag)")
-    if not expected:
-        return f"{markers} found in this frame ({when:.1f} s); no pose then, so where the map's markers should be is " \
-               "not drawn"
-    ok = [e for e in expected if e.status == "found"]
-    text = f"{len(ok)} of the map's {len(expected)} markers found and used in this frame ({when:.1f} s)"
-    odd = [f"marker {e.id} {e.status}" for e in expected if e.status != "found" and e.status.startswith("found")]
-    missed = Counter(e.status.split(" (")[0] for e in expected if not e.status.startswith("found"))
-    parts = odd + [f"{n} {why}" for why, n in missed.most_common()]
-    return text + ("; " + "; ".join(parts) if parts else "")
-
-
-def _busiest_stamp(rows: Optional[Dict[str, np.ndarray]], poses) -> Optional[float]:
-    """The total-station time of the image whose markers the pipeline saw most of (with a pose; the one nearest
-    the middle of the run among equals), or None without observations."""
-    if rows is None or not len(rows["time"]) or not len(poses):
-        return None
-    times, counts = np.unique(rows["time"], return_counts=True)
-    keep = (times >= poses[0]) & (times <= poses[-1])
-    if not np.any(keep):
-        return None
-    times, counts = times[keep], counts[keep]
-    middle = 0.5 * (poses[0] + poses[-1])
-    best = np.lexsort((np.abs(times - middle), -counts))[0]
-    return float(times[best])
-
-
-def overview_figure(path: str, bag: str, run_dir: str, reference: Optional[str], marker_map, topics=None) -> str:
-    """One picture of a run (the README's): a 360° frame of the bag (the one in which the pipeline saw the most
-    markers; of a video, ``bag`` with a video file's extension: the middle one) with the markers a search of
-    the whole frame found outlined, and the map's markers where the run's pose puts them, each one not found
-    or not used marked with why (:func:`aruco_abs_orient.debugview.expected_markers`); below, the corrected
-    trajectory of base_link vs the reference (when given), with its absolute heading, the markers and where
-    the frame was taken, in the trajectory's coordinates (full ones with a map origin). Returns ``path``."""
-    from ..debugview import expected_markers
-    from ..detection import decode_jpeg
-    from ..tracking import MarkerTracker
-    from .bagio import BagTopics, iter_images, open_reader, read_bag_data
-    from .video import VIDEO_EXTENSIONS, video_frames, video_summary
-
-    topics = topics or BagTopics()
-    summary = read_summary(run_dir)
-    offset = float(summary.get("time_offset_s", 0.0))
-    est = read_tum(os.path.join(run_dir, "trajectory.tum"))
-    obs_path = os.path.join(run_dir, "observations.csv")
-    rows = read_observations(obs_path, every_row=True) if os.path.exists(obs_path) else None
-    grey, stamp = None, None
-    if os.path.splitext(bag)[1].lower() in VIDEO_EXTENSIONS:
-        middle = video_summary(bag)[0] // 2
-        video = video_frames(bag)
-        grey = next((image for k, _, image in video if k >= middle), None)
-        video.close()
-    else:
-        busiest = _busiest_stamp(rows, est.stamps)
-        reader = open_reader(bag)
-        middle = sum(c.msgcount for c in reader.connections if c.topic == topics.image) // 2
-        reader.close()
-        frames = iter_images(bag, topics)
-        for i, (t, payload) in enumerate(frames):
-            wanted = i >= middle if busiest is None else t - offset >= busiest - 1e-4
-            if wanted and isinstance(payload, bytes):
-                grey, stamp = decode_jpeg(payload), t
-                break
-        frames.close()
-    if grey is None:
-        raise EvaluateError(f"{bag}: no decodable image from the middle of the bag on")
-    found = MarkerTracker(marker_map).process(grey).observations
-    expected, where, when = [], None, None
-    t0 = float(summary.get("recording_start_s", est.stamps[0] if len(est.stamps) else 0.0))
-    if stamp is not None:
-        t = stamp - offset
-        when = t - t0
-        T, valid = est.transforms_at(t) if len(est.stamps) else (None, False)
-        if bool(valid):
-            where = T[:2, 3].copy()
-            T[:3, 3] -= marker_map.to_full(np.zeros(3))          # full coordinates back to the map's
-            map_T_camera = T @ read_bag_data(bag, topics).base_T_camera
-            near = np.abs(rows["time"] - t) < 1e-4 if rows is not None else np.zeros(0, dtype=bool)
-            used = {int(i): ("" if a else r) for i, a, r in zip(rows["id"][near], rows["accepted"][near],
-                                                                 rows["reason"][near])} if rows is not None else {}
-            expected = expected_markers(marker_map, map_T_camera, grey.shape[1], {o.id: o.centre for o in found},
-                                        used)
-    ref_xy = read_tum(reference).positions[:, :2] if reference else None
-    marker_xy = {m.id: marker_map.to_full(m.position)[:2] for m in marker_map}
-    return plots.plot_overview(path, grey, found, expected, (est.positions[:, :2], yaw_of(est.rotations)),
-                               marker_xy, where, ref_xy, _overview_answer(found, expected, when))

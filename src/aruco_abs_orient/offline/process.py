@@ -224,39 +224,193 @@ def _salvage(paths: List[str], out_dir: str):
     return readable, salvaged, notes
 
 
+def _make_pipeline(marker_map: MarkerMap, data: BagData, calibration: Optional[Dict],
+                   tunables: Tunables) -> AbsOrientPipeline:
+    """The pipeline with the bag's lever arms, or the calibration file's mounting, lenses and readout."""
+    base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
+    readout = 0.0
+    if calibration is not None:
+        base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
+        readout = float(calibration.get("readout", 0.0))
+    return AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout,
+                             calibrated=calibration is not None, **tunables.pipeline_kwargs(),
+                             lenses=None if calibration is None else calibration.get("lenses"),
+                             lens_yaw_sigma=None if calibration is None else calibration.get("lens_yaw_sigma"))
+
+
+def _count(counter: Dict[str, int], key: str) -> None:
+    counter[key] = counter.get(key, 0) + 1
+
+
+@dataclass
+class _Tally:
+    """What the frames of a run add up to: the poses (stamps, map_T_base, the filter's yaw 1-σ in rad), the
+    counters, the marker yaws for the self-checks (selfcheck.YawObservation's) and the sightings for the map
+    check ((t, id, bearing, odom rotation), evenly thinned), and how far the prism and IMU samples were fed."""
+
+    sighted: SightingSample
+    stamps: List[float] = field(default_factory=list)
+    poses: List[np.ndarray] = field(default_factory=list)
+    sigmas: List[float] = field(default_factory=list)
+    errors: Dict[str, int] = field(default_factory=dict)
+    frames: int = 0
+    with_pose: int = 0
+    first_pose: Optional[float] = None
+    odom_missing: int = 0
+    timing_sum: Dict[str, float] = field(default_factory=dict)
+    checked: List[tuple] = field(default_factory=list)
+    modes: Dict[str, int] = field(default_factory=dict)
+    tilt_sources: Dict[str, int] = field(default_factory=dict)
+    next_prism: int = 0
+    next_imu: int = 0
+
+    def add(self, res: FrameResult, T_odom: np.ndarray) -> None:
+        """One processed frame's timings, counters, marker yaws, sightings and pose."""
+        for k, v in res.timings.items():
+            self.timing_sum[k] = self.timing_sum.get(k, 0.0) + v
+        if res.tilt_source:
+            _count(self.tilt_sources, res.tilt_source)
+        if res.tracking is not None:
+            _count(self.modes, res.tracking.mode)
+        if res.error:
+            _count(self.errors, res.error.split(":")[0])
+        odom_yaw = float(yaw_of(T_odom[:3, :3]))
+        self.checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
+                          r.residual, r.accepted, r.yaw, odom_yaw, r.observation.sigma)
+                         for r in res.observations if math.isfinite(r.yaw)]
+        for r in res.observations:
+            self.sighted.add(res.stamp, r.id, r.observation.centre, T_odom[:3, :3])
+        if res.map_T_base is not None:
+            if not self.with_pose:
+                self.first_pose = res.stamp
+            self.with_pose += 1
+            self.stamps.append(res.stamp)
+            self.poses.append(res.map_T_base)
+            self.sigmas.append(math.nan if res.yaw_sigma is None else res.yaw_sigma)
+
+
+def _feed(pipe: AbsOrientPipeline, data: BagData, tally: _Tally, stamp: float, time_offset: float) -> None:
+    """The prism samples up to PRISM_LOOKAHEAD s after the image at ``stamp`` (camera clock), the IMU's up to
+    it, to the pipeline (it keeps a bounded window)."""
+    t = stamp - time_offset
+    while tally.next_prism < len(data.prism_stamps) and data.prism_stamps[tally.next_prism] <= t + PRISM_LOOKAHEAD:
+        pipe.add_prism(float(data.prism_stamps[tally.next_prism]), data.prism_positions[tally.next_prism])
+        tally.next_prism += 1
+    while tally.next_imu < len(data.imu_stamps) and data.imu_stamps[tally.next_imu] <= stamp:
+        pipe.add_imu(float(data.imu_stamps[tally.next_imu]) - time_offset, *data.imu_tilts[tally.next_imu])
+        tally.next_imu += 1
+
+
+def _frames(items: queue.Queue, writer, pipe: AbsOrientPipeline, data: BagData, tally: _Tally,
+            time_offset: float, bar) -> None:
+    """The frame loop: each decoded image (or why there is none) from the reader through the pipeline, its
+    observations to ``writer`` (observations.csv), the rest into ``tally``; until the reader's None."""
+    writer.writerow(OBSERVATION_COLUMNS)
+    while True:
+        item = items.get()
+        if item is None:
+            break
+        stamp, image = item[0], item[1].result()
+        tally.frames += 1
+        if bar is not None:
+            bar.update(1)
+        if isinstance(image, str):
+            if image.startswith("reading stopped"):
+                data.warnings.append(image)
+            _count(tally.errors, image.split(":")[0])
+            continue
+        T_odom, valid = data.odom.transforms_at(stamp)
+        if not bool(valid):
+            tally.odom_missing += 1
+            continue
+        _feed(pipe, data, tally, stamp, time_offset)
+        res = pipe.process_image(stamp - time_offset, image, T_odom)
+        tally.add(res, T_odom)
+        writer.writerows(_observation_rows(res))
+
+
+def _write_trajectory(out_dir: str, tally: _Tally, marker_map: MarkerMap, north: NorthReference, refused: bool,
+                      full_coordinates: bool):
+    """(trajectory.tum's path, the extra files): the trajectory in full coordinates, trajectory.csv when asked,
+    heading_sigma.csv; ``refused`` (the map does not fit): none, and an older run's trajectory removed ('')."""
+    traj_path = os.path.join(out_dir, "trajectory.tum")
+    if refused:
+        for stale in (traj_path, os.path.join(out_dir, "trajectory.csv")):  # an older run's: not this map's
+            if os.path.exists(stale):
+                os.unlink(stale)
+        return "", []
+    stamps, poses, sigmas = tally.stamps, tally.poses, tally.sigmas
+    traj = Trajectory.from_transforms(stamps, np.array(poses).reshape(-1, 4, 4))
+    traj = traj._replace(positions=marker_map.to_full(traj.positions))
+    origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
+                                                   f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
+    write_tum(traj_path, traj,
+              header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time; "
+                     f"headings referred to {north.describe()}")
+    extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
+    atomic_write_text(os.path.join(out_dir, "heading_sigma.csv"), "time,heading_deg,sigma_deg\n" + "".join(
+        f"{t:.6f},{_deg(float(yaw_of(T[:3, :3])))},{_deg(s)}\n" for t, T, s in zip(stamps, poses, sigmas)))
+    return traj_path, extra
+
+
+def _summary(bag, marker_map: MarkerMap, setup: RunSetup, pipe: AbsOrientPipeline, data: BagData, tally: _Tally,
+             params, t_start: tuple, north: NorthReference) -> Dict[str, object]:
+    """summary.json's content but for the map check and the self-checks: counts, rates, settings, what was
+    skipped and why, the pipeline's ``params``, the timings since ``t_start`` (wall, CPU, this thread's CPU); a
+    run without a pose says why in its warnings."""
+    wall, cpu, pipeline_cpu = (now - then for now, then in zip(
+        (time.perf_counter(), time.process_time(), time.thread_time()), t_start))
+    frames = tally.frames
+    duration = max(data.end - data.start, 0.0)
+    reason = pipe.waiting_reason if tally.with_pose == 0 else ""
+    if reason:
+        data.warnings.append(f"no pose in {frames} frame(s): the map→odom filter never started: {reason}")
+    return {
+        "bag": (os.path.abspath(bag) if isinstance(bag, str) else os.path.abspath(bag.video) if hasattr(bag, "video")
+                else [os.path.abspath(b) for b in bag_paths(bag)]),
+        "markers": marker_map.source,
+        "time_offset_s": setup.time_offset,
+        "lever_arms": "calibration file" if setup.calibration is not None else "bag /tf_static",
+        "readout_ms": 1e3 * pipe.readout,   # the rolling shutter's, from the calibration file (0: global shutter)
+        "frames": frames,
+        "frames_with_pose": tally.with_pose,
+        "no_pose_reason": reason,
+        "filter": {"initialised_at": tally.first_pose, "lockout_recoveries": pipe.filter.stats.lockout_recoveries,
+                   "reinitialisations": pipe.filter.stats.reinitialisations,
+                   "yaw_noise_scale": pipe.filter.stats.noise_scale},
+        "frames_without_odometry": tally.odom_missing,
+        "mode": "markers only (no prism)" if params.markers_only else "prism and markers",
+        "imu_samples": int(len(data.imu_stamps)),
+        "tilt_sources": tally.tilt_sources,
+        "prism_samples": int(len(data.prism_stamps)),
+        "skipped": {**data.skipped, **tally.errors},
+        "warnings": data.warnings,
+        "pipeline_stats": dict(pipe.stats),
+        "search_modes": tally.modes,
+        "mean_ms_per_frame": {k: v / max(frames, 1) for k, v in tally.timing_sum.items()},
+        "params": asdict(params),
+        "bag_duration_s": duration,
+        "wall_time_s": wall,
+        "real_time_factor": duration / wall if wall > 0 else None,
+        # CPU seconds of all threads, and of the one running the pipeline (the others read and decode): on N
+        # free cores the wall time would be about max(pipeline, all / N)
+        "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
+        "recording_start_s": float(data.start),
+        "north": north.describe(),
+        "meridian_convergence_deg": math.degrees(north.gamma),
+    }
+
+
 def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup, tunables: Tunables,
              t_start: tuple, north: NorthReference) -> ProcessResult:
     """process_bag's work on ``readable`` (the bag(s), or what was salvaged of them); ``bag`` is the user's;
     ``north`` what the headings are referred to (the map's grid north)."""
     time_offset, topics, calibration, full_coordinates, progress, force = setup
     params = tunables.pipeline
-    base_T_camera, base_T_prism = data.base_T_camera, data.base_T_prism
-    readout = 0.0
-    if calibration is not None:
-        base_T_camera, base_T_prism = calibration["camera"], calibration["prism"]
-        readout = float(calibration.get("readout", 0.0))
-    pipe = AbsOrientPipeline(marker_map, base_T_camera, base_T_prism, readout=readout,
-                             calibrated=calibration is not None, **tunables.pipeline_kwargs(),
-                             lenses=None if calibration is None else calibration.get("lenses"),
-                             lens_yaw_sigma=None if calibration is None else calibration.get("lens_yaw_sigma"))
-    next_prism = 0  # prism samples are fed as the images advance (the pipeline keeps a bounded window)
-    next_imu = 0
-
+    pipe = _make_pipeline(marker_map, data, calibration, tunables)
     fd, obs_tmp = tempfile.mkstemp(prefix=".observations.csv.", suffix=".tmp", dir=out_dir)
     os.fchmod(fd, RESULT_FILE_MODE)
-    stamps: List[float] = []
-    poses: List[np.ndarray] = []
-    sigmas: List[float] = []   # the filter's yaw 1-σ of each pose, rad
-    errors: Dict[str, int] = {}
-    frames = with_pose = 0
-    first_pose = None
-    odom_missing = 0
-    timing_sum: Dict[str, float] = {}
-    checked: List[tuple] = []  # selfcheck.YawObservation of each marker yaw
-    # (t, id, bearing, odom rotation) of the markers seen, evenly thinned: the map check
-    sighted = SightingSample(tunables.mapcheck.max_sightings)
-    modes: Dict[str, int] = {}
-    tilt_sources: Dict[str, int] = {}
+    tally = _Tally(SightingSample(tunables.mapcheck.max_sightings))
     items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
     stop = threading.Event()
     decoders = ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1), thread_name_prefix="jpeg")
@@ -271,75 +425,11 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     reader.start()
     try:
         with os.fdopen(fd, "w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(OBSERVATION_COLUMNS)
-            while True:
-                item = items.get()
-                if item is None:
-                    break
-                stamp, image = item[0], item[1].result()
-                frames += 1
-                if bar is not None:
-                    bar.update(1)
-                if isinstance(image, str):
-                    if image.startswith("reading stopped"):
-                        data.warnings.append(image)
-                    errors[image.split(":")[0]] = errors.get(image.split(":")[0], 0) + 1
-                    continue
-                T_odom, valid = data.odom.transforms_at(stamp)
-                if not bool(valid):
-                    odom_missing += 1
-                    continue
-                t = stamp - time_offset
-                while next_prism < len(data.prism_stamps) and data.prism_stamps[next_prism] <= t + PRISM_LOOKAHEAD:
-                    pipe.add_prism(float(data.prism_stamps[next_prism]), data.prism_positions[next_prism])
-                    next_prism += 1
-                while next_imu < len(data.imu_stamps) and data.imu_stamps[next_imu] <= stamp:
-                    pipe.add_imu(float(data.imu_stamps[next_imu]) - time_offset, *data.imu_tilts[next_imu])
-                    next_imu += 1
-                res = pipe.process_image(t, image, T_odom)
-                for k, v in res.timings.items():
-                    timing_sum[k] = timing_sum.get(k, 0.0) + v
-                if res.tilt_source:
-                    tilt_sources[res.tilt_source] = tilt_sources.get(res.tilt_source, 0) + 1
-                if res.tracking is not None:
-                    modes[res.tracking.mode] = modes.get(res.tracking.mode, 0) + 1
-                if res.error:
-                    key = res.error.split(":")[0]
-                    errors[key] = errors.get(key, 0) + 1
-                writer.writerows(_observation_rows(res))
-                odom_yaw = float(yaw_of(T_odom[:3, :3]))
-                checked += [(res.stamp, r.observation.id, r.observation.azimuth, r.observation.elevation, r.yaw_sigma,
-                             r.residual, r.accepted, r.yaw, odom_yaw, r.observation.sigma)
-                            for r in res.observations if math.isfinite(r.yaw)]
-                for r in res.observations:
-                    sighted.add(res.stamp, r.id, r.observation.centre, T_odom[:3, :3])
-                if res.map_T_base is not None:
-                    if not with_pose:
-                        first_pose = res.stamp
-                    with_pose += 1
-                    stamps.append(res.stamp)
-                    poses.append(res.map_T_base)
-                    sigmas.append(math.nan if res.yaw_sigma is None else res.yaw_sigma)
+            _frames(items, csv.writer(f), pipe, data, tally, time_offset, bar)
         stop.set()
-        map_check = _map_check(sighted, data, marker_map, pipe, params.markers_only, tunables.mapcheck)
-        traj_path, extra = os.path.join(out_dir, "trajectory.tum"), []
-        if map_check.status == DOES_NOT_FIT and not force:
-            for stale in (traj_path, os.path.join(out_dir, "trajectory.csv")):  # an older run's: not this map's
-                if os.path.exists(stale):
-                    os.unlink(stale)
-            traj_path = ""
-        else:
-            traj = Trajectory.from_transforms(stamps, np.array(poses).reshape(-1, 4, 4))
-            traj = traj._replace(positions=marker_map.to_full(traj.positions))
-            origin = "" if marker_map.origin is None else (" in full coordinates (map origin "
-                                                           f"{', '.join(f'{x:.3f}' for x in marker_map.origin)} added)")
-            write_tum(traj_path, traj,
-                      header=f"base_link in map{origin} (aruco_abs_orient process); t in total-station time; "
-                             f"headings referred to {north.describe()}")
-            extra = [write_full_csv(os.path.join(out_dir, "trajectory.csv"), traj)] if full_coordinates else []
-            atomic_write_text(os.path.join(out_dir, "heading_sigma.csv"), "time,heading_deg,sigma_deg\n" + "".join(
-                f"{t:.6f},{_deg(float(yaw_of(T[:3, :3])))},{_deg(s)}\n" for t, T, s in zip(stamps, poses, sigmas)))
+        map_check = _map_check(tally.sighted, data, marker_map, pipe, params.markers_only, tunables.mapcheck)
+        traj_path, extra = _write_trajectory(out_dir, tally, marker_map, north,
+                                             map_check.status == DOES_NOT_FIT and not force, full_coordinates)
         obs_path = os.path.join(out_dir, "observations.csv")
         os.replace(obs_tmp, obs_path)
     except BaseException:
@@ -351,48 +441,10 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         decoders.shutdown(wait=False)
         if bar is not None:
             bar.close()
-    wall, cpu, pipeline_cpu = (now - then for now, then in zip(
-        (time.perf_counter(), time.process_time(), time.thread_time()), t_start))
-    duration = max(data.end - data.start, 0.0)
-    reason = pipe.waiting_reason if with_pose == 0 else ""
-    if reason:
-        data.warnings.append(f"no pose in {frames} frame(s): the map→odom filter never started: {reason}")
-    summary = {
-        "bag": (os.path.abspath(bag) if isinstance(bag, str) else os.path.abspath(bag.video) if hasattr(bag, "video")
-                else [os.path.abspath(b) for b in bag_paths(bag)]),
-        "markers": marker_map.source,
-        "time_offset_s": time_offset,
-        "lever_arms": "calibration file" if calibration is not None else "bag /tf_static",
-        "readout_ms": 1e3 * pipe.readout,   # the rolling shutter's, from the calibration file (0: global shutter)
-        "frames": frames,
-        "frames_with_pose": with_pose,
-        "no_pose_reason": reason,
-        "filter": {"initialised_at": first_pose, "lockout_recoveries": pipe.filter.stats.lockout_recoveries,
-                   "reinitialisations": pipe.filter.stats.reinitialisations,
-                   "yaw_noise_scale": pipe.filter.stats.noise_scale},
-        "frames_without_odometry": odom_missing,
-        "mode": "markers only (no prism)" if params.markers_only else "prism and markers",
-        "imu_samples": int(len(data.imu_stamps)),
-        "tilt_sources": tilt_sources,
-        "prism_samples": int(len(data.prism_stamps)),
-        "skipped": {**data.skipped, **errors},
-        "warnings": data.warnings,
-        "pipeline_stats": dict(pipe.stats),
-        "search_modes": modes,
-        "mean_ms_per_frame": {k: v / max(frames, 1) for k, v in timing_sum.items()},
-        "params": asdict(params),
-        "bag_duration_s": duration,
-        "wall_time_s": wall,
-        "real_time_factor": duration / wall if wall > 0 else None,
-        # CPU seconds of all threads, and of the one running the pipeline (the others read and decode): on N
-        # free cores the wall time would be about max(pipeline, all / N)
-        "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
-        "recording_start_s": float(data.start),
-        "north": north.describe(),
-        "meridian_convergence_deg": math.degrees(north.gamma),
-    }
+    summary = _summary(bag, marker_map, setup, pipe, data, tally, params, t_start, north)
     summary["map_check"] = map_check.as_dict()
-    summary["selfcheck"] = _selfcheck(checked, data, marker_map, stamps, poses, summary, bag, pipe, tunables)
+    summary["selfcheck"] = _selfcheck(tally.checked, data, marker_map, tally.stamps, tally.poses, summary, bag, pipe,
+                                      tunables)
     if map_check.status == DOES_NOT_FIT:  # first: the self-checks' findings follow from it
         found = {f["message"] for f in summary["selfcheck"]["findings"]}
         summary["warnings"] = [map_check.message] + [w for w in summary["warnings"] if w not in found]

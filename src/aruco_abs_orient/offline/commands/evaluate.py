@@ -67,7 +67,7 @@ def run(a: argparse.Namespace) -> int:
     params = load_params(a.params).evaluation
     overview = None
     if a.overview:
-        from ..evaluate import overview_figure
+        from ..overview import overview_figure
 
         os.makedirs(a.out or a.run, exist_ok=True)
         overview = overview_figure(os.path.join(a.out or a.run, "overview.png"), a.overview[0], a.run, a.reference,
