@@ -466,6 +466,40 @@ def _check_determined(cal: Calibration, unknowns: Unknowns, params: CalibrationP
                                "and turning"]))
 
 
+def _nominal_fit(pb, params: CalibrationParams, x0: np.ndarray):
+    """(its layout, its parameters) of the fit "before": the nominal transform with the heading offsets δ fitted,
+    started from δ constant, the robust mean of the heading constraints."""
+    yh, sh = pb.yaw_head, pb.sigma_head
+    sub = np.linspace(0, len(yh) - 1, min(len(yh), 2000)).astype(int)
+    d0 = yaw_consensus(yh[sub], sh[sub], floor=math.radians(2.0))[0]
+    nominal = _Layout(pb, (), nuisance=False)
+    p = np.zeros(nominal.n + 1)
+    p[nominal.o_d:nominal.o_t] = d0
+    return nominal, _fit(pb, nominal, p, x0, params).p
+
+
+def _used_and_skipped(setup, kept: np.ndarray):
+    """(which observations the fit used (``kept``: their indices), the skipped ones by reason, the usable ones
+    the fit's gate dropped counted as outliers)."""
+    used = np.zeros(len(setup.usable), dtype=bool)
+    used[kept] = True
+    skipped = dict(setup.skipped)
+    outliers = int(np.count_nonzero(setup.usable & ~used))
+    if outliers:
+        skipped["outlier (beyond the gate)"] = skipped.get("outlier (beyond the gate)", 0) + outliers
+    return used, skipped
+
+
+def _lens_yaw_sigma(C: np.ndarray, free, sd: np.ndarray) -> np.ndarray:
+    """Each lens's yaw σ (front, back): the boresight yaw ∓ half the relative rotation about z, from the
+    covariance ``C`` of the ``free`` unknowns (``sd``: the unknowns' σ; without the lenses the boresight's)."""
+    lens_yaw_sigma = np.full(2, sd[2])
+    if 2 in free and 11 in free:
+        i, j = free.index(2), free.index(11)
+        lens_yaw_sigma = np.sqrt(np.maximum([C[i, i] + C[j, j] / 4 + s * C[i, j] for s in (-1.0, 1.0)], 0.0))
+    return lens_yaw_sigma
+
+
 def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParams, time_shift: float,
                     readout: float) -> Calibration:
     """One linearised solve of :func:`calibrate` with the prism stamps moved by ``time_shift`` (s) and the
@@ -474,14 +508,7 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
     pb, idx = setup.problem, setup.index
     n = len(setup.usable)
     x0 = np.zeros(N_GLOBALS)
-    # start: δ constant, the robust mean of the heading constraints; before: the nominal transform, δ fitted
-    yh, sh = pb.yaw_head, pb.sigma_head
-    sub = np.linspace(0, len(yh) - 1, min(len(yh), 2000)).astype(int)
-    d0 = yaw_consensus(yh[sub], sh[sub], floor=math.radians(2.0))[0]
-    nominal = _Layout(pb, (), nuisance=False)
-    p = np.zeros(nominal.n + 1)
-    p[nominal.o_d:nominal.o_t] = d0
-    before = _fit(pb, nominal, p, x0, params).p
+    nominal, before = _nominal_fit(pb, params, x0)
     d_b = nominal.unpack(before, x0)[1]
     pb.refine_heading(d_b)
     free = unknowns.free()
@@ -503,21 +530,11 @@ def _calibrate_once(rec: Recording, unknowns: Unknowns, params: CalibrationParam
     res_a = np.full(n, np.nan)
     res_b[idx] = a_before
     res_a[idx] = a_after
-    used = np.zeros(n, dtype=bool)
-    used[idx[fit.mask_o]] = True
-    skipped = dict(setup.skipped)
-    outliers = int(np.count_nonzero(setup.usable & ~used))
-    if outliers:
-        skipped["outlier (beyond the gate)"] = skipped.get("outlier (beyond the gate)", 0) + outliers
+    used, skipped = _used_and_skipped(setup, idx[fit.mask_o])
     mask_o, mask_h = fit.mask_o, fit.mask_h
     rh = pb.heading_residuals(x, d)[mask_h]
-    # each lens's yaw: the boresight yaw ∓ half the relative rotation about z (front, back), and who saw what
-    lens_yaw_sigma = np.full(2, sd[2])
-    if 2 in free and 11 in free:
-        i, j = free.index(2), free.index(11)
-        C = fit.cov
-        lens_yaw_sigma = np.sqrt(np.maximum([C[i, i] + C[j, j] / 4 + s * C[i, j] for s in (-1.0, 1.0)], 0.0))
-    front = pb.lenses_at(x).front_weight(pb.u[mask_o]) >= 0.5
+    lens_yaw_sigma = _lens_yaw_sigma(fit.cov, free, sd)
+    front = pb.lenses_at(x).front_weight(pb.u[mask_o]) >= 0.5   # who saw what
     return Calibration(
         boresight_rpy=x[:3].copy(),
         boresight_sigma=sd[:3].copy(),
