@@ -15,7 +15,7 @@ import math
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional, Sequence, Tuple, Union
+from typing import Dict, Iterator, List, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -154,6 +154,80 @@ def _stamp(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
+class _Collected(NamedTuple):
+    """What the first pass collected: the skipped messages by reason, the odometry's stamps and transforms, the
+    static transforms {(parent, child): T}, the prism's stamps and positions, the IMU's stamps and messages."""
+
+    skipped: Dict[str, int]
+    odom_t: List[float]
+    odom_T: List[np.ndarray]
+    statics: Dict[Tuple[str, str], np.ndarray]
+    prism_t: List[float]
+    prism_p: List[tuple]
+    imu_t: List[float]
+    imu_msgs: list
+
+
+def _collect(reader, topics: BagTopics) -> _Collected:
+    """The first pass over the tf, tf_static, prism and IMU messages of an open bag (what cannot be used counted
+    in ``skipped`` by reason)."""
+    c = _Collected({}, [], [], {}, [], [], [], [])
+    wanted = [conn for conn in reader.connections if conn.topic in (topics.tf, topics.tf_static, topics.prism)
+              or (topics.imu and conn.topic == topics.imu)]
+    for conn, _, raw in reader.messages(connections=wanted):
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception:
+            key = f"undecodable message on {conn.topic}"
+            c.skipped[key] = c.skipped.get(key, 0) + 1
+            continue
+        if conn.topic == topics.prism:
+            p = msg.point
+            if not _finite(p.x, p.y, p.z):
+                c.skipped["NaN/inf prism position"] = c.skipped.get("NaN/inf prism position", 0) + 1
+                continue
+            c.prism_t.append(_stamp(msg.header))
+            c.prism_p.append((p.x, p.y, p.z))
+            continue
+        if topics.imu and conn.topic == topics.imu:
+            c.imu_t.append(_stamp(msg.header))
+            c.imu_msgs.append(msg)
+            continue
+        for tr in msg.transforms:
+            parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
+            T = _transform_of(tr)
+            if T is None:
+                key = f"NaN/inf transform {parent}->{child}"
+                c.skipped[key] = c.skipped.get(key, 0) + 1
+                continue
+            if conn.topic == topics.tf_static:
+                c.statics[(parent, child)] = T
+            elif (parent, child) == (topics.odom_frame, topics.base_frame):
+                c.odom_t.append(_stamp(tr.header))
+                c.odom_T.append(T)
+    return c
+
+
+def _static(statics: Dict[Tuple[str, str], np.ndarray], child: str, topics: BagTopics, path) -> np.ndarray:
+    """base_link → ``child`` from the bag's static transforms (a BagError naming those there when missing)."""
+    T = statics.get((topics.base_frame, child))
+    if T is None:
+        have = ", ".join(f"{a}->{b}" for a, b in sorted(statics)) or "none"
+        raise BagError(f"{bag_name(path)}: no static transform {topics.base_frame}->{child} on {topics.tf_static} "
+                       f"(static transforms in the bag: {have})")
+    return T
+
+
+def _odometry(c: _Collected, topics: BagTopics, path) -> Trajectory:
+    """The odometry in time order, the first of duplicate stamps kept (a BagError when there is none)."""
+    if not c.odom_t:
+        raise BagError(f"{bag_name(path)}: no {topics.odom_frame}->{topics.base_frame} transforms on {topics.tf}")
+    order = np.argsort(c.odom_t, kind="stable")
+    odom = Trajectory.from_transforms(np.asarray(c.odom_t)[order], np.asarray(c.odom_T)[order])
+    keep = np.concatenate([[True], np.diff(odom.stamps) > 0])  # duplicate stamps: keep the first
+    return Trajectory(odom.stamps[keep], odom.positions[keep], odom.quats[keep])
+
+
 def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
     """First pass over a bag: odometry tf, static lever arms, prism positions, image count. ``path`` may
     also be a recording without a bag (:class:`.video.VideoRecording`): the same data from its files."""
@@ -170,78 +244,27 @@ def read_bag_data(path: Bags, topics: Optional[BagTopics] = None) -> BagData:
         msgtype = image_conn[0].msgtype
         image_format = "compressed" if msgtype.endswith("CompressedImage") else "raw"
         image_count = sum(c.msgcount for c in image_conn)
-        skipped: Dict[str, int] = {}
-        warnings: List[str] = []
-        odom_t, odom_T = [], []
-        statics: Dict[Tuple[str, str], np.ndarray] = {}
-        prism_t, prism_p = [], []
         if topics.imu and topics.imu not in by_topic:
             raise BagError(f"{bag_name(path)}: no IMU topic {topics.imu} (topics in the bag: {present})")
-        imu_t, imu_msgs = [], []
-        wanted = [c for c in reader.connections if c.topic in (topics.tf, topics.tf_static, topics.prism)
-                  or (topics.imu and c.topic == topics.imu)]
-        for conn, _, raw in reader.messages(connections=wanted):
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-            except Exception:
-                key = f"undecodable message on {conn.topic}"
-                skipped[key] = skipped.get(key, 0) + 1
-                continue
-            if conn.topic == topics.prism:
-                p = msg.point
-                if not _finite(p.x, p.y, p.z):
-                    skipped["NaN/inf prism position"] = skipped.get("NaN/inf prism position", 0) + 1
-                    continue
-                prism_t.append(_stamp(msg.header))
-                prism_p.append((p.x, p.y, p.z))
-                continue
-            if topics.imu and conn.topic == topics.imu:
-                imu_t.append(_stamp(msg.header))
-                imu_msgs.append(msg)
-                continue
-            for tr in msg.transforms:
-                parent, child = tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/")
-                T = _transform_of(tr)
-                if T is None:
-                    key = f"NaN/inf transform {parent}->{child}"
-                    skipped[key] = skipped.get(key, 0) + 1
-                    continue
-                if conn.topic == topics.tf_static:
-                    statics[(parent, child)] = T
-                elif (parent, child) == (topics.odom_frame, topics.base_frame):
-                    odom_t.append(_stamp(tr.header))
-                    odom_T.append(T)
+        c = _collect(reader, topics)
         start, end = reader.start_time * 1e-9, reader.end_time * 1e-9
     finally:
         reader.close()
-
-    def static(child: str) -> np.ndarray:
-        T = statics.get((topics.base_frame, child))
-        if T is None:
-            have = ", ".join(f"{a}->{b}" for a, b in sorted(statics)) or "none"
-            raise BagError(f"{bag_name(path)}: no static transform {topics.base_frame}->{child} on {topics.tf_static} "
-                           f"(static transforms in the bag: {have})")
-        return T
-
-    if not odom_t:
-        raise BagError(f"{bag_name(path)}: no {topics.odom_frame}->{topics.base_frame} transforms on {topics.tf}")
-    order = np.argsort(odom_t, kind="stable")
-    odom = Trajectory.from_transforms(np.asarray(odom_t)[order], np.asarray(odom_T)[order])
-    keep = np.concatenate([[True], np.diff(odom.stamps) > 0])  # duplicate stamps: keep the first
-    odom = Trajectory(odom.stamps[keep], odom.positions[keep], odom.quats[keep])
-    if not prism_t:
+    warnings: List[str] = []
+    odom = _odometry(c, topics, path)
+    if not c.prism_t:
         warnings.append(f"{bag_name(path)}: no prism positions on {topics.prism}: yaw from markers needs the prism")
-    p_order = np.argsort(prism_t, kind="stable")
-    imu_stamps, imu_tilts = _imu_tilts(imu_t, imu_msgs, statics, topics, skipped)
+    p_order = np.argsort(c.prism_t, kind="stable")
+    imu_stamps, imu_tilts = _imu_tilts(c.imu_t, c.imu_msgs, c.statics, topics, c.skipped)
     if topics.imu and not len(imu_stamps):
         warnings.append(f"{bag_name(path)}: no usable IMU sample on {topics.imu}: tilt from the markers and the "
                         "odometry")
     return BagData(
-        path=bag_name(path), odom=odom, base_T_camera=static(topics.camera_frame),
-        base_T_prism=static(topics.prism_frame),
-        prism_stamps=np.asarray(prism_t, dtype=float)[p_order],
-        prism_positions=np.asarray(prism_p, dtype=float).reshape(-1, 3)[p_order],
-        image_count=image_count, image_format=image_format, start=start, end=end, skipped=skipped,
+        path=bag_name(path), odom=odom, base_T_camera=_static(c.statics, topics.camera_frame, topics, path),
+        base_T_prism=_static(c.statics, topics.prism_frame, topics, path),
+        prism_stamps=np.asarray(c.prism_t, dtype=float)[p_order],
+        prism_positions=np.asarray(c.prism_p, dtype=float).reshape(-1, 3)[p_order],
+        image_count=image_count, image_format=image_format, start=start, end=end, skipped=c.skipped,
         warnings=warnings, imu_stamps=imu_stamps, imu_tilts=imu_tilts)
 
 
