@@ -169,6 +169,118 @@ def _master_is_ours(master) -> bool:
     return process_parent(pid) == os.getppid()
 
 
+def _restore_clock(master, ours: bool) -> None:
+    """Delete ``/use_sim_time`` from a master this launch did not start (later nodes back on the wall clock)."""
+    if ours:
+        return
+    try:
+        if master.hasParam("/use_sim_time"):
+            master.deleteParam("/use_sim_time")
+            print("replay: removed /use_sim_time from the master (it was running before this launch)",
+                  flush=True)
+    except Exception as e:  # the master went away first
+        print(f"replay: could not remove /use_sim_time from the master: {e}", file=sys.stderr, flush=True)
+
+
+class _Listener:
+    """What the node and the EKF publish while the bag plays: the counts of ``abs_orient/pose``,
+    ``abs_orient/orientation`` and ``odometry/filtered`` (None: never heard of), and the newest status of the
+    node's pipeline on ``/diagnostics`` (its key/values with ``message`` and ``level``)."""
+
+    def __init__(self, node: str):
+        import rospy
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+        from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+        from nav_msgs.msg import Odometry
+
+        self.lock = threading.Lock()
+        self.counts: Dict[str, Optional[int]] = {"pose": 0, "orientation": 0, "filtered": None}
+        self.diag: Dict[str, object] = {}
+        self._levels = {DiagnosticStatus.OK: "ok", DiagnosticStatus.WARN: "warn", DiagnosticStatus.ERROR: "error"}
+        self._status_name = f"{node.lstrip('/')}: pipeline"
+        self._subs = [rospy.Subscriber("abs_orient/pose", PoseStamped, self._counter("pose"), queue_size=100),
+                      rospy.Subscriber("abs_orient/orientation", PoseWithCovarianceStamped,
+                                       self._counter("orientation"), queue_size=100),
+                      rospy.Subscriber("odometry/filtered", Odometry, self._counter("filtered"), queue_size=100),
+                      rospy.Subscriber("/diagnostics", DiagnosticArray, self._on_diagnostics, queue_size=10)]
+
+    def _counter(self, key):
+        def cb(_msg):
+            with self.lock:
+                self.counts[key] = (self.counts[key] or 0) + 1
+        return cb
+
+    def _on_diagnostics(self, msg) -> None:
+        for s in msg.status:
+            if s.name == self._status_name:
+                with self.lock:
+                    self.diag.clear()
+                    self.diag.update({kv.key: kv.value for kv in s.values})
+                    self.diag["message"] = s.message
+                    self.diag["level"] = self._levels.get(s.level, "stale")
+
+    def error_message(self) -> str:
+        """The node's message when its level is error, else ''."""
+        with self.lock:
+            return str(self.diag.get("message", "")) if self.diag.get("level") == "error" else ""
+
+    def playing(self) -> Dict[str, object]:
+        """The node's message and level now (while the bag plays)."""
+        with self.lock:
+            return {k: self.diag[k] for k in ("message", "level") if self.diag.get(k)}
+
+    def final(self, playing: Mapping[str, object]) -> Optional[Dict[str, object]]:
+        """The node's status at the end: an error found in the last frames (the map check's verdict) wins over
+        the state while playing (``playing``); None when it never reported."""
+        with self.lock:
+            diag = self.diag
+            return (dict(diag) if diag.get("level") == "error" else dict(diag, **playing)) if diag else None
+
+    def unregister(self) -> None:
+        for s in self._subs:
+            s.unregister()
+
+
+def _play(cmd: List[str], watch: Watch, listener: _Listener):
+    """(the rosbag play process, ended; why it was stopped, '' when it ran to its end or rospy shut down):
+    runs ``cmd``, asks the master every second whether the watched nodes run and stops the playback when the
+    node reports a configuration error (nothing will come of the rest of the bag)."""
+    import rospy
+
+    player = subprocess.Popen(cmd)
+    t_play = time.monotonic()
+    rospy.on_shutdown(lambda: player.poll() is None and player.send_signal(signal.SIGINT))
+    next_poll = 0.0
+    stopped = ""
+    while player.poll() is None and not rospy.is_shutdown():
+        time.sleep(0.1)
+        if time.monotonic() >= next_poll:
+            next_poll = time.monotonic() + 1.0
+            watch.poll()
+            message = listener.error_message()
+            if message.startswith("configuration error"):  # nothing will come of the rest of the bag
+                stopped = f"stopped after {time.monotonic() - t_play:.0f} s: abs_orient cannot run: {message}"
+                player.send_signal(signal.SIGINT)
+                player.wait()
+    return player, stopped
+
+
+def _played_to_its_end(bag: str, settle: float, watch: Watch, listener: _Listener, record: str):
+    """(the replay's last line, whether the run failed) once the bag has played to its end: after ``settle`` s
+    (wall clock: the sim clock stopped with the bag) for the last frames."""
+    playing = listener.playing()   # the node's state while the bag played (after it: "no image for ...")
+    time.sleep(settle)
+    watch.poll()
+    problems = watch.problems(record)
+    final = listener.final(playing)
+    with listener.lock:
+        counts = dict(listener.counts)
+    line = summary_line(bag, _bag_duration(bag), counts, final, problems, _image_topics(bag))
+    failed = bool(problems) or final is None or final.get("level") == "error" or str(
+        final.get("images received", "")) == "0"
+    return line, failed
+
+
 def main(argv=None) -> int:
     """Node entry point; returns the exit status (1: no bag, rosbag play failed, or the run did not do its
     job: the last line says why)."""
@@ -191,78 +303,21 @@ def main(argv=None) -> int:
     record = str(rospy.get_param("~record", ""))
     master = rosgraph.Master(rospy.get_name())
     ours = _master_is_ours(master)
-
-    def restore_clock() -> None:
-        if ours:
-            return
-        try:
-            if master.hasParam("/use_sim_time"):
-                master.deleteParam("/use_sim_time")
-                print("replay: removed /use_sim_time from the master (it was running before this launch)",
-                      flush=True)
-        except Exception as e:  # the master went away first
-            print(f"replay: could not remove /use_sim_time from the master: {e}", file=sys.stderr, flush=True)
-
-    rospy.on_shutdown(restore_clock)
+    rospy.on_shutdown(lambda: _restore_clock(master, ours))
     if not bag or not os.path.isfile(bag):
         rospy.logfatal(f"replay: no bag file {bag or '(bag:= is empty)'} (a relative bag:= is resolved against "
                        f"the directory roslaunch was started in)")
-        restore_clock()
+        _restore_clock(master, ours)
         return 1
-
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-    from nav_msgs.msg import Odometry
-
-    lock = threading.Lock()
-    counts: Dict[str, Optional[int]] = {"pose": 0, "orientation": 0, "filtered": None}
-    diag: Dict[str, object] = {}
-    levels = {DiagnosticStatus.OK: "ok", DiagnosticStatus.WARN: "warn", DiagnosticStatus.ERROR: "error"}
     node = rospy.resolve_name(rospy.get_param("~node", "abs_orient"))
     names = {"abs_orient": node}
     if record:
         names["recorder"] = rospy.resolve_name(rospy.get_param("~recorder", "recorder"))
     watch = Watch(master, names)
-    status_name = f"{node.lstrip('/')}: pipeline"
-
-    def counter(key):
-        def cb(_msg):
-            with lock:
-                counts[key] = (counts[key] or 0) + 1
-        return cb
-
-    def on_diagnostics(msg):
-        for s in msg.status:
-            if s.name == status_name:
-                with lock:
-                    diag.clear()
-                    diag.update({kv.key: kv.value for kv in s.values})
-                    diag["message"] = s.message
-                    diag["level"] = levels.get(s.level, "stale")
-
-    subs = [rospy.Subscriber("abs_orient/pose", PoseStamped, counter("pose"), queue_size=100),
-            rospy.Subscriber("abs_orient/orientation", PoseWithCovarianceStamped, counter("orientation"),
-                             queue_size=100),
-            rospy.Subscriber("odometry/filtered", Odometry, counter("filtered"), queue_size=100),
-            rospy.Subscriber("/diagnostics", DiagnosticArray, on_diagnostics, queue_size=10)]
+    listener = _Listener(node)
     cmd = (["rosbag", "play", "--clock", f"--rate={rate:g}", f"--delay={delay:g}", f"--start={start:g}", bag]
            + (["--loop"] if loop else []))
-    player = subprocess.Popen(cmd)
-    t_play = time.monotonic()
-    rospy.on_shutdown(lambda: player.poll() is None and player.send_signal(signal.SIGINT))
-    next_poll = 0.0
-    stopped = ""
-    while player.poll() is None and not rospy.is_shutdown():
-        time.sleep(0.1)
-        if time.monotonic() >= next_poll:
-            next_poll = time.monotonic() + 1.0
-            watch.poll()
-            with lock:
-                message = str(diag.get("message", "")) if diag.get("level") == "error" else ""
-            if message.startswith("configuration error"):  # nothing will come of the rest of the bag
-                stopped = f"stopped after {time.monotonic() - t_play:.0f} s: abs_orient cannot run: {message}"
-                player.send_signal(signal.SIGINT)
-                player.wait()
+    player, stopped = _play(cmd, watch, listener)
     if rospy.is_shutdown():  # Ctrl-C, or a REQUIRED node died: roslaunch ends everything
         player.wait()
         return 0
@@ -272,18 +327,8 @@ def main(argv=None) -> int:
     if stopped:
         line, failed = f"replay: {os.path.basename(bag)} {stopped}", True
     else:
-        with lock:  # the node's state while the bag played (after it, the node says "no image for ...")
-            playing = {k: diag[k] for k in ("message", "level") if diag.get(k)}
-        time.sleep(settle)  # wall clock: the sim clock stopped with the bag
-        watch.poll()
-        problems = watch.problems(record)
-        with lock:  # an error found in the last frames (the map check's verdict) wins over the state while playing
-            final = (dict(diag) if diag.get("level") == "error" else dict(diag, **playing)) if diag else None
-        line = summary_line(bag, _bag_duration(bag), dict(counts), final, problems, _image_topics(bag))
-        failed = bool(problems) or final is None or final.get("level") == "error" or str(
-            final.get("images received", "")) == "0"
-    for s in subs:
-        s.unregister()
+        line, failed = _played_to_its_end(bag, settle, watch, listener, record)
+    listener.unregister()
     if failed:
         rospy.logerr(line)
         return 1  # roslaunch: "REQUIRED process [replay] has died ... exit code 1", then it ends everything
