@@ -183,7 +183,7 @@ def honesty(a) -> int:
     return 0
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", choices=sorted(PRESETS),
                     help="scenario preset (default: easy; realistic for --honesty)")
@@ -203,32 +203,18 @@ def main(argv=None) -> int:
     g.add_argument("--width", type=int, help="image width, px (default: each preset's)")
     g.add_argument("--fps", type=float, help="images per second (default: each preset's)")
     g.add_argument("--workers", type=int, default=2, help="render processes")
-    a = ap.parse_args(argv)
-    if a.honesty:
-        return honesty(a)
-    a.preset = a.preset or "easy"
+    return ap
 
-    base = PRESETS[a.preset]
-    changes = {"seed": a.seed, "boresight_deg": a.boresight_deg}
-    if a.duration:
-        changes["duration"] = a.duration
-    cfg = dataclasses.replace(base, **changes)
-    tag = f"{a.preset}_s{a.seed}_d{cfg.duration:g}"
-    err_dir = scenario(a.work, f"{tag}_b{a.boresight_deg:g}", cfg, a.force)
-    ok_dir = scenario(a.work, f"{tag}_b0", dataclasses.replace(cfg, boresight_deg=0.0), a.force)
-    with open(os.path.join(err_dir, "hidden.yaml")) as f:
-        hidden = yaml.safe_load(f)
-    offset = float(hidden["camera_time_offset"])
-    markers = MarkerMap.load(os.path.join(err_dir, "markers.yaml"))
-    bag = os.path.join(err_dir, "scenario.bag")
 
+def _calibrated(a, cfg, bag: str, markers: MarkerMap, offset: float, true_T: np.ndarray):
+    """Calibrate ``bag`` (the coherence offset refined) and print how close it came to the truth; returns
+    (the bag's data, the calibrated base_T_camera, the coherence offset, the refined one)."""
     t0 = time.perf_counter()
     coarse = estimate_bag_offset(bag)["timesync"].offset
     obs = collect_observations(bag, markers, every=a.every)
     cal = calibrate_bag(bag, markers, coarse, observations=obs, unknowns=Unknowns(time_offset=True))
     refined = coarse + cal.time_offset_delta
     t_cal = time.perf_counter() - t0
-    true_T = np.array(hidden["base_T_camera_true"])
     data = read_bag_data(bag)
     calibrated = cal.apply(data.base_T_camera)
     truth_rpy = np.degrees(matrix_to_rpy(true_T[:3, :3] @ data.base_T_camera[:3, :3].T))
@@ -251,6 +237,42 @@ def main(argv=None) -> int:
           f"{math.degrees(cal.residual_rms_after):.4f}° after")
     print(f"  time offset: true {1e3 * offset:.1f} ms, coherence {1e3 * coarse:.1f} ms, refined {1e3 * refined:.2f} ms "
           f"± {1e3 * cal.time_offset_sigma:.2f} (error {1e3 * (refined - offset):+.2f} ms)", flush=True)
+    return data, calibrated, coarse, refined
+
+
+def _print_runs(runs: dict) -> None:
+    """The table of the processed runs: heading RMSE, mean yaw error, frame-position bias; the ratios."""
+    print(f"\n  {'run':38s} {'heading RMSE':>13s} {'mean yaw err':>13s} {'frame-pos bias':>15s}  per-marker yaws")
+    for name, (rmse, bias, mean_bias, n) in runs.items():
+        print(f"  {name:38s} {rmse:12.4f}° {mean_bias:+12.4f}° {math.degrees(bias.max_abs_bias):14.4f}°  {n}")
+    naive, ours, level = (runs[k][0] for k in runs)
+    print(f"\n  heading RMSE: ours/no-error {ours / level:.3f}, naive/ours {naive / ours:.2f}")
+    for name, (_, bias, _, _) in runs.items():
+        by_el = ", ".join("—" if not np.isfinite(x) else f"{math.degrees(x):+.3f}" for x in bias.by_elevation)
+        print(f"  mean yaw error by elevation band ({name}): {by_el} deg")
+
+
+def main(argv=None) -> int:
+    a = _parser().parse_args(argv)
+    if a.honesty:
+        return honesty(a)
+    a.preset = a.preset or "easy"
+
+    base = PRESETS[a.preset]
+    changes = {"seed": a.seed, "boresight_deg": a.boresight_deg}
+    if a.duration:
+        changes["duration"] = a.duration
+    cfg = dataclasses.replace(base, **changes)
+    tag = f"{a.preset}_s{a.seed}_d{cfg.duration:g}"
+    err_dir = scenario(a.work, f"{tag}_b{a.boresight_deg:g}", cfg, a.force)
+    ok_dir = scenario(a.work, f"{tag}_b0", dataclasses.replace(cfg, boresight_deg=0.0), a.force)
+    with open(os.path.join(err_dir, "hidden.yaml")) as f:
+        hidden = yaml.safe_load(f)
+    offset = float(hidden["camera_time_offset"])
+    markers = MarkerMap.load(os.path.join(err_dir, "markers.yaml"))
+    bag = os.path.join(err_dir, "scenario.bag")
+    true_T = np.array(hidden["base_T_camera_true"])
+    data, calibrated, coarse, refined = _calibrated(a, cfg, bag, markers, offset, true_T)
 
     runs = {}
     for name, d, T, tau in (("naive (nominal tf, coherence offset)", err_dir, data.base_T_camera, coarse),
@@ -262,15 +284,7 @@ def main(argv=None) -> int:
             bd = dataclasses.replace(bd, base_T_camera=T)
         process_bag(os.path.join(d, "scenario.bag"), markers, out, RunSetup(tau, progress=False), data=bd)
         runs[name] = evaluate(out, os.path.join(d, "truth.tum"), a.min_count)
-
-    print(f"\n  {'run':38s} {'heading RMSE':>13s} {'mean yaw err':>13s} {'frame-pos bias':>15s}  per-marker yaws")
-    for name, (rmse, bias, mean_bias, n) in runs.items():
-        print(f"  {name:38s} {rmse:12.4f}° {mean_bias:+12.4f}° {math.degrees(bias.max_abs_bias):14.4f}°  {n}")
-    naive, ours, level = (runs[k][0] for k in runs)
-    print(f"\n  heading RMSE: ours/no-error {ours / level:.3f}, naive/ours {naive / ours:.2f}")
-    for name, (_, bias, _, _) in runs.items():
-        by_el = ", ".join("—" if not np.isfinite(x) else f"{math.degrees(x):+.3f}" for x in bias.by_elevation)
-        print(f"  mean yaw error by elevation band ({name}): {by_el} deg")
+    _print_runs(runs)
     return 0
 
 
