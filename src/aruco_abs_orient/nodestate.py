@@ -1,6 +1,6 @@
 """The abs_orient node's bookkeeping without ROS: at which stamp map→odom goes out, and the node's health.
 
-The node (``ros/abs_orient_node.py``) converts messages and calls these; here nothing imports rospy, so
+The node's control (``nodecontrol.py``, called by ``ros/abs_orient_node.py``) uses these; nothing imports rospy, so
 the policy is unit-tested with plain numbers (``test/unit/test_nodestate.py``). Times are float seconds
 on the ROS clock of the messages (sim time during a bag replay); wall-clock durations are named so.
 
