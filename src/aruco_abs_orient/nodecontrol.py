@@ -50,7 +50,7 @@ from .timesync import OnlineOffsetEstimator
 from .transforms import yaw_of
 from .tum import Trajectory, WriteError, atomic_write_text
 
-__all__ = ["NodeControl", "Mailbox", "RECONFIGURABLE_NODE_PARAMS", "reconfigurable_names", "has_marker_yaw"]
+__all__ = ["NodeControl", "RECONFIGURABLE_NODE_PARAMS", "reconfigurable_names", "has_marker_yaw"]
 
 #: node-level entries of cfg/AbsOrient.cfg (all others are pipeline tunables, see all_param_fields)
 RECONFIGURABLE_NODE_PARAMS = ("time_offset",)
@@ -67,41 +67,6 @@ def reconfigurable_names() -> Tuple[str, ...]:
 def has_marker_yaw(result: FrameResult) -> bool:
     """The frame has its own marker yaw (``fused_yaw``) from at least one accepted marker."""
     return result.fused_yaw is not None and any(r.accepted for r in result.observations)
-
-
-class Mailbox:
-    """A one-slot hand-over from a subscriber callback to a worker: the newest item wins.
-
-    ``put`` never blocks; an item replaced before it was taken is counted in ``dropped``.
-    """
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._item = None
-        self.received = 0
-        self.dropped = 0
-
-    def put(self, item) -> None:
-        with self._cond:
-            self.received += 1
-            if self._item is not None:
-                self.dropped += 1
-            self._item = item
-            self._cond.notify_all()
-
-    def take(self, timeout: float):
-        """The newest item (and empty the slot), or None after ``timeout`` s (wall clock)."""
-        with self._cond:
-            if self._item is None:
-                self._cond.wait(timeout)
-            item, self._item = self._item, None
-            self._cond.notify_all()
-            return item
-
-    def wait_taken(self, timeout: float) -> bool:
-        """Wait until the slot is empty (its item taken), at most ``timeout`` s (wall clock); True when empty."""
-        with self._cond:
-            return self._cond.wait_for(lambda: self._item is None, timeout)
 
 
 class _Throttle:

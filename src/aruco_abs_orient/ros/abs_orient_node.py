@@ -25,11 +25,46 @@ from ..debugview import DebugImageError, debug_frame, encode_debug_jpeg
 from ..detection import DetectionError, frame_to_grey
 from ..markers import MarkerMap
 from ..nodeconfig import NodeConfig, NodeConfigError
-from ..nodecontrol import RECONFIGURABLE_NODE_PARAMS, Mailbox, NodeControl, has_marker_yaw, reconfigurable_names
+from ..nodecontrol import RECONFIGURABLE_NODE_PARAMS, NodeControl, has_marker_yaw, reconfigurable_names
 from ..north import NorthReference
 from ..pipeline import FrameResult
 
 __all__ = ["Mailbox", "AbsOrientNode", "main", "reconfigurable_names", "RECONFIGURABLE_NODE_PARAMS"]
+
+
+class Mailbox:
+    """A one-slot hand-over from a subscriber callback to a worker: the newest item wins.
+
+    ``put`` never blocks; an item replaced before it was taken is counted in ``dropped``.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item = None
+        self.received = 0
+        self.dropped = 0
+
+    def put(self, item) -> None:
+        with self._cond:
+            self.received += 1
+            if self._item is not None:
+                self.dropped += 1
+            self._item = item
+            self._cond.notify_all()
+
+    def take(self, timeout: float):
+        """The newest item (and empty the slot), or None after ``timeout`` s (wall clock)."""
+        with self._cond:
+            if self._item is None:
+                self._cond.wait(timeout)
+            item, self._item = self._item, None
+            self._cond.notify_all()
+            return item
+
+    def wait_taken(self, timeout: float) -> bool:
+        """Wait until the slot is empty (its item taken), at most ``timeout`` s (wall clock); True when empty."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._item is None, timeout)
 
 
 class AbsOrientNode:
