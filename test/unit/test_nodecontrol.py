@@ -262,3 +262,38 @@ def test_the_pipeline_status_reports_the_node_state():
     ctl.health.count("imu_unusable", 2)
     assert ctl.tilt_source().endswith(" (2 IMU samples unusable)")
 
+
+
+class Estimator:
+    """The live estimator's interface (OnlineOffsetEstimator), suggesting ``better`` s; records what it is fed."""
+
+    def __init__(self, better):
+        self.better, self.applied, self.applied_sigma, self.fed = better, better, 0.004, []
+
+    def add_vo(self, s, yaw):
+        self.fed.append(("vo", s))
+
+    def add_marker_yaw(self, s, yaw):
+        self.fed.append(("marker", s))
+
+    def update_in_background(self, s):
+        pass
+
+    def suggestion(self, in_use):
+        return self.better
+
+
+def test_a_confident_live_time_offset_replaces_the_one_in_use_unless_the_marker_yaws_veto_it():
+    ctl = started(offset=0.25)
+    results = frames_through(ctl, [1.25, 1.35, 1.45])
+    ctl.offset_estimator = est = Estimator(0.37)
+    ctl.selfcheck.last_time_offset = {"suggested_s": 0.25, "sigma_s": 0.001}   # the marker yaws: 0.25 s
+    ctl.after_frame(1.45, results[-1], ODOM_T_BASE)
+    assert est.fed == [("vo", 1.45), ("marker", 1.45)]                         # camera clock
+    assert ctl.time_offset == 0.25 and ctl.health.counts["time_offset_switch_refused"] == 1
+    ctl.selfcheck.last_time_offset = None                                      # no check yet: no veto
+    ctl.after_frame(1.45, results[-1], ODOM_T_BASE)
+    assert (ctl.time_offset, ctl.time_offset_source) == (0.37, "live estimate")
+    assert ctl.selfcheck.time_offset == 0.37 and ctl.selfcheck.last_time_offset is None   # started afresh
+    assert ctl.log.lines[-1] == ("warn", "abs_orient: time offset 0.2500 s -> 0.3700 s (live estimate ± 4.0 ms "
+                                         "contradicts the one in use)")
