@@ -2,7 +2,7 @@
 
 In (from ``ros/abs_orient_node.py``, which converts the messages): the node's :class:`NodeConfig`, the marker
 map and north reference; per event an image stamp (s, camera clock) with its grey frame and odom→base_link
-(4×4), prism positions and IMU tilts (in the ``prisms``/``imu_tilts`` deques), reconfigured values, the lever
+(4×4), prism positions (``prism_in``), IMU tilts (the ``imu_tilts`` deque), reconfigured values, the lever
 arms once tf has them (``static_tf(child)``: 4×4 or ``LookupError``). Out: the :class:`FrameResult` to publish,
 map→odom through the node's ``send(stamp, map_T_odom)`` at the stamps :class:`MapOdomStamps` allows, the
 ``pipeline``, ``self-check`` and ``map check`` statuses (level, message, values), the state file, resets
