@@ -31,16 +31,8 @@ from .detection import DetectionError, DetectorParams, MarkerObservation, frame_
 from .errors import ConfigurationError
 from .markers import MarkerMap
 from .paramspec import Params, param
-from .solver import (
-    FitSettings,
-    Mounting,
-    NoiseModel,
-    SolverError,
-    attitude_from_markers,
-    fuse_yaws,
-    resection,
-    yaw_from_marker,
-)
+from .posefit import attitude_from_markers, resection
+from .solver import FitSettings, Mounting, NoiseModel, SolverError, fuse_yaws, yaw_from_marker
 from .tilt import Tilt, TiltEstimator, TiltParams
 from .tracking import MarkerTracker, TrackingParams, TrackingStats
 from .transforms import matrix_to_rpy, rpy_to_matrix, wrap_angle, yaw_of
