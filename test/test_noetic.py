@@ -48,8 +48,8 @@ CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_t
               "geocom/test_sim_cli.py",
               "synthetic/test_scenario.py", "synthetic/test_bag.py", "offline/test_process.py", "offline/test_sync.py",
               "offline/test_evaluate.py", "offline/test_commandlines.py", "test_layering.py",
-              "test_pipeline.py", "test_params.py", "test_paramspec.py", "test_survey.py", "test_table.py",
-              "test_mapcheck.py", "mapping"]
+              "test_pipeline.py", "test_prismbuffer.py", "test_params.py", "test_paramspec.py", "test_survey.py",
+              "test_table.py", "test_mapcheck.py", "mapping"]
 #: the only reasons a test may skip there: it needs ROS, or geocompy (the independent GeoCOM client of the
 #: tests needs Python ≥ 3.11: it checks the simulator in the main venv)
 #: CORE_TESTS in two parts run side by side (make test: test/conftest.py gives each its own worker), about
