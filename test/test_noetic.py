@@ -45,7 +45,7 @@ CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_t
               "test_nodestate.py", "test_debugview.py", "test_plots.py", "timesync",
               "calibration", "offline/test_calibrate.py", "test_pipeline_rolling_shutter.py", "test_evaluation.py",
               "geocom/test_protocol.py", "geocom/test_client.py", "geocom/test_clock.py", "geocom/test_tracker.py",
-              "geocom/test_sim_cli.py",
+              "geocom/test_sim_cli.py", "synthetic/test_config.py",
               "synthetic/test_scenario.py", "synthetic/test_bag.py", "offline/test_process.py", "offline/test_sync.py",
               "offline/test_evaluate.py", "offline/test_commandlines.py", "test_layering.py",
               "test_pipeline.py", "test_prismbuffer.py", "test_params.py", "test_paramspec.py", "test_survey.py",
