@@ -71,7 +71,7 @@ class ScenarioConfig:
     imu_tilt_noise_deg: float = 0.02  # IMU roll/pitch noise σ, deg
     impostor_rate: float = 0.0  # fraction of frames showing a false id: a second marker with the
     # id of the map's first marker, 4 m ahead-left of the camera (not where the map has it)
-    # --- the realistic world and the camera effects (issue 17); the defaults are the easy world
+    # --- the realistic world and the camera effects; the defaults are the easy world
     world: str = "open"  # "open": a textured panorama; "hall": an interior (synthetic/world.py)
     lateral_wander: float = 0.0  # amplitude of the platform's sideways wander off the loop, m
     tilt_wobble_deg: float = 0.0  # amplitude of a short-wavelength roll/pitch wobble, deg
@@ -200,7 +200,7 @@ PRESETS: Dict[str, ScenarioConfig] = {
     # the paper's set-up: 19 cm DICT_4X4 markers at 2-12 m, Theta Z1 frames at 30 fps, in the easy world
     "easy": ScenarioConfig(duration=60.0, fps=30.0, width=3840, n_markers=10, marker_size=0.19,
                            marker_distance=(2.0, 12.0)),
-    # the same in the realistic world (issue 17): the hall, a wandering platform, a VO drifting in yaw and
+    # the same in the realistic world: the hall, a wandering platform, a VO drifting in yaw and
     # tilt, exposure changes, motion blur, JPEG 85, a stitch seam, a camera clock 20 ppm fast, and a 30 ms
     # rolling shutter (bench/realism.py: the pipeline initialises and keeps its heading on it uncorrected)
     "demo": dataclasses.replace(REALISTIC, rolling_shutter_readout=0.030),

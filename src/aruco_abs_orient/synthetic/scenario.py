@@ -106,7 +106,7 @@ class Scenario:
             th += _DT * 0.5 * (speed[k] + speed[k + 1]) / math.hypot(a * math.sin(mid), b * math.cos(mid))
             theta.append(th)
         self._theta = np.array(theta)
-        # --- issue 17's realism (its own random stream: the easy world's draws stay as they were)
+        # --- the realistic world (its own random stream: the easy world's draws stay as they were)
         rng_real = np.random.default_rng([c.seed, 17])
         self._wander_phase = rng_real.uniform(0.0, 2.0 * math.pi, 2)
         self._wobble_phase = rng_real.uniform(0.0, 2.0 * math.pi, 4)
