@@ -150,6 +150,7 @@ class KalmanCore:
         return make_T(rot_z(x[0]), x[1:4]), P[:4, :4]
 
     def snapshot(self) -> Dict[str, object]:
+        """The state as plain numbers (JSON-ready): ``t``, ``x``, ``P``, ``odom_pos``, ``noise_scale``."""
         return {"t": self.t, "x": self.x.tolist(), "P": self.P.tolist(), "odom_pos": self.odom_pos.tolist(),
                 "noise_scale": self.stats.noise_scale}
 
