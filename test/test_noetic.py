@@ -41,7 +41,8 @@ NOETIC_VERSIONS = {"python": "3.8", "numpy": "1.17.4", "cv2": "4.2.0", "yaml": "
 #: ROS-free but the docs and the renderer's own test (which checks the renderer with OpenCV ≥ 4.7's
 #: ArucoDetector; detection covers the renderer on 4.2)
 CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_tum.py", "detection",
-              "test_tracking.py", "test_solver.py", "test_correction.py", "test_startup_anywhere.py",
+              "test_tracking.py", "test_solver.py", "test_correction.py", "test_filter_core.py",
+              "test_filter_startup.py", "test_filter_recovery.py", "test_startup_anywhere.py",
               "test_nodestate.py", "test_nodecontrol.py", "test_debugview.py", "test_plots.py", "test_figures.py",
               "timesync",
               "calibration", "offline/test_calibrate.py", "test_pipeline_rolling_shutter.py", "test_evaluation.py",
