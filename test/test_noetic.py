@@ -41,15 +41,17 @@ NOETIC_VERSIONS = {"python": "3.8", "numpy": "1.17.4", "cv2": "4.2.0", "yaml": "
 #: ROS-free but the docs and the renderer's own test (which checks the renderer with OpenCV ≥ 4.7's
 #: ArucoDetector; detection covers the renderer on 4.2)
 CORE_TESTS = ["test_camera.py", "test_transforms.py", "test_markers.py", "test_tum.py", "detection",
-              "test_tracking.py", "test_solver.py", "test_correction.py", "test_startup_anywhere.py",
-              "test_nodestate.py", "test_debugview.py", "test_plots.py", "timesync",
+              "test_tracking.py", "test_solver.py", "test_correction.py", "test_filter_core.py",
+              "test_filter_startup.py", "test_filter_recovery.py", "test_startup_anywhere.py",
+              "test_nodestate.py", "test_nodecontrol.py", "test_debugview.py", "test_plots.py", "test_figures.py",
+              "timesync",
               "calibration", "offline/test_calibrate.py", "test_pipeline_rolling_shutter.py", "test_evaluation.py",
               "geocom/test_protocol.py", "geocom/test_client.py", "geocom/test_clock.py", "geocom/test_tracker.py",
-              "geocom/test_sim_cli.py",
+              "geocom/test_sim_cli.py", "synthetic/test_config.py",
               "synthetic/test_scenario.py", "synthetic/test_bag.py", "offline/test_process.py", "offline/test_sync.py",
               "offline/test_evaluate.py", "offline/test_commandlines.py", "test_layering.py",
-              "test_pipeline.py", "test_params.py", "test_paramspec.py", "test_survey.py", "test_table.py",
-              "test_mapcheck.py", "mapping"]
+              "test_pipeline.py", "test_prismbuffer.py", "test_params.py", "test_paramspec.py", "test_survey.py",
+              "test_table.py", "test_mapcheck.py", "mapping"]
 #: the only reasons a test may skip there: it needs ROS, or geocompy (the independent GeoCOM client of the
 #: tests needs Python ≥ 3.11: it checks the simulator in the main venv)
 #: CORE_TESTS in two parts run side by side (make test: test/conftest.py gives each its own worker), about

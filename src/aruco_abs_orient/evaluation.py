@@ -55,6 +55,9 @@ __all__ = [
 
 DEFAULT_THRESHOLDS = (math.radians(0.5), math.radians(1.0), math.radians(2.0))
 _EXACT = 1e-6  # s: stamps this close are the same instant (the same image)
+#: a series' own gap: samples further apart than this many times its median interval (a reference written at
+#: 5 Hz is not gapped every 0.2 s; a dropout of three intervals is)
+GAP_FACTOR = 1.5
 
 
 class EvaluationError(InputFileError):
@@ -68,8 +71,8 @@ class EvaluationParams(Params):
     error = EvaluationError
 
     max_gap: float = param(0.2, "a pose (or a marker yaw) is compared with the reference only where the reference "
-                           "has samples at most this far apart around it: no error is interpolated across a gap",
-                           "s", 0.0)
+                           "has samples at most this far apart around it (or 1.5 × its median interval, for a "
+                           "reference sampled more slowly): no error is interpolated across a gap", "s", 0.0)
     min_gap: float = param(0.5, "coverage lists the gaps between poses longer than this", "s", 0.0)
     settle: float = param(1.0, "the fused output (--fused) is judged from this long after its first absolute yaw "
                           "(the EKF converges), unless --after says when", "s", 0.0)
@@ -78,8 +81,9 @@ class EvaluationParams(Params):
 def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Yaw (rad) at ``t_query`` (s), interpolated linearly on the unit circle between the samples
     (``t`` sorted, s; ``yaw`` rad), and a validity mask: a query is valid when it coincides with a
-    sample (within 1 µs) or lies between two samples at most ``max_gap`` s apart (None: any gap;
-    0: exact matches only). Invalid queries get NaN."""
+    sample (within 1 µs) or lies between two samples at most ``max_gap`` s apart, or :data:`GAP_FACTOR` times
+    the samples' median interval where that is longer (None: any gap; 0: exact matches only). Invalid queries
+    get NaN."""
     tq = np.atleast_1d(np.asarray(t_query, dtype=float))
     t = np.asarray(t, dtype=float)
     yaw = np.asarray(yaw, dtype=float)
@@ -97,7 +101,7 @@ def interp_yaw(t_query, t, yaw, max_gap: Optional[float] = None) -> Tuple[np.nda
     gap = right - left
     inside = (tq >= left) & (tq <= right) & (gap > 0)
     if max_gap is not None:
-        inside &= gap <= max_gap
+        inside &= gap <= (max(max_gap, GAP_FACTOR * float(np.median(np.diff(t)))) if max_gap > 0 else 0.0)
     f = np.where(inside, (tq - left) / np.where(gap > 0, gap, 1.0), 0.0)
     c = (1 - f) * np.cos(yaw[i - 1]) + f * np.cos(yaw[i])
     s = (1 - f) * np.sin(yaw[i - 1]) + f * np.sin(yaw[i])

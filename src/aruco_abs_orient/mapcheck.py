@@ -4,25 +4,9 @@ In: :class:`Sightings` (per marker seen: total-station time, id, unit bearing in
 odometry's rotation of base_link then), the prism track (stamps, positions in map), the mounting
 (``base_T_camera``, the prism in base_link) and the map's marker positions ({id: xyz}, m, relative to its
 origin). Out: a :class:`MapVerdict`: ``fits``, ``does_not_fit`` or ``undetermined``, one line that says
-which markers, how far off and what it looks like, and its figures (JSON-able).
-
-How. (1) The map as it is: from the camera (prism + lever arm), every sighting must point at its marker's
-map position, up to the map→odom yaw (hat functions in time: the odometry drifts), a constant tilt of the
-odometry's frame (a VO without gravity keeps the starting roll and pitch) and a time-offset error
-(searched within ±``max_time_error``: a wrong ``--time-offset`` is the self-checks' finding, not the
-map's). (2) The markers are placed where they are seen: triangulated from their rays along the prism track,
-jointly with the map→odom yaw and odom's tilt (robust Gauss-Newton from the best constant yaw of a grid), with
-the time offset in use or the one (1) fitted best at, whichever the rays agree better with. The map fits when the median
-angle of (1) is within ``fit_deg`` and most placed markers are within ``tolerance`` (+ 3 σ) of their map positions
-(a 5° rotation can hide in the angles of (1) but not in the places); otherwise the simplest change of the map
-that puts its markers where they are seen is named: a shift, a rotation about z (about the map's origin) with a
-shift, or a scale as well. A shift of a kilometre or more is a wrong ``origin``, a scale of 1000 millimetres
-written as metres; when none fits, another site's map (or several moved markers). One marker off the others
-is a moved marker, the self-checks' finding (named in the message, the map still fits); from a standstill no
-marker can be placed: the map can be refused by (1), not named.
-
-ROS-free (process, calibrate and the node call it); Python 3.8 / numpy 1.17. Radians, metres, seconds inside;
-degrees and metres in messages.
+which markers, how far off and what it looks like (a shift, a rotation, a scale, a wrong origin, another
+site's map, one moved marker), and its figures (JSON-able). How it decides: doc/design.md §12. ROS-free
+(process, calibrate and the node call it); radians, metres, seconds inside; degrees and metres in messages.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The abs_orient node's bookkeeping without ROS: at which stamp map→odom goes out, and the node's health.
 
-The node (``ros/abs_orient_node.py``) converts messages and calls these; here nothing imports rospy, so
+The node's control (``nodecontrol.py``, called by ``ros/abs_orient_node.py``) uses these; nothing imports rospy, so
 the policy is unit-tested with plain numbers (``test/unit/test_nodestate.py``). Times are float seconds
 on the ROS clock of the messages (sim time during a bag replay); wall-clock durations are named so.
 
@@ -278,15 +278,25 @@ class NodeHealth:
 
         ``now_wall`` s monotonic, ``now_ros`` s ROS time; ``node`` the node's state (:class:`NodeSnapshot`).
         """
-        (initialised, image_age_wall, last_prism_stamp, prisms_waiting, images_received, images_dropped,
-         time_offset, time_offset_source, pipeline, offset_estimator, map_odom_yaw) = node
-        base, camera, prism = self.frames
         delta = {k: v - self._prev.get(k, 0) for k, v in self.counts.items()}
+        prism_age = now_ros - node.last_prism_stamp if node.last_prism_stamp is not None else math.inf
+        values = self._values(now_wall, node, delta, prism_age)
+        level, problems = self._problems(node, delta, prism_age, values["rate [Hz]"])
+        message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
+        self._prev = dict(self.counts)
+        self._prev_images = (node.images_received, node.images_dropped)
+        self._prev_wall = now_wall
+        self.stage_ms.clear()
+        return level, message, values
+
+    def _values(self, now_wall: float, node: NodeSnapshot, delta: Dict[str, int],
+                prism_age: float) -> Dict[str, object]:
+        """The status's key/values: counters, rates, latencies, the time offset, the filter's, the stage times."""
+        images_received, images_dropped = node.images_received, node.images_dropped
         dt = max(now_wall - self._prev_wall, 1e-6)
         lat = np.array(self.latencies_ms) if self.latencies_ms else np.array([np.nan])
-        prism_age = now_ros - last_prism_stamp if last_prism_stamp is not None else math.inf
         values: Dict[str, object] = {
-            "initialised": initialised,
+            "initialised": node.initialised,
             "markers seen": len(self.seen_ids),
             "marker ids": " ".join(str(i) for i in self.seen_ids) or "-",
             "rate [Hz]": delta.get("processed", 0) / dt,
@@ -296,8 +306,8 @@ class NodeHealth:
             "dropped fraction": images_dropped / images_received if images_received else 0.0,
             "latency median [ms]": float(np.median(lat)),
             "latency p95 [ms]": float(np.percentile(lat, 95)),
-            "time offset [s]": time_offset,
-            "time offset source": time_offset_source,
+            "time offset [s]": node.time_offset,
+            "time offset source": node.time_offset_source,
             "prism age [s]": prism_age,
             "frames with marker yaw": self.counts["frames_with_yaw"],
             "unknown marker ids": self.counts["unknown_ids"],
@@ -313,6 +323,7 @@ class NodeHealth:
             "map->odom held back": self.counts["tf_held_back"],
             "last error": self.last_error or "-",
         }
+        offset_estimator, pipeline = node.offset_estimator, node.pipeline
         if offset_estimator is not None:
             latest = offset_estimator.latest
             values["time offset estimate [s]"] = latest.offset if latest is not None else "-"
@@ -320,8 +331,8 @@ class NodeHealth:
             values["time offset estimate confidence"] = latest.confidence if latest is not None else "-"
             values["time offset estimate note"] = offset_estimator.last_error or "-"
             values["time offset estimate refused"] = self.counts["time_offset_switch_refused"]
-        if map_odom_yaw is not None:
-            values["map->odom yaw [deg]"] = math.degrees(float(map_odom_yaw))
+        if node.map_odom_yaw is not None:
+            values["map->odom yaw [deg]"] = math.degrees(float(node.map_odom_yaw))
         n = max(delta.get("processed", 0), 1)
         for stage, ms in self.stage_ms.items():
             values[f"stage {stage} [ms]"] = ms / n
@@ -336,32 +347,34 @@ class NodeHealth:
             values["filter restored from a state [s old]"] = fs.restored_age if math.isfinite(fs.restored_age) else "-"
         for key, get in self.extra_values.items():
             values[key] = get()
+        return values
+
+    def _problems(self, node: NodeSnapshot, delta: Dict[str, int], prism_age: float,
+                  rate: float) -> Tuple[str, List[str]]:
+        """The status's level and its problems since the previous report (``rate`` Hz: images processed)."""
+        base, camera, prism = self.frames
+        pipeline, images_received, images_dropped = node.pipeline, node.images_received, node.images_dropped
         problems: List[str] = []
         level = "ok"
         if pipeline is None and delta.get("no_static_tf", 0):
             level = "error"
             problems.append(f"no static tf {base} -> {camera}/{prism}")
-        if image_age_wall > self.image_timeout:
-            problems.append(f"no image for {image_age_wall:.1f} s")
+        if node.image_age_wall > self.image_timeout:
+            problems.append(f"no image for {node.image_age_wall:.1f} s")
         if prism_age > self.prism_timeout:
-            problems.append(("no prism yet" if not prisms_waiting else "prisms arrive, waiting for the first image")
-                            if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
+            waiting = "prisms arrive, waiting for the first image" if node.prisms_waiting else "no prism yet"
+            problems.append(waiting if math.isinf(prism_age) else f"no prism for {prism_age:.1f} s")
         for key, text in _PROBLEM_TEXTS:
             if delta.get(key, 0):
                 problems.append(f"{delta[key]} {text}")
         dropped = images_dropped - self._prev_images[1]
         if dropped > 0:  # the oldest images went: say what the node achieves
             problems.append(f"cannot keep up: {dropped} of {images_received - self._prev_images[0]} images dropped "
-                            f"(the oldest), processing {values['rate [Hz]']:.1f} Hz")
+                            f"(the oldest), processing {rate:.1f} Hz")
         if problems and level == "ok":
             level = "warn"
-        if not problems and not initialised:
+        if not problems and not node.initialised:
             level = "warn"
             why = pipeline.waiting_reason if pipeline is not None else "waiting for the static tfs"
             problems.append(f"initialising: {why}")
-        message = "; ".join(problems) if problems else f"tracking {len(self.seen_ids)} marker(s)"
-        self._prev = dict(self.counts)
-        self._prev_images = (images_received, images_dropped)
-        self._prev_wall = now_wall
-        self.stage_ms.clear()
-        return level, message, values
+        return level, problems

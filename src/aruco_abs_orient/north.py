@@ -1,26 +1,14 @@
-"""Grid north and true north: the meridian convergence of a national grid at a site.
+"""Grid north and true north: the meridian convergence of a national grid at a site (doc/design.md §2).
 
 In: the grid the survey is in (a marker map's ``grid:``: ``LV95``, ``LV03``, ``UTM32N`` / ``UTM 33S``,
 ``GK3`` (DHDN Gauss-Krüger zone 3), or the EPSG code of one of these: 2056, 21781, 326zz, 327zz, 258zz,
-31466-31469) and a point of it (E, N in metres: the map's ``origin``). Out: the meridian convergence γ
-(rad) there, the bearing of grid north measured clockwise from true north (GeographicLib's and
-navsat_transform's convention: positive east of a Transverse Mercator's central meridian in the northern
-hemisphere), and :class:`NorthReference`, what the node and ``process`` refer their heading to.
-
-Conventions. A yaw here is REP-103's: counter-clockwise from the frame's x axis (east). A yaw referred
-to true north is the grid yaw minus γ (``true = grid − γ``); navsat_transform adds γ to a true-north IMU
-yaw to get the UTM grid yaw. Referring a frame to true north turns it about the origin by −γ about z;
-positions keep the grid's scale (the scale factor, within 10⁻³, is not corrected).
-
-How. With pyproj importable, PROJ's own factors (``Proj.get_factors``) at the point; without it, a
-closed form: Karney's Krüger series (order n⁶, nanometre-exact) for UTM and Gauss-Krüger, swisstopo's
-rigorous formulas of the Swiss oblique Mercator (double projection via the sphere) for LV95 / LV03, γ
-from the derivative of the projection along the meridian. Both agree within 10⁻⁸ rad (a test holds
-them to it); Python 3.8.
-
-:meth:`NorthReference.turn_map` and :meth:`NorthReference.turn_point` put the marker map and the prism positions
-into the heading's frame: the node with ``~north: true`` works there, so everything it publishes in ``map`` is
-referred to true north at the origin.
+31466-31469) and a point of it (E, N in metres: the map's ``origin``). Out: the meridian convergence γ (rad)
+there, the bearing of grid north clockwise from true north (navsat_transform's convention), and
+:class:`NorthReference`, what the node and ``process`` refer their heading to: ``true = grid − γ`` for a
+REP-103 yaw; :meth:`NorthReference.turn_map` and :meth:`NorthReference.turn_point` turn the marker map and the
+prism positions by −γ about the origin (the grid's scale kept). γ comes from PROJ's factors where pyproj
+imports, else from closed forms (Karney's Krüger series for UTM and Gauss-Krüger, swisstopo's double
+projection for LV95 / LV03) that agree with PROJ within 10⁻⁸ rad.
 """
 
 from __future__ import annotations

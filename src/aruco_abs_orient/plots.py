@@ -9,104 +9,25 @@ markers where they should be. Out: PNG files, written atomically, whose title is
 
 Contract: 1000 px wide and 12 pt text, readable where report.md shows them; degrees, milliseconds and seconds
 since the start of the recording on the axes; a bad run looks different from a good one in the title first.
-matplotlib is imported inside the functions only (Agg canvas, no pyplot state), with matplotlib 3.1's API
-(Noetic); numpy otherwise.
+How a figure is drawn and written (canvas, style, the PNG's title) is ``figures.py``'s: ``figure``,
+``save_figure``, ``png_title`` and ``WIDTH`` are importable from here too.
 """
 
 from __future__ import annotations
 
-import io
 import math
-import struct
-import textwrap
-import zlib
 from collections import Counter
 from typing import Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
 from .camera import bearing_to_azel
+from .figures import _BAD, _GOOD, WIDTH, _deg, _finish, _style, _title, figure, png_title, save_figure
 from .transforms import rpy_to_matrix
-from .tum import atomic_write_bytes
 
 __all__ = ["WIDTH", "HeadingCurve", "Span", "figure", "save_figure", "png_title", "plot_time_offset",
            "plot_marker_agreement", "plot_heading_error", "plot_frame_position", "mounting_turn", "calibration_answer",
            "plot_calibration", "plot_overview"]
-
-WIDTH = 1000                    # px: the width every plot is drawn at (report.md shows it 1:1)
-_STYLE = {"font.size": 12, "axes.titlesize": 12, "axes.labelsize": 12, "xtick.labelsize": 11,
-          "ytick.labelsize": 11, "legend.fontsize": 10.5, "legend.framealpha": 0.9}
-_TITLE_PT = 14
-_BAD = "#c0392b"                # what is wrong: a run's offset off the best one, a flagged marker, rejections
-_GOOD = "#1f77b4"
-
-
-def figure(width_px: int, height_px: int, dpi: int = 100):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width_px / dpi, height_px / dpi), dpi=dpi)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _style():
-    import matplotlib
-
-    return matplotlib.rc_context(_STYLE)
-
-
-def save_figure(fig, path: str, title: Optional[str] = None) -> str:
-    """Write the figure as PNG atomically (never a half-written plot), with ``title`` as its ``Title`` text (an
-    iTXt chunk: UTF-8, whatever matplotlib's version writes)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=fig.dpi)
-    png = buf.getvalue()
-    if title:
-        body = b"Title\0\0\0\0\0" + title.encode("utf-8")
-        chunk = struct.pack(">I", len(body)) + b"iTXt" + body + struct.pack(">I", zlib.crc32(b"iTXt" + body))
-        end = 8 + 12 + struct.unpack(">I", png[8:12])[0]          # after the IHDR chunk
-        png = png[:end] + chunk + png[end:]
-    atomic_write_bytes(path, png)
-    return path
-
-
-def png_title(path: str) -> str:
-    """The ``Title`` text of a PNG written by :func:`save_figure` ('' when it has none)."""
-    with open(path, "rb") as f:
-        data = f.read()
-    pos = 8
-    while pos + 8 <= len(data):
-        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + n]
-        if kind == b"iTXt" and body.startswith(b"Title\0"):
-            compressed, rest = body[6], body[8:]
-            text = rest.split(b"\0", 2)[2]
-            return (zlib.decompress(text) if compressed else text).decode("utf-8")
-        pos += 12 + n
-    return ""
-
-
-def _title(fig, answer: str) -> float:
-    """The answer as the figure's title, wrapped to its width; returns the height it takes (figure fraction)."""
-    chars = int(fig.get_figwidth() * 72 / (0.62 * _TITLE_PT))
-    text = textwrap.fill(answer, chars)
-    fig.suptitle(text, fontsize=_TITLE_PT, fontweight="bold", y=1.0 - 0.08 / fig.get_figheight(), va="top")
-    return (0.06 + 0.25 * (text.count("\n") + 1)) / fig.get_figheight()
-
-
-def _finish(fig, path: str, answer: str) -> str:
-    """The answer as the figure's title, the axes laid out below it (room for their own titles), saved."""
-    top = 1.0 - _title(fig, answer) - 0.32 / fig.get_figheight()
-    fig.tight_layout()         # (matplotlib ≥ 3.3 leaves room for the title itself, 3.1 does not)
-    fig.subplots_adjust(top=min(fig.subplotpars.top, top))
-    return save_figure(fig, path, answer)
-
-
-def _deg(x: float) -> str:
-    """An angle (rad) in degrees, 3 decimals."""
-    return f"{math.degrees(x):.3f}°"
-
 
 # --------------------------------------------------------------------------- time offset
 
@@ -215,24 +136,7 @@ def plot_marker_agreement(path: str, agreement, pairwise=None, size: Optional[Tu
     m = len(ids)
     size = size or (WIDTH, max(380, 160 + 55 * m))
     flagged = set(agreement.flagged)
-    if flagged:
-        by = ", ".join(f"marker {i} by {math.degrees(agreement.median[ids.index(i)]):+.3f}°"
-                       for i in sorted(flagged, key=lambda i: -abs(agreement.median[ids.index(i)])))
-        names = ", ".join(str(i) for i in sorted(flagged))
-        typical = _deg(agreement.typical_spread)
-        if len(flagged) == 1:
-            off = math.degrees(agreement.median[ids.index(min(flagged))])
-            answer = (f"marker {names} disagrees with the others by {off:+.3f}° (their typical spread {typical}): "
-                      "moved, or surveyed wrong")
-        else:
-            answer = f"markers {names} disagree with the others: {by} (their typical spread {typical}): moved, or " \
-                     "surveyed wrong"
-    elif m:
-        worst = float(np.nanmax(np.abs(agreement.median))) if np.any(np.isfinite(agreement.median)) else float("nan")
-        answer = (f"the markers agree: every marker's median within {_deg(worst)} of the consensus, typical spread "
-                  f"{_deg(agreement.typical_spread)}")
-    else:
-        answer = "no marker yaw had a consensus to compare with (the filter never ran)"
+    answer = _agreement_answer(agreement, ids, flagged)
     ok = np.isfinite(agreement.median)
     finite = np.degrees(np.abs(agreement.median[ok]) + np.nan_to_num(agreement.spread[ok]))
     typical = math.degrees(agreement.typical_spread) if math.isfinite(agreement.typical_spread) else 0.05
@@ -286,6 +190,26 @@ def plot_marker_agreement(path: str, agreement, pairwise=None, size: Optional[Tu
             side = min(0.15 * size[0], (top - bottom) * height - 30.0)
             _pair_matrix(fig.add_axes([0.83, bottom, side / size[0], side / height]), pairwise, lim)
         return save_figure(fig, path, answer)
+
+
+def _agreement_answer(agreement, ids, flagged) -> str:
+    """The title of :func:`plot_marker_agreement`: the markers that disagree and by how much, or how well all agree."""
+    if flagged:
+        by = ", ".join(f"marker {i} by {math.degrees(agreement.median[ids.index(i)]):+.3f}°"
+                       for i in sorted(flagged, key=lambda i: -abs(agreement.median[ids.index(i)])))
+        names = ", ".join(str(i) for i in sorted(flagged))
+        typical = _deg(agreement.typical_spread)
+        if len(flagged) == 1:
+            off = math.degrees(agreement.median[ids.index(min(flagged))])
+            return (f"marker {names} disagrees with the others by {off:+.3f}° (their typical spread {typical}): "
+                    "moved, or surveyed wrong")
+        return f"markers {names} disagree with the others: {by} (their typical spread {typical}): moved, or " \
+               "surveyed wrong"
+    if ids:
+        worst = float(np.nanmax(np.abs(agreement.median))) if np.any(np.isfinite(agreement.median)) else float("nan")
+        return (f"the markers agree: every marker's median within {_deg(worst)} of the consensus, typical spread "
+                f"{_deg(agreement.typical_spread)}")
+    return "no marker yaw had a consensus to compare with (the filter never ran)"
 
 
 def _short(reason: str, most: int = 32) -> str:

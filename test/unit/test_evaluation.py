@@ -35,8 +35,8 @@ rad = math.radians
 
 
 def test_interp_yaw_across_the_wrap():
-    t = np.array([0.0, 1.0, 3.0])
-    yaw = np.array([rad(179.0), rad(-179.0), rad(-170.0)])
+    t = np.array([0.0, 1.0, 3.0, 3.5, 3.75])
+    yaw = np.array([rad(179.0), rad(-179.0), rad(-170.0), rad(-169.0), rad(-168.0)])
     q, ok = interp_yaw([0.5, 0.25, 1.0, 2.0, 4.0, -1.0], t, yaw, max_gap=1.5)
     assert ok.tolist() == [True, True, True, False, False, False]  # 1→3 s gap is 2 s > 1.5 s
     assert abs(math.degrees(q[0])) == pytest.approx(180.0, abs=1e-9)
@@ -46,6 +46,24 @@ def test_interp_yaw_across_the_wrap():
     # max_gap 0: only samples at the very same stamps
     q, ok = interp_yaw([1.0 + 1e-7, 0.5], t, yaw, max_gap=0.0)
     assert ok.tolist() == [True, False] and math.degrees(q[0]) == pytest.approx(-179.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(interval=st.floats(0.02, 2.0), jitter=st.floats(0.0, 1e-3), dropout=st.integers(3, 6),
+       seed=st.integers(0, 2**16))
+def test_a_reference_sampled_slowly_is_compared_everywhere_but_across_its_dropouts(interval, jitter, dropout, seed):
+    # a reference written at its own rate (one line per image at 5 fps: 0.2 s apart, with the stamps' float
+    # jitter) is compared between all its samples; where `dropout` of them are missing, nowhere in the hole
+    # unless the hole is within max_gap
+    rng = np.random.default_rng(seed)
+    t = np.arange(40) * interval + rng.uniform(-jitter, jitter, 40) * interval
+    t = np.delete(t, np.arange(20, 20 + dropout - 1))                 # a hole of `dropout` intervals
+    yaw = np.linspace(0.0, 1.0, len(t))
+    tq = (t[:-1] + t[1:]) / 2
+    _, ok = interp_yaw(tq, t, yaw, max_gap=0.2)
+    hole = np.diff(t) > 2.5 * interval
+    assert hole.sum() == 1 and ok[~hole].all()
+    assert ok[hole].all() == (np.diff(t)[hole] <= 0.2).all()
 
 
 def test_wrap_179_vs_minus_179_is_2_degrees():

@@ -1,5 +1,5 @@
-"""pipeline.py against hand-checked numbers: the prism buffer's interpolation and extrapolation limits,
-each gate of a frame (no prism, range, elevation, tracking, fusion), ``update_params`` and ``reset``.
+"""pipeline.py and framesolve.py against hand-checked numbers: each gate of a frame (no prism, range, elevation,
+tracking, fusion), ``update_params`` and ``reset``.
 
 The world is built here: base_link at map (1, 2, 0) with yaw 0.3 rad, level; the camera 0.5 m and the
 prism 1.0 m above base_link; markers at known map positions. Bearings are exact (the camera frame's
@@ -13,7 +13,7 @@ import pytest
 
 from aruco_abs_orient.detection import DetectionError, MarkerObservation
 from aruco_abs_orient.markers import Marker, MarkerMap
-from aruco_abs_orient.pipeline import AbsOrientPipeline, PipelineError, PipelineParams, PrismBuffer
+from aruco_abs_orient.pipeline import AbsOrientPipeline, PipelineError, PipelineParams
 from aruco_abs_orient.tracking import TrackingParams
 from aruco_abs_orient.transforms import make_T, rpy_to_matrix
 
@@ -26,48 +26,6 @@ ODOM_T_BASE = make_T(rpy_to_matrix(0.0, 0.0, -0.2), [5.0, -1.0, 0.0])  # odometr
 PRISM = BASE + np.array([0.0, 0.0, 1.0])
 #: id → map position: four markers around the base at 3–5 m and different heights
 MARKERS = {0: [4.0, 2.0, 1.2], 1: [1.0, 6.0, 0.8], 2: [-2.0, 1.0, 1.5], 3: [1.5, -2.0, 0.3]}
-
-
-# --------------------------------------------------------------------------- PrismBuffer
-
-def test_prism_buffer_interpolates_linearly_between_samples():
-    buf = PrismBuffer()
-    buf.add(10.0, [0.0, 0.0, 0.0])
-    buf.add(11.0, [1.0, 2.0, 0.0])
-    p, extra = buf.at(10.25, max_gap=1.5, max_extrapolation=0.2)
-    assert np.allclose(p, [0.25, 0.5, 0.0]) and extra == 0.0
-    p, extra = buf.at(10.0, max_gap=1.5, max_extrapolation=0.2)  # on a sample
-    assert np.allclose(p, [0.0, 0.0, 0.0]) and extra == 0.0
-    assert buf.at(10.5, max_gap=0.99, max_extrapolation=0.2) is None  # the samples are 1 s apart: a gap
-    assert buf.at(9.99, max_gap=1.5, max_extrapolation=0.2) is None   # before the first sample
-
-
-def test_prism_buffer_extrapolates_only_up_to_its_limit_with_a_growing_sigma():
-    buf = PrismBuffer()
-    buf.add(10.0, [0.0, 0.0, 0.0])
-    buf.add(11.0, [1.0, 2.0, 0.0])  # velocity (1, 2, 0) m/s, |v| = √5
-    p, extra = buf.at(11.1, max_gap=1.5, max_extrapolation=0.15)
-    assert np.allclose(p, [1.1, 2.2, 0.0])
-    assert extra == pytest.approx(0.5 * math.sqrt(5.0) * 0.1)  # half the distance extrapolated
-    assert buf.at(11.16, max_gap=1.5, max_extrapolation=0.15) is None
-    one = PrismBuffer()
-    one.add(3.0, [1.0, 1.0, 1.0])  # one sample: no velocity, only its own time
-    assert np.allclose(one.at(3.0, 1.0, 0.15)[0], [1.0, 1.0, 1.0])
-    assert one.at(3.05, 1.0, 0.15) is None
-
-
-def test_prism_buffer_keeps_late_samples_in_order_and_forgets_past_its_horizon():
-    buf = PrismBuffer(horizon=5.0)
-    for t in (0.0, 2.0, 4.0):
-        buf.add(t, [t, 0.0, 0.0])
-    buf.add(3.0, [30.0, 0.0, 0.0])  # late: goes between 2 and 4
-    buf.add(4.0, [99.0, 0.0, 0.0])  # same stamp as the newest: ignored
-    assert buf.t == [0.0, 2.0, 3.0, 4.0]
-    assert np.allclose(buf.at(3.5, 2.0, 0.0)[0], [17.0, 0.0, 0.0])  # halfway from 30 to 4
-    buf.add(6.5, [6.5, 0.0, 0.0])  # keeps samples from 6.5 − 5 = 1.5 s on
-    assert buf.t == [2.0, 3.0, 4.0, 6.5]
-    buf.clear()
-    assert buf.at(4.0, 2.0, 1.0) is None
 
 
 # --------------------------------------------------------------------------- frames and gates
@@ -221,13 +179,6 @@ def test_a_prism_position_with_the_instruments_covariance_is_used_with_it():
     prism_sigma: base_link's position covariance is the larger of the two samples around the frame; a bad
     covariance is refused and counted; samples without one fall back to prism_sigma."""
     far = np.diag([0.0005, 0.003, 0.0005]) ** 2      # 100 m north of the instrument: 3 mm along, 0.5 mm across
-    near = np.diag([0.003, 0.00003, 0.00003]) ** 2   # 5 m east of it
-    buf = PrismBuffer()
-    buf.add(1.0, PRISM, near)
-    buf.add(2.0, PRISM, far)
-    assert np.array_equal(buf.cov_at(1.5), far) and np.array_equal(buf.cov_at(1.0), far)
-    buf.add(3.0, PRISM)
-    assert buf.cov_at(2.5) is None
     pipe = AbsOrientPipeline(MarkerMap([Marker(i, np.array(p, dtype=float), 0.19, 0.002) for i, p in MARKERS.items()]),
                              BASE_T_CAMERA, BASE_T_PRISM, PipelineParams())
     for t in np.arange(0.0, 3.01, 0.1):

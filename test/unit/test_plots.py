@@ -6,7 +6,6 @@ A fraction of a second per plot (matplotlib's Agg); matplotlib 3.1's API (test_n
 from __future__ import annotations
 
 import math
-import os
 import struct
 
 import numpy as np
@@ -27,7 +26,6 @@ from aruco_abs_orient.plots import (
     plot_marker_agreement,
     plot_time_offset,
     png_title,
-    save_figure,
 )
 from aruco_abs_orient.timesync import OffsetEstimate
 from aruco_abs_orient.transforms import rot_z
@@ -46,19 +44,6 @@ def estimate(offset, sigma, method="coherence"):
     taus = np.linspace(offset - 1.0, offset + 1.0, 201)
     return OffsetEstimate(offset=offset, sigma=sigma, confidence=0.5, coherence=0.999, taus=taus,
                           curve=1.0 - 0.01 * (taus - offset) ** 2, method=method, n_samples=900, overlap=20.0)
-
-
-def test_the_title_survives_a_round_trip_through_the_file(tmp_path):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(2, 1), dpi=100)
-    FigureCanvasAgg(fig)
-    title = "camera ↔ total station: −50.0 ms, ±2σ, 0.3°"        # not Latin-1: stored as UTF-8
-    path = save_figure(fig, str(tmp_path / "t.png"), title)
-    assert png_title(path) == title and png_size(path) == (200, 100)
-    assert png_title(save_figure(fig, str(tmp_path / "u.png"))) == ""
-    assert sorted(os.listdir(tmp_path)) == ["t.png", "u.png"]     # no temporary files left
 
 
 def test_the_time_offset_title_says_whether_the_offset_in_use_is_right(tmp_path):

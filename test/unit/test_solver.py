@@ -12,15 +12,14 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
+from aruco_abs_orient.posefit import attitude_from_markers, resection
 from aruco_abs_orient.solver import (
     DegenerateGeometryError,
     FitSettings,
     Mounting,
     NoiseModel,
     SolverError,
-    attitude_from_markers,
     fuse_yaws,
-    resection,
     yaw_from_marker,
 )
 from aruco_abs_orient.transforms import make_T, matrix_to_rpy, rot_x, rot_y, rpy_to_matrix, wrap_angle

@@ -1,28 +1,14 @@
 """Time offset between the camera/VO clock and the total-station clock (doc/design.md §10).
 
-Sign convention, used everywhere in this package and by its callers:
+Sign convention, used everywhere in this package and by its callers (doc/design.md §2):
 
     camera stamp = total-station (true) time + τ          (τ in seconds)
 
-so a VO sample stamped ``t`` was taken at total-station time ``t − τ``; to put camera stamps on
-the total station's clock, subtract τ (``OnlineOffsetEstimator.correct_stamp``). A camera that
-lags the total station (the paper's 11 frames) has τ > 0.
-
-Method: the VO yaw (and the marker yaws) against the direction of travel of the prism track,
-compared by phase coherence over candidate offsets (:mod:`.coherence` describes it).
-
-The paper's method (normalised cross-correlation of unwrapped headings at whole-frame lags) is
-``cross_correlation_offset``, kept as the baseline. Numbers that cannot be estimated raise
-``TimeSyncError`` saying why. Python 3.8 compatible; numpy only.
-
-The package, one module per stage (each says what goes in and what comes out):
-
-- :mod:`.estimate`: :class:`OffsetEstimate` (what every estimator returns) and :class:`TimeSyncError`;
-- :mod:`.heading`: the prism track's direction of travel (:func:`heading_from_track`);
-- :mod:`.coherence`: the phase-coherence estimate (:func:`estimate_offset`,
-  :func:`estimate_offset_from_marker_yaws`) and its knobs :class:`TimeSyncParams`;
-- :mod:`.baseline`: the paper's cross-correlation (:func:`cross_correlation_offset`);
-- :mod:`.online`: the live node's incremental estimator (:class:`OnlineOffsetEstimator`).
+A camera that lags the total station (the paper's 11 frames) has τ > 0; subtract τ to put camera stamps on
+the total station's clock (``OnlineOffsetEstimator.correct_stamp``). What cannot be estimated raises
+``TimeSyncError`` saying why. One module per stage: :mod:`.estimate` (the result and the error),
+:mod:`.heading` (the prism track's direction of travel), :mod:`.coherence` (this package's estimate and
+:class:`TimeSyncParams`), :mod:`.baseline` (the paper's cross-correlation), :mod:`.online` (the live node's).
 """
 
 from .baseline import cross_correlation_offset

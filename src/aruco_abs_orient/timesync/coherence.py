@@ -1,28 +1,13 @@
-"""The phase-coherence estimate of the time offset (this package's method).
+"""The phase-coherence estimate of the time offset (this package's method; doc/design.md §10).
 
 In: VO yaws (camera clock) and/or absolute marker yaws, and prism fixes (total-station clock).
 Out: an :class:`~.estimate.OffsetEstimate` (:func:`estimate_offset`,
-:func:`estimate_offset_from_marker_yaws`) or :class:`~.estimate.TimeSyncError` saying why not. The knobs
-are :class:`TimeSyncParams` (cfg/params.yaml's ``timesync`` section).
-
-Method: the prism track gives the direction of travel (the heading of the velocity vector, from a
-zero-lag local quadratic fit of the prism positions), the VO gives a yaw with an unknown constant
-offset and a slow drift. For a candidate τ the residual phases ``ψ_vo(t_k) − ψ_track(t_k − τ)``
-are constant at the true τ except for noise and the drift; the estimate maximises the weighted
-phase coherence
-
-    C(τ) = Σ_windows |Σ_k w_k exp(i(ψ_vo(t_k) − ψ_track(t_k − τ) − d_j (t_k − t̄_j)))| / Σ_k w_k
-
-where each window j (``window``, default 60 s) gets its own constant phase (the unknown yaw offset, taken
-care of by the modulus) and its own linear drift ``d_j`` (rad/s, fitted, bounded by
-``max_drift_deg_per_min``). The weights are the VO weights times the squared platform speed (zero below
-``min_speed``), so standstill and crawling, where the track heading is noise, do not count. A
-coarse grid over the search interval finds the peak, a golden-section search refines it to well
-under a frame; the track heading is interpolated continuously on the unit circle (through the
-velocity vector), so the curve is smooth in τ. The smoothing's own heading bias
-σ²(v'ψ'/v + ψ''/2), which is not time-symmetric where the platform brakes or accelerates in a turn,
-is removed before the search. ``sigma`` comes from the linearised least-squares equivalent of the
-maximisation with a Newey-West sum over the track noise's correlation time.
+:func:`estimate_offset_from_marker_yaws`) with its σ and confidence, or :class:`~.estimate.TimeSyncError`
+saying why not (too little turning, too short, no peak). The knobs are :class:`TimeSyncParams`
+(cfg/params.yaml's ``timesync`` section): the windows, each with its own constant phase and bounded linear
+drift, the speed below which a sample counts nothing, the turn-rate variation asked for. The curve C(τ) is
+smooth in τ (the track heading interpolated through the velocity vector), so a coarse grid and a
+golden-section search find its peak to well under a frame.
 """
 
 from __future__ import annotations

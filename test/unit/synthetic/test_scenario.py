@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from aruco_abs_orient.camera import angle_between
-from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario, ScenarioConfig, ScenarioError
+from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario, ScenarioError
 from aruco_abs_orient.transforms import invert_T, matrix_to_rpy, transform_points, wrap_angle, yaw_of
 
 CFG = dataclasses.replace(PRESETS["ci"], duration=30.0)
@@ -246,22 +246,6 @@ def test_from_hidden_errors(sc, tmp_path):
     bad.write_text(yaml.safe_dump(data))
     with pytest.raises(ScenarioError, match="marker_normals"):
         Scenario.from_hidden(str(bad))
-
-
-@pytest.mark.parametrize("field,value", [
-    ("fps", 0.0), ("width", 1001), ("duration", -1.0), ("seed", -1), ("profile", "fancy"),
-    ("dictionary", "DICT_9X9"), ("marker_distance", (5.0, 2.0)), ("prism_dropout", 1.0),
-])
-def test_invalid_config_names_the_field(field, value):
-    with pytest.raises(ScenarioError, match=field):
-        Scenario(dataclasses.replace(CFG, **{field: value}))
-
-
-def test_config_dict_round_trip():
-    d = CFG.to_dict()
-    assert ScenarioConfig.from_dict(d) == CFG
-    with pytest.raises(ScenarioError, match="track_radii"):
-        ScenarioConfig.from_dict(dict(d, track_radii=[1.0]))
 
 
 def test_calibration_spin_in_place():
