@@ -5,8 +5,6 @@ import importlib.util
 import textwrap
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("check_structure", ROOT / "tools" / "check_structure.py")
 check = importlib.util.module_from_spec(_spec)
@@ -70,8 +68,6 @@ def test_sizes_warn_only_prints_sizes_and_fails_only_on_cycles(tmp_path, capsys)
     assert check.main(["--sizes-warn-only", str(cyclic)]) == 1
 
 
-@pytest.mark.xfail(strict=False, reason="the functions and modules over the limits are being split (make lint "
-                                        "prints them while STRUCTURE_SIZES=--sizes-warn-only)")
 def test_no_module_or_function_over_the_limits():
     found = check.all_size_offences(check.PACKAGE_DIR)
     assert not found, "over the limits:\n" + "\n".join(found)
