@@ -41,6 +41,7 @@ __all__ = [
     "DualFisheye",
     "SINGLE_CENTRE",
     "GnomonicView",
+    "sphere_centre_bearing",
     "azel_to_bearing",
     "bearing_to_azel",
     "angle_between",
@@ -139,6 +140,24 @@ class Equirect:
         """
         u = np.asarray(u, dtype=float)
         return u - self.width * np.round((u - reference) / self.width)
+
+
+def sphere_centre_bearing(corners) -> np.ndarray:
+    """Centre bearing (..., 3) of markers from their four corner bearings (..., 4, 3).
+
+    Intersection of the great circles through opposite corners (n1 = c0×c2, n2 = c1×c3,
+    centre = ±n1×n2, the sign nearest the corners' mean). Exact for a planar square seen
+    by a central camera: the diagonals' intersection is the square's centre and lines
+    project to great circles. A degenerate quad gives the corners' mean direction.
+    """
+    c = np.asarray(corners, dtype=float)
+    c = c / np.linalg.norm(c, axis=-1, keepdims=True)
+    m = cross3(cross3(c[..., 0, :], c[..., 2, :]), cross3(c[..., 1, :], c[..., 3, :]))
+    norm = np.linalg.norm(m, axis=-1, keepdims=True)
+    mean = c.mean(axis=-2)
+    m = np.where(norm < 1e-15, mean, m / np.maximum(norm, 1e-300))
+    m = np.where(np.sum(m * mean, axis=-1, keepdims=True) < 0, -m, m)
+    return m / np.linalg.norm(m, axis=-1, keepdims=True)
 
 
 class DualFisheye:
@@ -296,6 +315,16 @@ class DualFisheye:
         wb = np.where(none, 1.0 - wf, wb)
         d = wf[..., None] * copies[0] + wb[..., None] * copies[1]
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def project_marker(self, centres, corners) -> np.ndarray:
+        """Stitched unit bearing(s) (..., 3) of marker centre(s) as a detector finds them: the diagonals of the
+        four corners' stitched bearings intersected on the sphere (:func:`sphere_centre_bearing`), from the
+        camera-frame centre(s) (..., 3) and corners (..., 4, 3) in m, in cyclic order. A marker across a seam
+        has its corners from both lenses: its centre is neither lens's image of the centre point. The
+        single-centre camera gives the centre's direction (what the diagonals give)."""
+        if self.single_centre:
+            return self.project(centres)
+        return sphere_centre_bearing(self.project(corners))
 
 
 #: the single-centre camera (no lens offset or rotation): rays from the camera origin along the bearing

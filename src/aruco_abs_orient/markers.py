@@ -38,6 +38,25 @@ ARUCO_DICTIONARIES = tuple(
      "DICT_APRILTAG_36h11")
 
 
+def upright_rotation(normal) -> np.ndarray:
+    """map_R_marker (..., 3, 3) of square face(s) with outward ``normal`` (..., 3) (its z) and y as close to map
+    +z as possible (a marker mounted upright); a face looking straight up or down gets y along map +x."""
+    z = np.asarray(normal, dtype=float)
+    z = z / np.linalg.norm(z, axis=-1, keepdims=True)
+    y = np.array([0.0, 0.0, 1.0]) - z[..., 2:3] * z
+    flat = np.linalg.norm(y, axis=-1, keepdims=True) < 1e-9
+    y = np.where(flat, np.array([1.0, 0.0, 0.0]) - z[..., 0:1] * z, y)
+    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
+    return np.stack([np.cross(y, z), y, z], axis=-1)
+
+
+def square_corners(size: float, normal) -> np.ndarray:
+    """The corners (..., 4, 3) of upright square(s) of side ``size`` m and outward ``normal`` (..., 3), as
+    offsets from the centre in the normal's frame, in cyclic order (c0, c2 and c1, c3 opposite)."""
+    half = 0.5 * size * np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
+    return np.einsum("...ij,kj->...ki", upright_rotation(normal), half)
+
+
 class MarkerMapError(InputFileError):
     """A marker map that cannot be used: the message names the file and the field."""
 

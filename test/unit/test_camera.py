@@ -17,6 +17,7 @@ from aruco_abs_orient.camera import (
     angle_between,
     azel_to_bearing,
     bearing_to_azel,
+    sphere_centre_bearing,
 )
 
 CAM = Equirect(3840, 1920)
@@ -204,6 +205,24 @@ def test_the_ray_of_a_projected_point_passes_through_it(az, el, r, o, d_stitch, 
         return
     origin, w = cam.rays(d)
     assert np.linalg.norm(np.cross(X - origin, w)) < 1e-9 * r and float((X - origin) @ w) > 0
+
+
+@given(azimuths, st.floats(-1.2, 1.2), ranges, offsets, rotations, st.floats(0.05, 0.4), st.floats(-1.0, 1.0))
+def test_a_marker_seen_by_one_lens_is_its_centre_seen_by_it(az, el, r, o, rot, size, turn):
+    """A square within one lens's part of the image (stitched at infinity: each lens a central camera) has its
+    diagonals meet at that lens's image of its centre, at any orientation; with a single centre, at the
+    centre's direction."""
+    from aruco_abs_orient.markers import square_corners
+
+    cam = DualFisheye(lens_offset=o, lens_rotation=rot)
+    X = _point(az, el, r)
+    corners = X + square_corners(size, -X + turn * np.array([0.0, 0.0, r]))
+    weights = cam.front_weight(cam.project(corners))
+    if not (np.all(weights == 1.0) or np.all(weights == 0.0)):
+        return                                       # across a seam: the rendered test covers it (test_world)
+    assert angle_between(cam.project_marker(X, corners), cam.project(X)) < 1e-9
+    # the single centre's shortcut (the centre's direction) is what its corners' diagonals give
+    assert angle_between(sphere_centre_bearing(SINGLE_CENTRE.project(corners)), X) < 1e-9
 
 
 @given(azimuths, st.floats(-1.2, 1.2), st.floats(1.0, 20.0), st.floats(0.001, 0.03))

@@ -17,6 +17,7 @@ from typing import Dict, NamedTuple, Optional, Tuple
 import numpy as np
 
 from ..camera import DualFisheye
+from ..markers import square_corners
 from ..timesync import TimeSyncError, heading_from_track
 from ..transforms import quat_to_matrix, rot_z, rotvec_to_matrix, rpy_to_matrix, wrap_angle, yaw_of
 from ..tum import Trajectory
@@ -30,8 +31,10 @@ _ALL_GLOBALS = tuple(range(N_GLOBALS))
 class _Observed(NamedTuple):
     """The usable observations, interpolated to their (row) times: unit bearings u (N, 3), marker
     positions M (N, 3) m, prism P (N, 3) m and its velocity V (N, 3) m/s in map, odom_R_base (N, 3, 3),
-    1-σ (N,) rad, times t (N,) s, image rows (v/H − ½) (N,) and the odometry's body rotation rate
-    ω (N, 3) rad/s."""
+    1-σ (N,) rad, times t (N,) s, image rows (v/H − ½) (N,), the odometry's body rotation rate
+    ω (N, 3) rad/s and the marker's corners K (N, 4, 3) m from its centre in map (upright squares facing their
+    surveyed normal, or the prism where none was surveyed: a two-lens camera sees a marker across a seam
+    through both lenses, corner by corner)."""
 
     u: np.ndarray
     M: np.ndarray
@@ -42,6 +45,7 @@ class _Observed(NamedTuple):
     t: np.ndarray
     rows: np.ndarray
     omega: np.ndarray
+    K: np.ndarray
 
 
 class _Mounting(NamedTuple):
@@ -83,7 +87,7 @@ class Problem:
     def __init__(self, obs: _Observed, mounting: _Mounting, track: _Track, heading, knots: np.ndarray,
                  params: CalibrationParams, markers: _Markers, lenses: DualFisheye):
         self.u, self.M, self.P, self.V, self.R_odom, self.sigma = obs.u, obs.M, obs.P, obs.V, obs.R_odom, obs.sigma
-        self.rows, self.omega, self.t = obs.rows, obs.omega, obs.t
+        self.rows, self.omega, self.t, self.K = obs.rows, obs.omega, obs.t, obs.K
         self.R_bc, self.t_cam, self.t_prism = mounting
         self.track, self.params = track, params
         self.knots = knots
@@ -143,6 +147,10 @@ class Problem:
     def camera_to_marker(self, x, delta, theta, offsets) -> np.ndarray:
         """Vectors (N, 3) camera → marker in base_link axes (m): map_R_baseᵀ (M + ΔM − P + V Δτ − V f Δρ) −
         (t_cam + Δl − t_prism), map_R_base = Rz(δ) exp([θ]×) odom_R_base exp([ω f Δρ]×)."""
+        return self._chain(x, delta, theta, offsets)[1]
+
+    def _chain(self, x, delta, theta, offsets) -> Tuple[np.ndarray, np.ndarray]:
+        """map_R_base (N, 3, 3) and the vectors camera → marker (N, 3) of :meth:`camera_to_marker`."""
         w = np.zeros((len(delta), 3))
         w[:, :2] = theta
         R = rot_z(delta) @ rotvec_to_matrix(w) @ self.R_odom                  # map_R_base (N, 3, 3)
@@ -150,13 +158,26 @@ class Problem:
         if x[7] != 0.0:
             R = R @ rotvec_to_matrix(self.omega * (self.rows * x[7])[:, None])
             g = g - self.V * (self.rows * x[7])[:, None]
-        return np.einsum("nji,nj->ni", R, g) - (self.t_cam + x[3:6] - self.t_prism)
+        return R, np.einsum("nji,nj->ni", R, g) - (self.t_cam + x[3:6] - self.t_prism)
+
+    def corner_offsets(self, map_R_base: np.ndarray, Cb: np.ndarray) -> np.ndarray:
+        """The markers' corners (N, 4, 3) from their centres in the camera frame (m), for map_R_base (N, 3, 3)
+        and the camera's rotation in base_link ``Cb``."""
+        return np.einsum("nji,nkj->nki", map_R_base, self.K) @ Cb
+
+    @staticmethod
+    def project(lenses: DualFisheye, q: np.ndarray, corners: np.ndarray) -> np.ndarray:
+        """Stitched bearings (N, 3) of the markers at camera-frame centres ``q`` (N, 3) with ``corners`` (N, 4,
+        3) from them: the diagonals of the corners' images where the lenses have two centres."""
+        return lenses.project(q) if lenses.single_centre else lenses.project_marker(q, q[:, None, :] + corners)
 
     def predict(self, x, delta, theta, offsets) -> np.ndarray:
         """Predicted unit bearings (N, 3) in the camera frame: where the camera's stitched image shows the
         markers."""
-        q = self.camera_to_marker(x, delta, theta, offsets) @ (rpy_to_matrix(*x[:3]) @ self.R_bc)   # (B R_bc)ᵀ g
-        return self.lenses_at(x).project(q)
+        R, w = self._chain(x, delta, theta, offsets)
+        Cb = rpy_to_matrix(*x[:3]) @ self.R_bc
+        lenses = self.lenses_at(x)
+        return self.project(lenses, w @ Cb, None if lenses.single_centre else self.corner_offsets(R, Cb))
 
     def residuals(self, x, delta, theta, offsets) -> np.ndarray:
         return np.cross(self.u, self.predict(x, delta, theta, offsets))
@@ -181,7 +202,8 @@ class Problem:
         Cb = rpy_to_matrix(*x[:3]) @ self.R_bc
         q = w @ Cb                                                            # in the camera frame
         lenses = self.lenses_at(x)
-        d = lenses.project(q)
+        corners = None if lenses.single_centre else self.corner_offsets(A, Cb)
+        d = self.project(lenses, q, corners)
         r = np.cross(self.u, d)
         # ∂d/∂q (N, 3, 3)
         if lenses.single_centre:
@@ -192,7 +214,8 @@ class Problem:
             for k in range(3):
                 e = np.zeros(3)
                 e[k] = 1.0
-                Dq[:, :, k] = (lenses.project(q + step * e) - lenses.project(q - step * e)) / (2 * step)
+                Dq[:, :, k] = (self.project(lenses, q + step * e, corners)
+                               - self.project(lenses, q - step * e, corners)) / (2 * step)
 
         def through(dw):      # ∂r for a change dw (N, 3) of the base_link vector w
             return np.cross(self.u, np.einsum("nij,nj->ni", Dq, dw @ Cb))
@@ -213,7 +236,10 @@ class Problem:
         for k in (k for k in range(4) if 8 + k in free):    # the lenses: offset, rotation
             e = np.zeros(len(x))
             e[8 + k] = h
-            Jg[:, :, 8 + k] = np.cross(self.u, self.lenses_at(x + e).project(q) - self.lenses_at(x - e).project(q)) \
+            plus, minus = self.lenses_at(x + e), self.lenses_at(x - e)
+            if corners is None and not (plus.single_centre and minus.single_centre):
+                corners = self.corner_offsets(A, Cb)
+            Jg[:, :, 8 + k] = np.cross(self.u, self.project(plus, q, corners) - self.project(minus, q, corners)) \
                 / (2 * h)
         c_delta = through(-np.einsum("nij,nj->ni", At, np.cross(np.array([0.0, 0.0, 1.0]), G)))
         c_theta = np.empty((n, 3, 2))
@@ -252,6 +278,15 @@ def _as_array(x, shape_tail, name: str, n: Optional[int] = None) -> np.ndarray:
         want = f"({n if n is not None else 'N'}{''.join(f', {s}' for s in shape_tail)})"
         raise CalibrationError(f"{name}: expected an array of shape {want}, got {a.shape}")
     return a
+
+
+def _corners(marker_map, ids: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
+    """The corners (N, 4, 3) of the markers ``ids`` (N,) from their centres in map (m): upright squares of their
+    size facing their surveyed normal, or where none was surveyed the viewpoint (N, 3) they were seen from."""
+    markers = [marker_map[int(i)] for i in ids]
+    normals = np.array([m.normal if m.normal is not None else v - m.position
+                        for m, v in zip(markers, viewpoints)], dtype=float).reshape(-1, 3)
+    return square_corners(1.0, normals) * np.array([m.size for m in markers])[:, None, None]
 
 
 def _interp_prism(t_prism: np.ndarray, p_prism: np.ndarray, t: np.ndarray, max_gap: float):
@@ -464,7 +499,7 @@ def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float, 
     V[:, 1] = np.where(trk.valid, trk.speed * np.sin(trk.heading), 0.0)
     omega = _body_rates(rec.odom, t[idx]) if np.any(rows[idx]) else np.zeros((len(idx), 3))
     obs = _Observed(u[idx] / norm[idx, None], M, P[idx], V, quat_to_matrix(q_odom[idx]), sig[idx], t[idx],
-                    rows[idx], omega)
+                    rows[idx], omega, _corners(rec.marker_map, ids[idx], P[idx]))
     pb = Problem(obs, mounting, track, heading, knots, params, markers, rec.lenses)
     zero = np.zeros(len(idx))
     rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(N_GLOBALS), zero, np.zeros((len(idx), 2)),

@@ -16,30 +16,12 @@ from typing import List, Optional, Tuple
 import cv2
 import numpy as np
 
-from ..camera import Equirect, GnomonicView, angle_between
+from ..camera import Equirect, GnomonicView, angle_between, sphere_centre_bearing
 from ..transforms import cross3
 from .quads import DECODE, EDGE_FIT, DecodeParams, EdgeFitParams, _remap_points, decode_quads, refine_quads
 
 __all__ = ["sphere_centre_bearing", "pixel_centre_bearing", "marker_angular_size", "refine_corners",
            "refine_corners_many", "decode_marker", "decode_markers"]
-
-
-def sphere_centre_bearing(corners) -> np.ndarray:
-    """Centre bearing (..., 3) of markers from their four corner bearings (..., 4, 3).
-
-    Intersection of the great circles through opposite corners (n1 = c0×c2, n2 = c1×c3,
-    centre = ±n1×n2, the sign nearest the corners' mean). Exact for a planar square seen
-    by a central camera: the diagonals' intersection is the square's centre and lines
-    project to great circles. A degenerate quad gives the corners' mean direction.
-    """
-    c = np.asarray(corners, dtype=float)
-    c = c / np.linalg.norm(c, axis=-1, keepdims=True)
-    m = cross3(cross3(c[..., 0, :], c[..., 2, :]), cross3(c[..., 1, :], c[..., 3, :]))
-    norm = np.linalg.norm(m, axis=-1, keepdims=True)
-    mean = c.mean(axis=-2)
-    m = np.where(norm < 1e-15, mean, m / np.maximum(norm, 1e-300))
-    m = np.where(np.sum(m * mean, axis=-1, keepdims=True) < 0, -m, m)
-    return m / np.linalg.norm(m, axis=-1, keepdims=True)
 
 
 def pixel_centre_bearing(equirect: Equirect, corners_px) -> np.ndarray:

@@ -49,7 +49,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 
 from ..camera import DualFisheye
-from ..markers import Marker, MarkerMap
+from ..markers import Marker, MarkerMap, upright_rotation
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
 from ..tum import atomic_write_text, read_yaml
 from .config import PRESETS, ScenarioConfig, ScenarioError
@@ -73,15 +73,6 @@ class PrismTrack:
 def _smoothstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
-
-
-def _upright_rotation(normal) -> np.ndarray:
-    """map_R_marker of a face with outward ``normal`` (its z) and y as close to map +z as possible."""
-    z = np.asarray(normal, dtype=float)
-    z = z / np.linalg.norm(z)
-    y = np.array([0.0, 0.0, 1.0]) - z[2] * z
-    y /= np.linalg.norm(y)
-    return np.stack([np.cross(y, z), y, z], axis=1)
 
 
 class Scenario:
@@ -411,7 +402,7 @@ class Scenario:
 
     def map_R_marker(self, marker_id: int) -> np.ndarray:
         """Orientation of a marker's face in map (z = the hidden normal, y up the face)."""
-        return _upright_rotation(self.marker_normals[marker_id])
+        return upright_rotation(self.marker_normals[marker_id])
 
     def placed_markers(self, t: float) -> List[PlacedMarker]:
         """The markers in the true camera frame at true time t, for the renderer (with the

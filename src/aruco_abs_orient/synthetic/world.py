@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from ..camera import DualFisheye, Equirect, bearing_to_azel
+from ..markers import upright_rotation
 from ..transforms import invert_T
 from . import render
 from .render import PlacedMarker, finish_frame
@@ -50,14 +51,6 @@ _PILLAR_ROW_STEP = 4  # pillars are shaded on every 4th row and interpolated
 _LIGHT_STEP = 4.0  # m between ceiling light panels
 _LIGHT_HALF = (0.6, 0.15)  # m, half length and half width of a light panel
 _INK, _PAPER = 18.0, 235.0  # grey levels of a printed marker's black and white under unit light
-
-
-def _upright(normal) -> np.ndarray:
-    """Rotation (3, 3) of a face with outward unit ``normal`` (its z) and y as close to +z as possible."""
-    z = np.asarray(normal, dtype=float)
-    y = np.array([0.0, 0.0, 1.0]) - z[2] * z
-    y /= np.linalg.norm(y)
-    return np.stack([np.cross(y, z), y, z], axis=1)
 
 
 class _Light:
@@ -141,7 +134,7 @@ class Hall:
             else:
                 centre = np.array([rng.uniform(x0 + 1, x1 - 1), wy + 0.01 * normal[1], z])
             kind = ("checker", "blocks")[i % 2]
-            posters.append((kind, centre, _upright(normal), side, _poster_texture(kind, rng)))
+            posters.append((kind, centre, upright_rotation(normal), side, _poster_texture(kind, rng)))
         return posters
 
     # ---- truth -------------------------------------------------------------------------------
