@@ -293,6 +293,25 @@ class DualFisheye:
         (o_f, w_f), (o_b, w_b) = self.lens_rays(b, 0), self.lens_rays(b, 1)
         return np.where(front[..., None], o_f, o_b), np.where(front[..., None], w_f, w_b)
 
+    def marker_rays(self, centres, corners) -> Tuple[np.ndarray, np.ndarray]:
+        """The rays (origins (N, 3) m, unit directions (N, 3)) along which detected marker centres (N, 3) look,
+        from their corners' stitched bearings (N, 4, 3): a marker whose corners one lens imaged is that lens's
+        (:meth:`rays`); one across a seam or in the blend band is seen from the lenses' centres and directions
+        weighted by their share of its corners (the diagonals of a square split by the seam meet where the
+        mean of the two lenses sees its centre). Rows whose corners are unknown (zero or not finite) use the
+        centre, as :meth:`rays` does."""
+        d = np.asarray(centres, dtype=float).reshape(-1, 3)
+        d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        if self.single_centre:
+            return np.zeros(d.shape), d
+        c = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+        known = np.all(np.isfinite(c), axis=(1, 2)) & np.all(np.linalg.norm(c, axis=-1) > 0, axis=1)
+        w = np.where(known, self.front_weight(np.where(known[:, None, None], c, 1.0)).mean(axis=1),
+                     (self.front_weight(d) >= 0.5).astype(float))[:, None]
+        (o_f, w_f), (o_b, w_b) = self.lens_rays(d, 0), self.lens_rays(d, 1)
+        direction = w * w_f + (1.0 - w) * w_b
+        return w * o_f + (1.0 - w) * o_b, direction / np.linalg.norm(direction, axis=-1, keepdims=True)
+
     def project(self, points) -> np.ndarray:
         """Stitched unit bearing(s) (..., 3) of camera-frame point(s) (..., 3) m: each lens's image of the
         point, weighted by that lens's share of the stitched image where the image lands (one of them outside

@@ -81,11 +81,11 @@ class FrameSolver:
 
     def _rays(self, observations, from_point=None) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The observations' rays in the camera frame (origins (N, 3) m, unit directions (N, 3): each from the
-        lens that saw it) and their σ (N,) rad, widened for the lens whose yaw the calibration knew less well, and
-        in the lenses' blend band by the ray's possible error there for markers at their range from
-        ``from_point`` (map, m; None: not widened)."""
+        lens that saw it, a marker across a seam from both, by their share of its corners) and their σ (N,) rad,
+        widened for the lens whose yaw the calibration knew less well, and in the lenses' blend band by the ray's
+        possible error there for markers at their range from ``from_point`` (map, m; None: not widened)."""
         bearings = np.array([o.centre for o in observations]).reshape(-1, 3)
-        origins, directions = self.lenses.rays(bearings)
+        origins, directions = self.lenses.marker_rays(bearings, np.array([o.corners for o in observations]))
         sigma = np.array([o.sigma for o in observations], dtype=float)
         if np.any(self._lens_excess) and len(observations):
             sigma = np.hypot(sigma, np.where(self.lenses.front_weight(bearings) >= 0.5, *self._lens_excess))

@@ -223,6 +223,12 @@ def test_a_marker_seen_by_one_lens_is_its_centre_seen_by_it(az, el, r, o, rot, s
     assert angle_between(cam.project_marker(X, corners), cam.project(X)) < 1e-9
     # the single centre's shortcut (the centre's direction) is what its corners' diagonals give
     assert angle_between(sphere_centre_bearing(SINGLE_CENTRE.project(corners)), X) < 1e-9
+    # and back: its ray is that lens's, as it is where its corners are unknown
+    d = cam.project(X)[None]
+    for seen in (cam.project(corners)[None], np.zeros((1, 4, 3))):
+        origin, w = cam.marker_rays(d, seen)
+        o_lens, w_lens = cam.rays(d)
+        assert np.allclose(origin, o_lens, atol=1e-15) and np.allclose(w, w_lens, atol=1e-12)
 
 
 @given(azimuths, st.floats(-1.2, 1.2), st.floats(1.0, 20.0), st.floats(0.001, 0.03))

@@ -104,11 +104,17 @@ def test_a_marker_across_the_seam_is_where_its_corners_put_it():
     """Two lenses 3 cm off centre, stitched at infinity: a marker across a seam between the lenses is imaged
     corner by corner through both, so its detected centre is not either lens's image of the centre point
     (off by 0.5-1.4° at 1-3 m) but where ``DualFisheye.project_marker`` puts it from the four corners (the
-    rendered frames: the package's whole-frame search, nothing of the model)."""
+    rendered frames: the package's whole-frame search, nothing of the model), and the ray back from its
+    detected corners passes through it."""
     from aruco_abs_orient.markers import square_corners
     from aruco_abs_orient.tracking import MarkerTracker
 
-    centre_model, corner_model = [], []
+    centre_model, corner_model, lens_ray, marker_ray = [], [], [], []
+
+    def off_ray(origins, directions, point):     # degrees between a ray and the direction to the point from its origin
+        v = point - origins[0]
+        return math.degrees(float(np.arccos(np.clip(v @ directions[0] / np.linalg.norm(v), -1, 1))))
+
     for seed in (2, 3, 5):
         cfg = dataclasses.replace(PRESETS["tiny"], width=1920, profile="clean", seed=seed, marker_distance=(1.0, 3.0),
                                   lens_offset=0.03)
@@ -126,9 +132,14 @@ def test_a_marker_across_the_seam_is_where_its_corners_put_it():
                                                                              -1, 1)))))
                     corner_model.append(math.degrees(float(np.arccos(np.clip(
                         o.centre @ sc.lenses.project_marker(centre, corners), -1, 1)))))
+                    lens_ray.append(off_ray(*sc.lenses.rays(o.centre[None]), centre))
+                    marker_ray.append(off_ray(*sc.lenses.marker_rays(o.centre[None], o.corners[None]), centre))
     assert len(corner_model) >= 8, len(corner_model)
     assert np.median(centre_model) > 0.3, np.round(centre_model, 3)
     assert np.median(corner_model) < 0.05 and max(corner_model) < 0.2, np.round(corner_model, 3)
+    # and back: the ray the solvers take for such a marker (DualFisheye.marker_rays, from its detected corners)
+    # passes through it, where the ray of the lens that dominates at its centre does not
+    assert np.median(lens_ray) > 0.3 and np.median(marker_ray) < 0.08, (np.round(lens_ray, 3), np.round(marker_ray, 3))
 
 
 def test_camera_clock_rate_error():
