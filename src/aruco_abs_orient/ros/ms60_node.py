@@ -40,8 +40,8 @@ the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
 Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is
 predicted to be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf
 ``~frame_id`` → ``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever
-arm), its two newest poses extrapolated to now, plus ``~origin``; none when tf has no such chain or its newest
-pose is older than ``~predict_max_age`` (s, 1.0): then the search as before.
+arm), its two newest poses extrapolated to the time the telescope's turn will end, plus ``~origin``; none when
+tf has no such chain or its newest pose is older than ``~predict_max_age`` (s, 1.0): then the search as before.
 
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
@@ -63,7 +63,15 @@ from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 from ..errors import ConfigurationError
 from ..geocom.accuracy import MS60_TRACKING, AccuracyError, InstrumentAccuracy
 from ..geocom.client import default_byte_timing
-from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
+from ..geocom.tracker import (
+    Ms60Tracker,
+    PrismSample,
+    TrackerConfig,
+    TrackerError,
+    TrackerState,
+    TrackerStats,
+    extrapolate,
+)
 from . import exit_without_master, run_node
 
 __all__ = ["config_from_params", "output_from_params", "prediction_from_params", "extrapolate", "prism_with_covariance",
@@ -194,18 +202,6 @@ def prediction_from_params(params: Dict[str, Any]) -> Tuple[bool, str, float]:
     return predict, frame.strip(), max_age
 
 
-def extrapolate(older: Tuple[float, np.ndarray], newer: Tuple[float, np.ndarray], now: float,
-                max_age: float) -> Optional[np.ndarray]:
-    """The position at ``now`` (s) from two (stamp s, position (3,) m) poses, linearly; None when the newer is
-    more than ``max_age`` s old (a stale pose), or from the future."""
-    (t0, p0), (t1, p1) = older, newer
-    age = now - t1
-    if not 0.0 <= age <= max_age:
-        return None
-    rate = (np.asarray(p1) - np.asarray(p0)) / (t1 - t0) if t1 > t0 else np.zeros(3)
-    return np.asarray(p1, dtype=float) + rate * age
-
-
 LOG_HEADER = "t,east,north,height\n"
 
 
@@ -263,7 +259,8 @@ SIM_TIME_MESSAGE = ("/use_sim_time is true on this master (a bag replay such as 
 
 
 def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
-    """``predict()`` for the tracker: the prism's position now (instrument coordinates) from tf, or None."""
+    """``predict(t)`` for the tracker: the prism's position at ROS time ``t`` (instrument coordinates) from tf, or
+    None."""
     import tf2_ros
 
     buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
@@ -274,7 +271,7 @@ def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
         p = tr.transform.translation
         return tr.header.stamp.to_sec(), np.array([p.x, p.y, p.z])
 
-    def predict() -> Optional[Tuple[float, float, float]]:
+    def predict(at_s: float) -> Optional[Tuple[float, float, float]]:
         try:
             newer = position(rospy.Time(0))
         except tf2_ros.TransformException:  # no pose of the robot (yet)
@@ -283,7 +280,7 @@ def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
             older = position(rospy.Time.from_sec(newer[0] - 0.2))
         except tf2_ros.TransformException:  # one pose only: no velocity
             older = newer
-        p = extrapolate(older, newer, rospy.get_time(), max_age)
+        p = extrapolate(older, newer, rospy.get_time(), max_age, at_s)
         return None if p is None else tuple(float(x) for x in p + np.asarray(origin))
 
     return predict
