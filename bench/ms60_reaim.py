@@ -13,6 +13,7 @@ a summary per drive and distance; "never" is no position within ``--wait`` s.
 
     python bench/ms60_reaim.py                                   # 5-100 m, both drives, 2 seeds
     python bench/ms60_reaim.py --distances 5,20 --drives crossing --seeds 4
+    python bench/ms60_reaim.py --lock-in 0.3                     # how much of the time is the lock-in's
 """
 import argparse
 import math
@@ -25,16 +26,16 @@ import numpy as np
 from aruco_abs_orient.geocom.simulator import Ms60Simulator, SimConfig
 from aruco_abs_orient.geocom.tracker import Ms60Tracker, TrackerConfig, extrapolate
 
-HIDE_AT_S = 6.0     # host s after the simulators' boot when the prism is hidden (both trackers locked by then)
+HIDE_AT_S = 6.0     # host s after the simulators' boot when the prism is hidden (both trackers locked by then), plus
+HIDE_SPREAD_S = 0.5  # up to this, by the seed: the loops' phases at the reappearance differ
 POSE_RATE_HZ = 30.0  # the fused pose on tf
 POSE_ERROR_M = 0.03  # its error
 
 
-def track_of(drive: str, distance: float, speed: float, hidden: float, seed: int):
+def track_of(drive: str, distance: float, speed: float, back: float, seed: int):
     """The prism's track (host s since boot → E, N, H m; the station at the origin, its axis at 0 m) and a
-    description: at ``distance`` m when it reappears, moving at ``speed`` m/s."""
+    description: at ``distance`` m when it reappears (``back`` s after boot), moving at ``speed`` m/s."""
     rng = np.random.default_rng(seed)
-    back = HIDE_AT_S + hidden
     azimuth, height = rng.uniform(0, 2 * math.pi), rng.uniform(-1.0, 1.0)
     if drive == "crossing":
         sense = 1.0 if seed % 2 else -1.0   # 1: clockwise (with PowerSearch's sweep), -1: against it
@@ -67,8 +68,9 @@ def fused_pose_prediction(track, t_boot: float, seed: int):
 
 def run_case(drive: str, distance: float, seed: int, args) -> dict:
     """One case: both instruments, the prism hidden and shown; the seconds to the first position of each."""
-    track, how = track_of(drive, distance, args.speed, args.hidden, seed)
-    sims = [Ms60Simulator(SimConfig(), track=track, seed=seed * 10 + k) for k in range(2)]
+    hide_at = HIDE_AT_S + HIDE_SPREAD_S * np.random.default_rng(seed + 2000).uniform()
+    track, how = track_of(drive, distance, args.speed, hide_at + args.hidden, seed)
+    sims = [Ms60Simulator(SimConfig(lock_in_s=args.lock_in), track=track, seed=seed * 10 + k) for k in range(2)]
     for sim in sims[1:]:
         sim.t_boot = sims[0].t_boot
     t_boot = sims[0].t_boot
@@ -82,7 +84,7 @@ def run_case(drive: str, distance: float, seed: int, args) -> dict:
     for tracker in trackers:
         tracker.start()
     try:
-        time.sleep(max(0.0, t_boot + HIDE_AT_S - time.time()))
+        time.sleep(max(0.0, t_boot + hide_at - time.time()))
         locked = all(len(a) > 10 for a in arrivals)
         for sim in sims:
             sim.set_prism_visible(False)
@@ -132,9 +134,11 @@ def main() -> int:
     parser.add_argument("--turn-rate", type=float, default=TrackerConfig("x").turn_rate_deg_s,
                         help="the tracker's turn rate, °/s (the simulator turns at "
                              f"{math.degrees(SimConfig().slew_rad_s):.0f} °/s)")
+    parser.add_argument("--lock-in", type=float, default=SimConfig().lock_in_s,
+                        help="the simulated AUT_LockIn's duration, s (default %(default)s)")
     parser.add_argument("--wait", type=float, default=12.0, help="s to wait for positions after reappearing")
     args = parser.parse_args()
-    c = SimConfig()
+    c = SimConfig(lock_in_s=args.lock_in)
     print(f"simulated MS60: AUT_MakePositioning {c.positioning_s} s + {math.degrees(c.slew_rad_s):.0f} °/s, "
           f"AUT_FineAdjust {c.fine_adjust_s} s, AUT_LockIn {c.lock_in_s} s, PowerSearch {c.power_search_s} s "
           f"a turn, EDM {c.edm_rate_hz:.0f} Hz; prism hidden {args.hidden} s at {args.speed} m/s")

@@ -55,6 +55,7 @@ SEARCH_AREA_RAD = (0.35, 0.17)
 _PROGRAMS = ((BAP_CONT_REF_SYNCHRO, "BAP_CONT_REF_SYNCHRO"), (BAP_CONT_REF_STANDARD, "BAP_CONT_REF_STANDARD"))
 _UNAVAILABLE = (RC.IVPARAM, RC.NOT_IMPL, RC.NA, RC.COM_PROC_UNAVAIL)
 _NO_TARGET = (RC.AUT_TIMEOUT, 8709, RC.AUT_NO_TARGET, RC.AUT_MULTIPLE_TARGETS, 8712, 8713)  # try again
+_AIMED_RAD = FINE_ADJUST_WINDOW_RAD / 8  # a predicted prism this close to the line of sight needs no re-aim's turn
 _MAX_REPOLLS = 3       # polls in a row that may repeat the old distance before one slot is given up
 _POLL_MARGIN_S = 0.003  # a poll reaches the instrument this long after the expected distance
 
@@ -108,12 +109,12 @@ class Ms60Tracker:
     7. acquire: after a lost lock, when a prediction of the prism's position is at hand (``predict``: the
        robot's fused pose and the prism lever arm), AUT_MakePositioning (AUT chapter: AUT_NORMAL, AUT_POSITION)
        first, to the prism's direction when the turn will end (its time: the angle at ``turn_rate_deg_s`` plus
-       the overhead the previous turn took beyond that); AUT_FineAdjust (AUT chapter: centres the prism in the
-       ATR's field, searching its window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful
-       AUT_FineAdjust); without a target AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on
-       an instrument without PowerSearch (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust again.
-       Motorised procedures take seconds: they get ``motion_timeout_s``. MOT_ReadLockStatus confirms the lock
-       (MOT chapter);
+       the overhead the previous turn took beyond that; no turn when the telescope points within a few tenths of
+       a degree of it already); AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field, searching its
+       window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust); without a target
+       AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an instrument without PowerSearch
+       (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust again. Motorised procedures take seconds:
+       they get ``motion_timeout_s``. MOT_ReadLockStatus confirms the lock (MOT chapter);
     8. tracking: TMC_DoMeasure(TMC_RTRK_DIST) (TMC chapter, TMC_MEASURE_PRG: "distance-TRK
        measurement program"; TMC_TRK_DIST = 2 is TPS1100 only);
     9. poll TMC_GetCoordinate (TMC chapter): the first coordinate and CoordTime belong to the last
@@ -392,19 +393,24 @@ class Ms60Tracker:
         self._start_tracking(client)
 
     def _reaim(self, client: GeoComClient) -> bool:
-        """Turn the telescope to where the predicted prism will be when the turn ends (AUT_MakePositioning);
-        False without a prediction or when the instrument refuses (then the search as before)."""
+        """Turn the telescope to where the predicted prism will be when the turn ends (AUT_MakePositioning), unless
+        it points there already; False without a prediction or when the instrument refuses (then the search as
+        before)."""
         if self.predict is None:
             return False
         start = time.time()
         rate = math.radians(self.config.turn_rate_deg_s)
         turn_s, angle, target = 0.0, 0.0, None
-        for _ in range(3):  # where the telescope turns to sets how long it turns, which sets where the prism is
+        for k in range(3):  # where the telescope turns to sets how long it turns, which sets where the prism is
             p = self.predict(start + turn_s)
             if p is None:
                 return False
             target = np.asarray(p, dtype=float)
             angle = self._turn_angle(target)
+            if k == 0 and self._pointing is not None and angle <= _AIMED_RAD:  # already there: no turn
+                with self._stats_lock:
+                    self.reaims += 1
+                return True
             turn_s = self._turn_overhead_s + angle / rate
         hz, v = _direction(target - self.station_axis)
         hz %= 2 * math.pi

@@ -37,11 +37,12 @@ log ``aruco-abs-orient process --prism`` reads), ``~accuracy/distance_mm``, ``~a
 ``~accuracy/angle_arcsec``, ``~accuracy/prism_mm`` (the accuracy class in the measurement mode used; default
 the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
 
-Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is
-predicted to be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf
-``~frame_id`` → ``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever
-arm), its two newest poses extrapolated to the time the telescope's turn will end, plus ``~origin``; none when
-tf has no such chain or its newest pose is older than ``~predict_max_age`` (s, 1.0): then the search as before.
+Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is predicted to
+be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf ``~frame_id`` →
+``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever arm), its two newest
+poses extrapolated to the time the telescope's turn will end, plus ``~origin``; none when tf has no such chain or
+its newest pose is older than ``~predict_max_age`` (s, 1.0): then the search as before. ``~turn_rate_deg_s`` (°/s,
+90) is how fast the instrument turns its telescope: the time of the turn, for where the prism will be when it ends.
 
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
@@ -122,6 +123,9 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     if not 0 <= min_latency_ms <= 1000:
         raise TrackerError(f"~min_latency_ms: {min_latency_ms} ms is not in [0, 1000]")
     accuracy = _accuracy(params.get("accuracy", {}))
+    turn_rate = _number(params, "turn_rate_deg_s", 90.0)
+    if not 1 <= turn_rate <= 1000:
+        raise TrackerError(f"~turn_rate_deg_s: {turn_rate} °/s is not in [1, 1000]")
     station_params = params.get("station", {})
     if not isinstance(station_params, dict):
         raise TrackerError(f"~station: expected a dictionary with x, y, z, instrument_height, orientation_deg, "
@@ -142,7 +146,7 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
         byte_timing=byte_timing,
         prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
         orientation_rad=None if orientation_deg is None else math.radians(orientation_deg),
-        min_latency_s=min_latency_ms / 1000.0, accuracy=accuracy)
+        min_latency_s=min_latency_ms / 1000.0, accuracy=accuracy, turn_rate_deg_s=turn_rate)
     config.validate()
     return config, frame_id.strip()
 
