@@ -27,15 +27,19 @@ from aruco_abs_orient.geocom.simulator import FaultRates, Ms60Simulator, SimConf
 from aruco_abs_orient.geocom.tracker import Ms60Tracker, TrackerConfig
 
 
-def main() -> int:
+def _arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=120.0, help="soak duration (default 120 s)")
     parser.add_argument("--baud", type=int, default=115200)
     parser.add_argument("--tcp", action="store_true", help="local TCP instead of a pty")
     parser.add_argument("--no-faults", action="store_true", help="clean link (rate and stamp figures only)")
     parser.add_argument("--seed", type=int, default=2024)
-    args = parser.parse_args()
+    return parser.parse_args()
 
+
+def _soak(args: argparse.Namespace):
+    """Run the tracker against the simulator for ``args.seconds``: (simulator, its config, the (reception time,
+    sample) pairs, the tracker's stats, the seconds it ran)."""
     faults = FaultRates() if args.no_faults else FaultRates(
         garbage=0.02, drop=0.01, late=0.003, warning=0.03, spike=0.02, lock_loss=0.03, link_loss=0.03)
     config = SimConfig(baud=args.baud, latency_s=0.012, jitter_s=0.010, faults=faults)
@@ -61,15 +65,22 @@ def main() -> int:
         tracker.stop()
         sim.close()
     elapsed = time.time() - t_start
-    stats = tracker.stats()
+    return sim, config, samples, tracker.stats(), elapsed
 
-    # theoretical limit: request + reply bytes of one TMC_GetCoordinate at the baud rate
+
+def _wire_limits(baud: int, latency_s: float):
+    """The theoretical rate limit (Hz) from the request + reply bytes of one TMC_GetCoordinate at ``baud``, the
+    same with the mean latency, and the bytes."""
     request = encode_request(Rpc.TMC_GetCoordinate, (0, TMC_AUTO_INC), 9999)
     reply = encode_reply(0, (1234.567891, -2345.678912, 345.678912, 2**31, 1234.567891, -2345.678912,
                              345.678912, 2**31), 0, 9999)
-    limit_hz = 1.0 / wire_time_s(len(request) + len(reply), args.baud)
-    limit_lat_hz = 1.0 / (wire_time_s(len(request) + len(reply), args.baud) + config.latency_s)
+    wire = wire_time_s(len(request) + len(reply), baud)
+    return 1.0 / wire, 1.0 / (wire + latency_s), len(request) + len(reply)
 
+
+def _checked_stamp_errors(sim, samples):
+    """Assert the stream is clean (stamps increasing, no duplicate, positions equal to the truth, no internal
+    error); the stamps' absolute errors and the reception times' delays against the truth (ms)."""
     truth = {r.instrument_ms: r for r in sim.truth if r.instrument_ms >= 0}
     stamps = np.array([s.stamp_s for _, s in samples])
     assert np.all(np.diff(stamps) > 0), "out-of-order or duplicate stamp"
@@ -81,8 +92,11 @@ def main() -> int:
         assert np.allclose((s.east, s.north, s.height), r.position, atol=0.6e-6), "position differs from the truth"
         err.append((s.stamp_s - r.time_s) * 1e3)
         naive.append((rx - r.time_s) * 1e3)
-    err, naive = np.abs(np.array(err)), np.array(naive)
+    return np.abs(np.array(err)), np.array(naive)
 
+
+def _recoveries(sim, samples):
+    """Seconds from each link or prism back to the next sample received."""
     recoveries = []
     for t0, kind, t_end in sim.events:
         if kind in ("link_down", "prism_visible"):
@@ -90,6 +104,15 @@ def main() -> int:
             first = next((rx for rx, _ in samples if rx > back), None)
             if first is not None:
                 recoveries.append(first - back)
+    return recoveries
+
+
+def main() -> int:
+    args = _arguments()
+    sim, config, samples, stats, elapsed = _soak(args)
+    limit_hz, limit_lat_hz, n_bytes = _wire_limits(args.baud, config.latency_s)
+    err, naive = _checked_stamp_errors(sim, samples)
+    recoveries = _recoveries(sim, samples)
     rec = np.array(recoveries) if recoveries else np.array([float("nan")])
     rx_times = [rx for rx, _ in samples]
     steady_rate = (len(rx_times) - 1) / (rx_times[-1] - rx_times[0]) if len(rx_times) > 1 else 0.0
@@ -98,7 +121,7 @@ def main() -> int:
           f"latency {config.latency_s * 1e3:.0f}±{config.jitter_s * 1e3:.0f} ms, "
           f"faults {'off' if args.no_faults else 'on'}")
     print(f"  rate: {len(samples) / elapsed:.2f} Hz published overall (20 Hz requested); "
-          f"theoretical limit {limit_hz:.1f} Hz from {len(request) + len(reply)} bytes per request "
+          f"theoretical limit {limit_hz:.1f} Hz from {n_bytes} bytes per request "
           f"({limit_lat_hz:.1f} Hz with the mean latency)")
     print(f"  sustained rate from the first to the last sample: {steady_rate:.2f} Hz")
     print(f"  stamp error vs truth: median {np.median(err):.2f} ms, p95 {np.percentile(err, 95):.2f} ms, "

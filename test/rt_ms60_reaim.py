@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""rostest checker for ms60_reaim.test: two strict simulated MS60s tracking a prism that drives at 1 m/s about 20 m
-from the instrument, against the direction PowerSearch sweeps; tf map -> base_link published as the robot's fused
-pose (the truth 3 cm off, 30 Hz, stamped now) and base_link -> prism static (the prism is base_link's origin here).
-The prism is hidden for 2 s in both; the driver that predicts from tf (namespace predict) turns the telescope to
-the prism (AUT_MakePositioning), fine-adjusts and locks in: its positions resume within the simulator's positioning,
-two fine adjustments, the lock-in and 0.5 s of its reappearance; the one without (namespace search) sweeps with
-PowerSearch, later. Both times are printed as [figure] lines."""
+"""rostest checker for ms60_reaim.test: two strict simulated MS60s tracking a prism that drives at 1 m/s 5 m from the
+instrument (11° a second across its sight: a turn aimed where the prism is when the turn starts misses it), against
+the direction PowerSearch sweeps; tf map -> base_link published as the robot's fused pose (the truth 3 cm off, 30
+Hz, stamped now) and base_link -> prism static (the prism is base_link's origin here). The prism is hidden for 2 s
+in both; the driver that predicts from tf (namespace predict) turns the telescope to where the prism will be when
+the turn ends (AUT_MakePositioning), fine-adjusts and locks in: its positions resume within the simulator's
+positioning, two fine adjustments, the lock-in and 0.5 s of its reappearance; the one without (namespace search)
+sweeps with PowerSearch, later. Both times are printed as [figure] lines."""
 import math
 import threading
 import time
@@ -23,8 +24,8 @@ from aruco_abs_orient.ros.ms60_node import status_values
 
 
 def track(t):
-    a = -0.05 * t  # 1 m/s along a circle of 20 m about the station at the map's origin
-    return np.array([20.0 * math.sin(a), 20.0 * math.cos(a), 1.5])
+    a = -0.2 * t  # 1 m/s along a circle of 5 m about the station at the map's origin
+    return np.array([5.0 * math.sin(a), 5.0 * math.cos(a), 1.5])
 
 
 class Link:

@@ -45,6 +45,7 @@ PROFILES = ("strict", "lenient")
 MODELS = ("MS60", "TPS1200")
 
 _STALE_PERIODS = 3   # a tracking distance older than this many EDM periods is no distance
+_FAN_HALF_WIDTH_RAD = 0.01  # PowerSearch's fan: a prism within this of its Hz is seen
 
 
 class SimulatorError(InstrumentError):
@@ -186,8 +187,9 @@ class Ms60Instrument:
     - the telescope (Hz, V): at the prism while locked, where the prism was when the lock was lost,
       where AUT_MakePositioning turned it. Motorised procedures take their time: AUT_FineAdjust finds
       the prism only within its window around the starting direction, AUT_Search within its area,
-      PowerSearch when its fan sweeps past the prism's Hz; a search ends ``found_s`` after finding it
-      (pointing at it), else with AUT_NO_TARGET; AUT_LockIn needs a fine adjustment onto the prism.
+      PowerSearch when its fan sweeps past the prism's Hz while the prism is visible; a search ends
+      ``found_s`` after finding it (pointing at it), else with AUT_NO_TARGET; AUT_LockIn needs a fine
+      adjustment onto the prism.
     """
 
     def __init__(self, config: Optional[SimConfig] = None, track: Callable[[float], np.ndarray] = builtin_track,
@@ -434,10 +436,12 @@ class Ms60Instrument:
                                                                                        params[1] / 2)
         end = start_s + duration
         seen: Optional[float] = None
+        looked = 0.0   # s into the procedure up to which it has looked
         while True:
             now = time.time()
-            if seen is None and self.prism_visible and self._finds(rpc, params, start_aim, now - start_s):
+            if seen is None and self.prism_visible and self._finds(rpc, params, start_aim, looked, now - start_s):
                 seen = now
+            looked = now - start_s
             if now >= end or (seen is not None and now >= seen + c.found_s):
                 break
             if wait(min(0.01, max(0.0, end - now))):
@@ -466,15 +470,17 @@ class Ms60Instrument:
         hz, v = self._prism_direction()
         return abs(math.remainder(hz - aim[0], 2 * math.pi)) <= hz_window and abs(v - aim[1]) <= v_window
 
-    def _finds(self, rpc: int, params, aim: Tuple[float, float], elapsed: float) -> bool:
-        """A search ``rpc`` started pointing at ``aim`` ``elapsed`` s ago finds the visible prism now: AUT_Search
-        within its area (its Hz and V widths), PowerSearch when its fan (full height) has swept past the prism's
-        Hz (clockwise or not); AUT_FineAdjust is judged at its end, within its window."""
+    def _finds(self, rpc: int, params, aim: Tuple[float, float], since: float, elapsed: float) -> bool:
+        """A search ``rpc`` started pointing at ``aim`` finds the visible prism between ``since`` and ``elapsed`` s
+        into it: AUT_Search within its area (its Hz and V widths), PowerSearch when its fan (full height) sweeps
+        past the prism's Hz meanwhile (clockwise or not; a prism that shows up behind the fan waits for the next
+        turn); AUT_FineAdjust is judged at its end, within its window."""
         if rpc == Rpc.AUT_Search:
             return self._within(aim, params[0] / 2, params[1] / 2)
         if rpc == Rpc.AUT_PS_SearchNext:
-            turned = 2 * math.pi * elapsed / self.config.power_search_s
+            turn = 2 * math.pi / self.config.power_search_s
             sign = 1.0 if params[0] == AUT_CLOCKWISE else -1.0
             ahead = (sign * (self._prism_direction()[0] - aim[0])) % (2 * math.pi)
-            return ahead <= turned or turned >= 2 * math.pi
+            return (ahead - turn * since + _FAN_HALF_WIDTH_RAD) % (2 * math.pi) <= (
+                turn * (elapsed - since) + 2 * _FAN_HALF_WIDTH_RAD)
         return False

@@ -1,8 +1,8 @@
 """The MS60 tracking loop: the documented GeoCOM session for kinematic prism tracking, in a thread.
 
 In: a :class:`~.tracker_types.TrackerConfig` (a pyserial URL and the session's settings), callbacks for
-samples and state changes, and optionally ``predict`` (where the prism is now, from the robot's fused
-pose). Out: :class:`~.tracker_types.PrismSample` positions stamped with the instrument's measurement
+samples and state changes, and optionally ``predict`` (where the prism is at a given host time, from the
+robot's fused pose). Out: :class:`~.tracker_types.PrismSample` positions stamped with the instrument's measurement
 time mapped to host time, :class:`~.tracker_types.TrackerState` changes and :meth:`Ms60Tracker.stats`.
 Contract: each step of the session follows the TPS1200+ / Captivate GeoCOM references (cited step by
 step in :class:`Ms60Tracker`); stamps never go backwards and never repeat; a refused step is the
@@ -44,7 +44,7 @@ from .protocol import (
 from .tracker_types import PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
 
 __all__ = ["TrackerError", "TrackerState", "TrackerConfig", "PrismSample", "TrackerStats", "Ms60Tracker",
-           "DOUBLE_PRECISION", "FINE_ADJUST_WINDOW_RAD", "SEARCH_AREA_RAD"]
+           "DOUBLE_PRECISION", "FINE_ADJUST_WINDOW_RAD", "SEARCH_AREA_RAD", "extrapolate"]
 
 DOUBLE_PRECISION = 6
 """COM_SetDoublePrecision: 6 decimals (1 µm, 1 µrad) keep the coordinate replies short."""
@@ -55,8 +55,25 @@ SEARCH_AREA_RAD = (0.35, 0.17)
 _PROGRAMS = ((BAP_CONT_REF_SYNCHRO, "BAP_CONT_REF_SYNCHRO"), (BAP_CONT_REF_STANDARD, "BAP_CONT_REF_STANDARD"))
 _UNAVAILABLE = (RC.IVPARAM, RC.NOT_IMPL, RC.NA, RC.COM_PROC_UNAVAIL)
 _NO_TARGET = (RC.AUT_TIMEOUT, 8709, RC.AUT_NO_TARGET, RC.AUT_MULTIPLE_TARGETS, 8712, 8713)  # try again
+_AIMED_RAD = FINE_ADJUST_WINDOW_RAD / 8  # a predicted prism this close to the line of sight needs no re-aim's turn
 _MAX_REPOLLS = 3       # polls in a row that may repeat the old distance before one slot is given up
 _POLL_MARGIN_S = 0.003  # a poll reaches the instrument this long after the expected distance
+
+
+def extrapolate(older: Tuple[float, np.ndarray], newer: Tuple[float, np.ndarray], now: float,
+                max_age: float, at: Optional[float] = None) -> Optional[np.ndarray]:
+    """The position at ``at`` (s, default ``now``) from two (stamp s, position (3,) m) poses, linearly; None when
+    the newer is more than ``max_age`` s old at ``now`` (a stale pose), or from the future."""
+    (t0, p0), (t1, p1) = older, newer
+    if not 0.0 <= now - t1 <= max_age:
+        return None
+    rate = (np.asarray(p1) - np.asarray(p0)) / (t1 - t0) if t1 > t0 else np.zeros(3)
+    return np.asarray(p1, dtype=float) + rate * ((now if at is None else at) - t1)
+
+
+def _direction(d: np.ndarray) -> Tuple[float, float]:
+    """Hz (from north, clockwise) and V (zenith angle), rad, of the vector ``d`` (E, N, H)."""
+    return math.atan2(d[0], d[1]), math.atan2(math.hypot(d[0], d[1]), d[2])
 
 
 class _SessionError(Exception):
@@ -66,9 +83,10 @@ class _SessionError(Exception):
 class Ms60Tracker:
     """Runs the loop in a thread (:meth:`start`/:meth:`stop`) and calls ``on_sample`` with each
     new :class:`PrismSample` and ``on_state`` with each new :class:`TrackerState` (from the
-    loop's thread). ``predict`` (optional, called from the loop's thread) gives where the prism is now
-    ((E, N, H) m in the instrument's frame) or None when it does not know (no pose, or a stale one): after
-    a lost lock the telescope is turned there before the prism is searched for.
+    loop's thread). ``predict(t)`` (optional, called from the loop's thread) gives where the prism is at host
+    time ``t`` (s; now or up to a turn's time ahead) ((E, N, H) m in the instrument's frame) or None when it
+    does not know (no pose, or a stale one): after a lost lock the telescope is turned to where the prism will
+    be when the turn ends before the prism is searched for.
 
     Session (each step cites the GeoCOM reference it follows: "RM1200" = TPS1200+ GeoCOM Reference
     Manual v1.50, "RMCap" = the Captivate TS/MS GeoCOM Reference Manual; sections by chapter and
@@ -89,13 +107,14 @@ class Ms60Tracker:
        mode follows from the program; TMC_SetEdmMode is the TPS1100 interface and not used;
     6. LOCK mode: AUS_SetUserLockState(ON) (AUS chapter: LOCK mode on does not lock by itself);
     7. acquire: after a lost lock, when a prediction of the prism's position is at hand (``predict``: the
-       robot's fused pose and the prism lever arm), AUT_MakePositioning to its direction (AUT chapter:
-       AUT_NORMAL, AUT_POSITION) first; AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field,
-       searching its window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust);
-       without a target AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an
-       instrument without PowerSearch (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust
-       again. Motorised procedures take seconds: they get ``motion_timeout_s``. MOT_ReadLockStatus
-       confirms the lock (MOT chapter);
+       robot's fused pose and the prism lever arm), AUT_MakePositioning (AUT chapter: AUT_NORMAL, AUT_POSITION)
+       first, to the prism's direction when the turn will end (its time: the angle at ``turn_rate_deg_s`` plus
+       the overhead the previous turn took beyond that; no turn when the telescope points within a few tenths of
+       a degree of it already); AUT_FineAdjust (AUT chapter: centres the prism in the ATR's field, searching its
+       window), then AUT_LockIn (AUT chapter: needs LOCK mode and a successful AUT_FineAdjust); without a target
+       AUT_PS_SearchNext (AUT chapter, PowerSearch, TPS1200+ and later) or, on an instrument without PowerSearch
+       (NOT_IMPL/NA/COM_PROC_UNAVAIL), AUT_Search, then AUT_FineAdjust again. Motorised procedures take seconds:
+       they get ``motion_timeout_s``. MOT_ReadLockStatus confirms the lock (MOT chapter);
     8. tracking: TMC_DoMeasure(TMC_RTRK_DIST) (TMC chapter, TMC_MEASURE_PRG: "distance-TRK
        measurement program"; TMC_TRK_DIST = 2 is TPS1100 only);
     9. poll TMC_GetCoordinate (TMC chapter): the first coordinate and CoordTime belong to the last
@@ -121,12 +140,14 @@ class Ms60Tracker:
     def __init__(self, config: TrackerConfig, on_sample: Optional[Callable[[PrismSample], None]] = None,
                  on_state: Optional[Callable[[TrackerState], None]] = None,
                  client_factory: Callable[..., GeoComClient] = GeoComClient,
-                 predict: Optional[Callable[[], Optional[Tuple[float, float, float]]]] = None):
+                 predict: Optional[Callable[[float], Optional[Tuple[float, float, float]]]] = None):
         config.validate()
-        self.predict = predict                   # () -> the prism's (E, N, H) now, or None (missing or stale)
+        self.predict = predict                   # (host s) -> the prism's (E, N, H) then, or None (missing or stale)
         self.reaims = 0                          # re-aims at a prediction after a lost lock
         self.reaims_found = 0                    # ... after which AUT_FineAdjust found the prism
         self._reaiming_since = 0.0               # host time re-aims began to fail in this loss (0: they do not)
+        self._pointing: Optional[np.ndarray] = None  # a point (E, N, H) on the telescope's line of sight, or None
+        self._turn_overhead_s = 0.0              # the last AUT_MakePositioning's time beyond its angle's turn
         self.config = config
         self.on_sample = on_sample
         self.on_state = on_state
@@ -372,23 +393,43 @@ class Ms60Tracker:
         self._start_tracking(client)
 
     def _reaim(self, client: GeoComClient) -> bool:
-        """Turn the telescope to the predicted prism (AUT_MakePositioning); False without a prediction or when
-        the instrument refuses (then the search as before)."""
+        """Turn the telescope to where the predicted prism will be when the turn ends (AUT_MakePositioning), unless
+        it points there already; False without a prediction or when the instrument refuses (then the search as
+        before)."""
         if self.predict is None:
             return False
-        p = self.predict()
-        if p is None:
-            return False
-        d = np.asarray(p, dtype=float) - self.station_axis
-        hz = math.atan2(d[0], d[1]) % (2 * math.pi)
-        v = math.atan2(math.hypot(d[0], d[1]), d[2])
+        start = time.time()
+        rate = math.radians(self.config.turn_rate_deg_s)
+        turn_s, angle, target = 0.0, 0.0, None
+        for k in range(3):  # where the telescope turns to sets how long it turns, which sets where the prism is
+            p = self.predict(start + turn_s)
+            if p is None:
+                return False
+            target = np.asarray(p, dtype=float)
+            angle = self._turn_angle(target)
+            if k == 0 and self._pointing is not None and angle <= _AIMED_RAD:  # already there: no turn
+                with self._stats_lock:
+                    self.reaims += 1
+                return True
+            turn_s = self._turn_overhead_s + angle / rate
+        hz, v = _direction(target - self.station_axis)
+        hz %= 2 * math.pi
         rc = self._motion(Rpc.AUT_MakePositioning, lambda t: client.make_positioning(hz, v, t))
         if rc != 0:
             self.notice = f"re-aim refused: AUT_MakePositioning returned {rc_name(rc)}"
             return False
+        self._turn_overhead_s = max(0.0, time.time() - start - angle / rate)
+        self._pointing = target
         with self._stats_lock:
             self.reaims += 1
         return True
+
+    def _turn_angle(self, target: np.ndarray) -> float:
+        """The telescope's turn (rad, the larger of Hz and V) from where it points to ``target`` (0: unknown)."""
+        if self._pointing is None:
+            return 0.0
+        (hz0, v0), (hz1, v1) = (_direction(p - self.station_axis) for p in (self._pointing, target))
+        return max(abs(math.remainder(hz1 - hz0, 2 * math.pi)), abs(v1 - v0))
 
     def _search(self, client: GeoComClient) -> bool:
         """PowerSearch, or AUT_Search on an instrument without it; True when a prism was found."""
@@ -493,6 +534,7 @@ class Ms60Tracker:
         self._last_stamp = stamp
         cov = polar_covariance(self.station_axis, (r.east, r.north, r.height), self.config.accuracy)
         sample = PrismSample(stamp, r.east, r.north, r.height, r.time_ms, r.rc, cov)
+        self._pointing = np.array([r.east, r.north, r.height])
         with self._stats_lock:
             self.samples += 1
             if r.rc != 0:

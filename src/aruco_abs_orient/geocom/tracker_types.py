@@ -52,7 +52,8 @@ class TrackerConfig(NamedTuple):
     tolerated (s); ``error_retry_s`` pause before the session is tried again after an error (s);
     ``accuracy`` the instrument's accuracy class, each position's covariance (:mod:`.accuracy`);
     ``reaim_search_after_s`` how long re-aims at a prediction may fail (the prism hidden, or the prediction
-    wrong) before the search sweeps for it all the same (s)."""
+    wrong) before the search sweeps for it all the same (s); ``turn_rate_deg_s`` how fast the instrument turns its
+    telescope (°/s), for the time a re-aim's turn takes."""
 
     url: str
     baud: int = 115200
@@ -72,6 +73,7 @@ class TrackerConfig(NamedTuple):
     error_retry_s: float = 5.0
     accuracy: InstrumentAccuracy = MS60_TRACKING
     reaim_search_after_s: float = 10.0
+    turn_rate_deg_s: float = 90.0
 
     def validate(self) -> None:
         """Raise TrackerError naming the first bad setting."""
@@ -82,7 +84,7 @@ class TrackerConfig(NamedTuple):
                   ("max_timeouts", self.max_timeouts >= 1), ("backoff", self.backoff_s >= 0),
                   ("min_latency", self.min_latency_s >= 0), ("warmup_samples", self.warmup_samples >= 0),
                   ("no_distance", self.no_distance_s > 0), ("error_retry", self.error_retry_s >= 0),
-                  ("reaim_search_after", self.reaim_search_after_s >= 0)]
+                  ("reaim_search_after", self.reaim_search_after_s >= 0), ("turn_rate", self.turn_rate_deg_s > 0)]
         for name, ok in checks:
             if not ok:
                 raise TrackerError(f"{name}: value out of range")

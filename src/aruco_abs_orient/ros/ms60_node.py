@@ -37,11 +37,12 @@ log ``aruco-abs-orient process --prism`` reads), ``~accuracy/distance_mm``, ``~a
 ``~accuracy/angle_arcsec``, ``~accuracy/prism_mm`` (the accuracy class in the measurement mode used; default
 the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
 
-Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is
-predicted to be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf
-``~frame_id`` → ``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever
-arm), its two newest poses extrapolated to now, plus ``~origin``; none when tf has no such chain or its newest
-pose is older than ``~predict_max_age`` (s, 1.0): then the search as before.
+Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is predicted to
+be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf ``~frame_id`` →
+``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever arm), its two newest
+poses extrapolated to the time the telescope's turn will end, plus ``~origin``; none when tf has no such chain or
+its newest pose is older than ``~predict_max_age`` (s, 1.0): then the search as before. ``~turn_rate_deg_s`` (°/s,
+90) is how fast the instrument turns its telescope: the time of the turn, for where the prism will be when it ends.
 
 Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
 master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
@@ -63,7 +64,15 @@ from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 from ..errors import ConfigurationError
 from ..geocom.accuracy import MS60_TRACKING, AccuracyError, InstrumentAccuracy
 from ..geocom.client import default_byte_timing
-from ..geocom.tracker import Ms60Tracker, PrismSample, TrackerConfig, TrackerError, TrackerState, TrackerStats
+from ..geocom.tracker import (
+    Ms60Tracker,
+    PrismSample,
+    TrackerConfig,
+    TrackerError,
+    TrackerState,
+    TrackerStats,
+    extrapolate,
+)
 from . import exit_without_master, run_node
 
 __all__ = ["config_from_params", "output_from_params", "prediction_from_params", "extrapolate", "prism_with_covariance",
@@ -114,6 +123,9 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
     if not 0 <= min_latency_ms <= 1000:
         raise TrackerError(f"~min_latency_ms: {min_latency_ms} ms is not in [0, 1000]")
     accuracy = _accuracy(params.get("accuracy", {}))
+    turn_rate = _number(params, "turn_rate_deg_s", 90.0)
+    if not 1 <= turn_rate <= 1000:
+        raise TrackerError(f"~turn_rate_deg_s: {turn_rate} °/s is not in [1, 1000]")
     station_params = params.get("station", {})
     if not isinstance(station_params, dict):
         raise TrackerError(f"~station: expected a dictionary with x, y, z, instrument_height, orientation_deg, "
@@ -134,7 +146,7 @@ def config_from_params(params: Dict[str, Any]) -> Tuple[TrackerConfig, str]:
         byte_timing=byte_timing,
         prism_constant_m=None if prism_mm is None else prism_mm / 1000.0, station=station,
         orientation_rad=None if orientation_deg is None else math.radians(orientation_deg),
-        min_latency_s=min_latency_ms / 1000.0, accuracy=accuracy)
+        min_latency_s=min_latency_ms / 1000.0, accuracy=accuracy, turn_rate_deg_s=turn_rate)
     config.validate()
     return config, frame_id.strip()
 
@@ -194,18 +206,6 @@ def prediction_from_params(params: Dict[str, Any]) -> Tuple[bool, str, float]:
     return predict, frame.strip(), max_age
 
 
-def extrapolate(older: Tuple[float, np.ndarray], newer: Tuple[float, np.ndarray], now: float,
-                max_age: float) -> Optional[np.ndarray]:
-    """The position at ``now`` (s) from two (stamp s, position (3,) m) poses, linearly; None when the newer is
-    more than ``max_age`` s old (a stale pose), or from the future."""
-    (t0, p0), (t1, p1) = older, newer
-    age = now - t1
-    if not 0.0 <= age <= max_age:
-        return None
-    rate = (np.asarray(p1) - np.asarray(p0)) / (t1 - t0) if t1 > t0 else np.zeros(3)
-    return np.asarray(p1, dtype=float) + rate * age
-
-
 LOG_HEADER = "t,east,north,height\n"
 
 
@@ -263,7 +263,8 @@ SIM_TIME_MESSAGE = ("/use_sim_time is true on this master (a bag replay such as 
 
 
 def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
-    """``predict()`` for the tracker: the prism's position now (instrument coordinates) from tf, or None."""
+    """``predict(t)`` for the tracker: the prism's position at ROS time ``t`` (instrument coordinates) from tf, or
+    None."""
     import tf2_ros
 
     buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10.0))
@@ -274,7 +275,7 @@ def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
         p = tr.transform.translation
         return tr.header.stamp.to_sec(), np.array([p.x, p.y, p.z])
 
-    def predict() -> Optional[Tuple[float, float, float]]:
+    def predict(at_s: float) -> Optional[Tuple[float, float, float]]:
         try:
             newer = position(rospy.Time(0))
         except tf2_ros.TransformException:  # no pose of the robot (yet)
@@ -283,7 +284,7 @@ def _tf_prediction(frame_id: str, prism_frame: str, origin, max_age: float):
             older = position(rospy.Time.from_sec(newer[0] - 0.2))
         except tf2_ros.TransformException:  # one pose only: no velocity
             older = newer
-        p = extrapolate(older, newer, rospy.get_time(), max_age)
+        p = extrapolate(older, newer, rospy.get_time(), max_age, at_s)
         return None if p is None else tuple(float(x) for x in p + np.asarray(origin))
 
     return predict

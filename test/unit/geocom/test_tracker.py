@@ -274,14 +274,14 @@ def test_a_motorised_call_that_times_out_does_not_pile_up_requests():
     assert [s for _, s in run.states].count(TrackerState.SEARCHING) == 1
 
 
-def _hidden_behind_a_pillar(predict: bool):
-    """A prism driven at 1 m/s about 20 m from the instrument, hidden for 2 s (it moves 2 m: 6° of Hz, beyond
-    AUT_FineAdjust's window): (seconds from its reappearance to the first new position, the tracker's stats).
-    With ``predict`` the tracker is told where the prism is (its true position 50 ms late, 3 cm off: a fused
-    pose), else it has to search."""
+def _hidden_behind_a_pillar(predict: bool, radius: float = 20.0):
+    """A prism driven at 1 m/s ``radius`` m from the instrument, hidden for 2 s (it moves 2 m: at 20 m 6° of Hz,
+    beyond AUT_FineAdjust's window): (seconds from its reappearance to the first new position, the tracker's
+    stats). With ``predict`` the tracker is told where the prism is (its true position 50 ms late, 3 cm off: a
+    fused pose), else it has to search."""
     def track(t):
-        a = -0.05 * t  # 1 m/s along a circle of 20 m about the station, anticlockwise: against PowerSearch's sweep
-        return np.array([20.0 * math.sin(a), 20.0 * math.cos(a), 1.5 + 0.2 * math.sin(t)])
+        a = -t / radius  # 1 m/s along a circle about the station, anticlockwise: against PowerSearch's sweep
+        return np.array([radius * math.sin(a), radius * math.cos(a), 1.5 + 0.2 * math.sin(t)])
 
     sim = Ms60Simulator(SimConfig(), track=track, seed=5)
     samples, lock = [], threading.Lock()
@@ -290,8 +290,8 @@ def _hidden_behind_a_pillar(predict: bool):
         with lock:
             samples.append(time.time())
 
-    def predicted():
-        return tuple(track(time.time() - 0.05 - sim.t_boot) + [0.03, 0.0, 0.0])
+    def predicted(at_s):
+        return tuple(track(at_s - 0.05 - sim.t_boot) + [0.03, 0.0, 0.0])
 
     tracker = Ms60Tracker(TrackerConfig(f"socket://127.0.0.1:{sim.serve_tcp(0)}",
                                         min_latency_s=SimConfig().min_latency_s, warmup_samples=10),
@@ -333,3 +333,25 @@ def test_reaim_at_the_prediction_after_a_pillar_then_search_without_one():
     assert with_prediction < c.positioning_s + 2 * c.fine_adjust_s + c.lock_in_s + 0.5
     assert stats_search.reaims == 0 and stats_search.search == "AUT_PS_SearchNext"
     assert without is None or without > with_prediction + 0.5
+
+
+def test_reaim_aims_where_the_prism_will_be_when_the_turn_ends():
+    """5 m from the instrument a prism at 1 m/s crosses 11° a second: the telescope's turn to where it is when the
+    turn starts (0.1 s and 22° at 90°/s in the simulator) would leave it outside AUT_FineAdjust's ±1.4° window
+    every time. Aimed where it will be when the turn ends, it is found at the first re-aim after it reappears and
+    positions resume as fast as at 20 m."""
+    c = SimConfig()
+    resumed, stats = _hidden_behind_a_pillar(True, radius=5.0)
+    assert stats.reaims_found == 1 and stats.relocks == 1, stats
+    assert resumed < c.positioning_s + 2 * c.fine_adjust_s + c.lock_in_s + 0.5
+
+
+def test_extrapolate_to_a_later_time():
+    """The prediction of the pose at a given time: the newest pose moved on at the two poses' velocity, stale when
+    the newest is older than max_age at ``now`` whatever time it is asked for."""
+    from aruco_abs_orient.geocom.tracker import extrapolate
+
+    older, newer = (9.8, np.array([1.0, 2.0, 1.5])), (10.0, np.array([1.2, 2.0, 1.5]))
+    np.testing.assert_allclose(extrapolate(older, newer, 10.1, 1.0, 10.5), [1.7, 2.0, 1.5])
+    np.testing.assert_allclose(extrapolate(older, newer, 10.5, 1.0), [1.7, 2.0, 1.5])
+    assert extrapolate(older, newer, 11.2, 1.0, 10.5) is None

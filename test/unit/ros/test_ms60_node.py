@@ -23,7 +23,8 @@ def test_defaults_and_full_station():
     assert config.prism_constant_m == pytest.approx(-0.0344)
     assert config.orientation_rad == pytest.approx(math.pi / 2) and config.min_latency_s == pytest.approx(0.002)
     assert config.byte_timing is False and config.motion_timeout_s == 30.0   # socket://: no serial byte timing
-    assert config_from_params({})[0].byte_timing is True
+    assert config_from_params({})[0].byte_timing is True and config_from_params({})[0].turn_rate_deg_s == 90.0
+    assert config_from_params({"turn_rate_deg_s": 180})[0].turn_rate_deg_s == 180.0
     assert config_from_params({"port": "socket://h:1", "byte_timing": True})[0].byte_timing is True
 
 
@@ -37,6 +38,7 @@ def test_defaults_and_full_station():
     ({"motion_timeout": 1.0}, "~motion_timeout"), ({"byte_timing": "yes"}, "~byte_timing"),
     ({"accuracy": {"angle_arcsec": -1}}, "~accuracy/angle_arcsec"), ({"accuracy": {"mm": 1}}, "~accuracy"),
     ({"accuracy": {"distance_mm": "x"}}, "~accuracy/distance_mm"), ({"accuracy": 3}, "~accuracy"),
+    ({"turn_rate_deg_s": 0}, "~turn_rate_deg_s"),
 ])
 def test_bad_parameters_name_themselves(params, name):
     with pytest.raises(TrackerError, match=name.replace("~", "~?")):
