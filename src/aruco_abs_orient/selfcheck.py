@@ -1,35 +1,13 @@
 """Self-checks of a run from its own observations: does the run agree with itself, and if not, why?
 
-Without any reference, the marker yaws of a run tell on its set-up:
-
-- **time offset**: a wrong camera ↔ total-station offset ε looks the prism up ε s off, which moves it
-  along its track; the yaw from marker i is then off by ε·kᵢ, kᵢ = d/dt az(Mᵢ − P(t)) the rate at which
-  the marker's map bearing from the prism turns (fast for near markers abeam, zero straight ahead).
-  The map→odom yaw of each marker yaw (marker yaw − odometry yaw; else the residual) is fitted by least
-  squares as a smooth function of time (hat functions every ``knot_spacing`` s: the odometry's drift) +
-  ε·kᵢ + the tilt terms below + a yaw offset per marker, robustly (Huber); ε̂ is the correction to the
-  offset in use. The tilt comes from a second fit without the per-marker offsets (each marker is seen
-  from a narrow range of directions, so its own offset would absorb the tilt), without the markers
-  found off the others.
-- **camera tilt (boresight roll/pitch)**: with the camera rotated by (ωx, ωy) about its x, y axes
-  against its lever arms, the yaw from a marker at (az, el) in the image is off by
-  −tan(el)·(ωx·cos az + ωy·sin az) (checked against a rendered camera roll): residuals that depend on
-  where the marker is in the image.
-- **boresight yaw**: on straight stretches the heading of base_link must be the direction the prism
-  track runs in (x forward); a constant difference is the camera's mounting yaw (or a platform that
-  crabs).
-- **the calibration's own model** (:class:`ModelContext` given, as ``process`` and the node do): the time
-  offset, tilt and boresight-yaw findings come instead from ``calibration.calibrate`` run on the run's own
-  marker bearings with the mounting, lenses and offset in use as the nominal: what it would still correct,
-  with its σ. After a good calibration it finds nothing; a finding is what calibrate would change.
-- **a moved or wrongly surveyed marker**: its yaws stay off the others' (median residual).
-- **rates and σ**: the share of marker yaws accepted, the rejections per frame (the pipeline's
-  counters) and the RMS of residual/σ (about 1 when the σ are honest).
-
-Each finding has a message naming the likely cause and the command that fixes it. ``check_run`` is
-what ``process`` calls at the end of a run; :class:`RollingSelfCheck` keeps a bounded window for a
-live node (``diagnostics()`` gives a level, a message and key/values for ``/diagnostics``).
-ROS-free; angles in radians, times in seconds inside, degrees and ms in messages.
+In: a run's marker yaws and observations (times, ids, bearings, σ, the pipeline's counters), the prism track and,
+optionally, the calibration's model (:class:`ModelContext`: map, mounting, lenses, readout, offset in use). Out:
+findings, each with its size, σ, likely cause and the command that fixes it: a wrong time offset, a tilted
+camera, a boresight yaw (or a crabbing platform), a moved or wrongly surveyed marker, and the rates and σ
+consistency (the share accepted, the RMS of residual/σ). ``check_run`` is what ``process`` calls at the end of a
+run; :class:`RollingSelfCheck` keeps a bounded window for a live node (``diagnostics()``: a level, a message and
+key/values for ``/diagnostics``). The fits: doc/design.md §12. ROS-free; radians and seconds inside, degrees and
+ms in messages.
 """
 
 from __future__ import annotations

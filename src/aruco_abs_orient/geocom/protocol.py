@@ -1,62 +1,12 @@
 """ASCII GeoCOM framing, return codes, enumerations and typed results (no I/O here).
 
-References: Leica "TPS1200+ GeoCOM Reference Manual" (v1.50) and the Captivate "TS/MS GeoCOM
-Reference Manual" (TS16/TS60/MS60), cited below by chapter and function name; the open clients
-geocompy 1.0 (``geocompy.geo``, PyPI) and dabamos/dmpack (``dm_geocom_api.f90``) follow the same
-numbers and parameter orders.
-
-Framing (manual, "ASCII protocol"):
-
-- request ``%R1Q,<rpc>[,<trid>[,<crc>]]:<p1>,<p2>,...`` terminated by CR LF;
-- reply ``%R1P,<comrc>,<trid>[,<crc>]:<rc>[,<v1>,<v2>,...]`` terminated by CR LF; an instrument
-  answers with the request's transaction id, 0 when the request had none.
-
-``comrc`` is the communication-layer code (0 = the request reached the procedure; 3080
-COM_CANT_DECODE_REQ, 3081 COM_PROC_UNAVAIL, 3094 COM_NOT_GEOCOM and 3101
-COM_SRVR_RX_CHECKSUM_ERROR are answered there, the procedure's ``rc`` is then 0), ``rc`` the
-return code of the procedure. Strings travel in double quotes, bytes as ``'1A'``. The optional
-``<crc>`` is CRC-16/ARC (:func:`crc16`) of the whole line without the ``,<crc>`` field and without
-CR LF (the variant geocompy implements).
-
-Procedures (rpc: request parameters -> reply values after rc):
-
-- COM_NullProc 0; COM_SetDoublePrecision 107: digits; COM_GetDoublePrecision 108: -> digits;
-  COM_GetSWVersion 110: -> GeoCOM release, version, subversion;
-- TMC_GetAngle1 2003: inc mode -> Hz, V, angle accuracy, angle time, cross incline, length
-  incline, incline accuracy, incline time, face; TMC_DoMeasure 2008: TMC_MEASURE_PRG, inc mode;
-  TMC_GetStation 2009 / TMC_SetStation 2010: E0, N0, H0, Hi (m); TMC_SetEdmMode 2020 /
-  TMC_GetEdmMode 2021: EDM_MODE; TMC_GetPrismCorr 2023 / TMC_SetPrismCorr 2024: constant (m);
-  TMC_GetCoordinate 2082: wait (ms), inc mode -> E, N, H, CoordTime (ms), E, N, H continuous,
-  CoordContTime (ms); TMC_GetAngle5 2107: inc mode -> Hz, V; TMC_GetSimpleMea 2108: wait (ms), inc
-  mode -> Hz, V, slope distance; TMC_SetOrientation 2113: Hz (rad); TMC_GetSimpleCoord 2116:
-  wait, inc mode -> E, N, H; TMC_GetFullMeas 2167: wait, inc mode -> Hz, V, angle accuracy,
-  cross incline, length incline, incline accuracy, slope distance, distance time;
-- CSV_GetInstrumentNo 5003; CSV_GetInstrumentName 5004; CSV_GetDateTime 5008: -> year, 'MM',
-  'DD', 'hh', 'mm', 'ss'; CSV_GetSWVersion 5034: -> firmware release, version, subversion;
-  CSV_GetDateTimeCentiSec 5117: -> year, month, day, hour, minute, second, centisecond;
-- MOT_ReadLockStatus 6021: -> MOT_LOCK_STATUS;
-- AUT_LockIn 9013; AUT_MakePositioning 9027: Hz, V (rad), position mode (0 AUT_NORMAL), ATR mode
-  (0 AUT_POSITION: to the angles), 0; AUT_Search 9029: Hz area, V area (rad), 0; AUT_FineAdjust 9037: Hz, V search
-  window (rad), 0; AUT_PS_SearchNext 9051: direction (1 clockwise, -1 anticlockwise), swing;
-- BAP_SetPrismType 17008 / BAP_GetPrismType 17009: BAP_PRISMTYPE; BAP_GetMeasPrg 17018 /
-  BAP_SetMeasPrg 17019: BAP_USER_MEASPRG; BAP_SetTargetType 17021 / BAP_GetTargetType 17022:
-  BAP_TARGET_TYPE;
-- AUS_SetUserAtrState 18005 / AUS_GetUserAtrState 18006, AUS_SetUserLockState 18007 /
-  AUS_GetUserLockState 18008: on/off.
-
-TMC_GetCoordinate's first coordinate and CoordTime belong to the last *distance* measurement;
-the continuous coordinate combines the angles measured for this request with that distance and
-CoordContTime is the time of those angles. With the EDM running at its own rate (tracking, about
-20 Hz) two polls can return the same distance and CoordTime.
-
-Return codes of a coordinate reply and the classes the driver uses:
-
-- 0 GRC_OK: a position, use it (:attr:`RcClass.OK`);
-- 1283 TMC_NO_FULL_CORRECTION and 1284 TMC_ACCURACY_GUARANTEE: the reply carries a position;
-  keep it and flag it (:attr:`RcClass.WARNING`);
-- 1285 TMC_ANGLE_OK (only angles valid, no distance) ... 1294 TMC_SIGNAL_ERROR, and the lock
-  codes 8710 AUT_NO_TARGET / 1799 MOT_NOT_LOCK: no usable position (:attr:`RcClass.NO_POSITION`);
-- anything else: :attr:`RcClass.ERROR`.
+In: the procedures' parameters (requests) and the instrument's reply lines. Out: request lines
+``%R1Q,<rpc>[,<trid>[,<crc>]]:<params>`` (CR LF terminated; the optional CRC-16/ARC of :func:`crc16`), parsed
+replies (the communication code ``comrc``, the procedure's ``rc`` and its typed values), the return codes'
+classes the driver acts on (:class:`RcClass`: OK, WARNING, NO_POSITION, ERROR) and the enumerations' values,
+after Leica's TPS1200+ and Captivate (TS/MS) GeoCOM references, by chapter and function name; geocompy and
+dmpack follow the same numbers and parameter orders. The procedures used, with their parameters, replies and
+return codes: doc/design.md §13.
 """
 
 from __future__ import annotations

@@ -1,52 +1,13 @@
 """Node ``ms60_driver``: a Leica MS60 (GeoCOM) tracking a prism → ``ms60/prism``.
 
-Publishes
-- ``ms60/prism`` (geometry_msgs/PointStamped, frame ``~frame_id``, default ``map``): the prism
-  position (m); the stamp is the instrument's measurement time mapped to ROS time, never the
-  reception time;
-- ``ms60/prism_with_covariance`` (geometry_msgs/PoseWithCovarianceStamped, same frame and stamp): the same
-  position with its covariance from the instrument's accuracy class and the station's polar geometry
-  (:mod:`aruco_abs_orient.geocom.accuracy`: the distance σ along the line of sight, the angle σ times the
-  distance across it); the orientation is not measured (identity, variance 1e6);
-- ``ms60/status`` (diagnostic_msgs/DiagnosticStatus, latched, 1 Hz: ``rostopic echo`` shows it as it is, no
-  escaped JSON): the ``prism tracking`` status below, whose key/values are the tracker's figures: ``state``
-  (connecting/searching/locked/lost/reconnecting/error), ``error`` (why, in the error state),
-  ``notice`` (why the prism is not locked), ``program`` and ``search`` (what the instrument
-  accepted), ``samples``, ``lost_samples``, ``rate_hz``, ``warnings`` and ``no_position`` (counts
-  per GeoCOM return code), ``timeouts``, ``duplicates``, ``out_of_order``, ``reconnects``,
-  ``relocks``, ``garbage_bytes``, ``stale_replies``, ``clock_offset_s``, ``clock_drift_ppm``,
-  ``edm_period_ms``, ``instrument``;
-- ``/diagnostics`` (diagnostic_updater, 1 Hz, hardware id: the instrument's serial number once known,
-  else ``MS60 <port>``): ``prism tracking`` with the same figures as key/values, level OK when locked
-  at ≥ 90 % of ``~rate``, WARN while searching/lost or slower, ERROR while (re)connecting or in the
-  error state (the message is the error); ``prism positions topic status``, a frequency status expecting
-  ``~rate`` (± 10 %); ``prism stamp offset``, a timestamp status of ROS time minus the prism's stamp
-  (acceptable −0.1 s to ``~timeout``: the instrument's clock fit and its reply time).
-
-Private parameters (each checked; a bad one ends the node with one line and exit status 2):
-``~port`` pyserial URL (``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``), ``~baud``
-(115200), ``~rate`` (Hz, 20), ``~timeout`` (s, 0.3), ``~motion_timeout`` (s, 30),
-``~byte_timing`` (replies cross a serial line byte by byte; default true except for
-``socket://``), ``~frame_id`` (map), ``~prism_constant_mm`` (optional), ``~min_latency_ms`` (the
-instrument's shortest measurement-to-reply time, 0), ``~station/x``, ``~station/y``,
-``~station/z``, ``~station/instrument_height`` (m, optional, all of x, y, z together) and
-``~station/orientation_deg`` (optional), ``~origin`` ([E, N, H], default [0, 0, 0]: subtracted from every
-published position, the marker map's ``origin``, so that nothing in ROS carries national-grid coordinates),
-``~log`` (optional path: every fix appended as ``t,east,north,height`` in full coordinates, the prism
-log ``aruco-abs-orient process --prism`` reads), ``~accuracy/distance_mm``, ``~accuracy/distance_ppm``,
-``~accuracy/angle_arcsec``, ``~accuracy/prism_mm`` (the accuracy class in the measurement mode used; default
-the MS60's datasheet in tracking: 3 mm + 1.5 ppm, 1", and 0 mm for the prism).
-
-Re-aiming (``~predict``, default true): after a lost lock the telescope is turned to where the prism is predicted to
-be (:class:`aruco_abs_orient.geocom.tracker.Ms60Tracker`'s ``predict``) before any search: tf ``~frame_id`` →
-``~prism_frame`` (map → odom → base_link → prism: the robot's fused pose and the prism's lever arm), its two newest
-poses extrapolated to the time the telescope's turn will end, plus ``~origin``; none when tf has no such chain or
-its newest pose is older than ``~predict_max_age`` (s, 1.0): then the search as before. ``~turn_rate_deg_s`` (°/s,
-90) is how fast the instrument turns its telescope: the time of the turn, for where the prism will be when it ends.
-
-Without a ROS master the node ends with one line (where it looked for one) and exit status 1. On a
-master with ``/use_sim_time`` true (left by a bag replay) it ends with one line and exit status 2:
-a live instrument's stamps are wall-clock times.
+In: the node's private parameters (the serial or TCP port, rate, timeouts, the station, ``~origin``, the
+accuracy class, the re-aim's ``~predict``, ``~predict_max_age`` and ``~turn_rate_deg_s``) and tf (the robot's
+fused pose and the prism's lever arm, for the re-aim after a lost lock). Out: ``ms60/prism`` (PointStamped,
+stamped with the instrument's measurement time mapped to ROS time, never the reception time),
+``ms60/prism_with_covariance`` (its covariance from the accuracy class and the polar geometry),
+``ms60/status`` and ``/diagnostics``, and optionally a prism log. A bad parameter ends the node with one line
+and exit status 2, a missing master with exit status 1, a master with ``/use_sim_time`` with 2. Every topic,
+parameter and status key: doc/ros_api.md.
 """
 
 from __future__ import annotations

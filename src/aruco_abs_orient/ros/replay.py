@@ -1,33 +1,12 @@
 """Replay of a recording for ``postprocess.launch`` (node ``replay``): plays the bag with its clock,
 says in one line how it ended, ends the launch quietly, and leaves a master it did not start as it was.
 
-- Runs ``rosbag play --clock`` on ``~bag`` (the launch file makes a relative ``bag:=`` absolute against the
-  directory roslaunch was started in). A missing bag is one line naming the full path tried, exit status 1.
-- Counts what the ``abs_orient`` node and the EKF publish (``abs_orient/pose``, ``abs_orient/orientation``,
-  ``odometry/filtered``), keeps the node's newest ``/diagnostics`` status, and every second asks the master
-  whether the node ``~node`` and the recorder ``~recorder`` (when ``~record`` names its bag) still run.
-- When the bag has played to its end it waits ``~settle`` s (wall clock) for the last frames, logs
-
-      replay: run1.bag played to its end (20.0 s): abs_orient processed 240 of 300 images on
-      /camera/image/compressed (60 dropped), ...
-
-  with the reason from the node's diagnostics when there is no pose, and asks its roslaunch to shut down
-  (SIGINT to the parent process, as Ctrl-C does): the normal end is this line, not a red
-  ``REQUIRED process has died``.
-- When the run did not do its job, the line says why and the replay exits with status 1 (roslaunch then
-  shows ``REQUIRED process [replay-…] has died … exit code 1``; roslaunch's own exit status is 0 whatever
-  its nodes did, ros_comm #919): the node reports an error (a configuration it cannot run with: the
-  playback stops at once; a marker map that does not fit), the node died or never started, the recorder
-  is not running (its bag incomplete), or no image arrived on the topic the node listens to (the bag's image topics
-  are named).
-- On shutdown (the end, Ctrl-C, a failure) it deletes ``/use_sim_time`` from a master that its roslaunch
-  did not start (a ``roscore`` running before): later nodes on that master are back on the wall clock.
-- ``replay --prepare-record PATH`` (the launch file's ``record:=``, before any node starts): creates the bag's
-  directory and prints PATH, or one line and exit status 1 (roslaunch then stops before it starts anything).
-
-Private params: ``~bag`` (path, required), ``~rate`` (1.0), ``~delay`` (2.0 s wall), ``~loop`` (false),
-``~start`` (s into the bag where playback starts, 0), ``~settle`` (2.0 s wall), ``~node`` (``abs_orient``),
-``~record`` (the recorder's bag, empty: none), ``~recorder`` (``recorder``).
+In: ``~bag`` (required), ``~rate``, ``~delay``, ``~loop``, ``~start``, ``~settle``, ``~node``, ``~record``,
+``~recorder``. Out: ``rosbag play --clock`` of the bag; at its end one line (images processed and dropped, poses
+and EKF outputs counted, or why there were none) and a shutdown of its roslaunch as Ctrl-C does; exit status 1
+when the run did not do its job (the node reported an error or died, the recorder stopped, no image arrived on
+the node's topic); ``/use_sim_time`` deleted from a master its roslaunch did not start. ``replay
+--prepare-record PATH`` creates the recorder's directory first. Every parameter and message: doc/ros_api.md.
 """
 
 from __future__ import annotations
