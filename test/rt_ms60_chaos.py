@@ -145,36 +145,53 @@ class Ms60ChaosCheck(unittest.TestCase):
             while not self.count() and time.monotonic() < deadline and not rospy.is_shutdown():
                 time.sleep(0.05)
             self.assertTrue(self.count(), "no ms60/prism within 40 s of the start")
-            for k, when in ((1, "while it publishes"), (2, "while a respawned driver starts")):
-                time.sleep(float(rng.uniform(0.5, 2.5)))    # a random moment while publishing
-                if k == 2:   # kill, then kill the respawned driver at a random moment of its set-up / warm-up
-                    pids.append(self.kill_driver()[1])
-                    respawned = self.wait_respawn(pids[-1], time.monotonic() + kill_bound)
-                    self.assertIsNotNone(respawned, f"not respawned within {kill_bound:.1f} s")
-                    time.sleep(float(rng.uniform(0.0, 2.5)))
-                    figure("kill 2: the respawned driver killed after it started",
-                           time.monotonic() - started_monotonic(respawned), "s")
-                t_kill, pid = self.kill_driver()
-                pids.append(pid)
-                back = self.wait_fresh(t_kill + 0.1, kill_bound + 10.0)   # in flight at the kill: within 0.1 s
-                self.assertIsNotNone(back, f"kill {k}: no fresh position within {kill_bound + 10:.1f} s")
-                new_pid = self.wait_respawn(pid, back + 5.0)
-                self.assertIsNotNone(new_pid, f"kill {k}: positions again, but no new driver registered")
-                started = started_monotonic(new_pid)
-                recoveries[f"kill {k} ({when})"] = (back - t_kill, kill_bound, started - t_kill, back - started)
+            self.kills(rng, kill_bound, recoveries, pids)
             time.sleep(float(rng.uniform(0.5, 2.5)))
-            reconnects_before = self.statuses[-1]["reconnects"]
-            sim.link_down(LINK_OUTAGE_S)
-            t_up = time.monotonic() + LINK_OUTAGE_S
-            back = self.wait_fresh(t_up, link_bound + 10.0)
-            self.assertIsNotNone(back, f"link: no fresh position within {link_bound + 10:.1f} s of its return")
-            recoveries["link"] = (back - t_up, link_bound, None, None)
-            time.sleep(1.5)   # a status report after the reconnection
-            reconnects = self.statuses[-1]["reconnects"]
+            reconnects_before, reconnects = self.link_loss(sim, link_bound, recoveries)
             pid = self.driver_pid()
         finally:
             sim.close()
             os.unlink(pty_link)
+        self.check_recoveries(recoveries)
+        self.assertEqual(len(set(pids + [pid])), 4, f"the driver was not respawned: pids {pids}, then {pid}")
+        self.assertGreater(reconnects, reconnects_before, "the driver did not report the reconnection")
+        self.check_positions(sim)
+
+    def kills(self, rng, kill_bound, recoveries, pids):
+        """Faults 1 and 2: SIGKILL while the driver publishes, then again and once more while the respawned one
+        starts; each recovery into ``recoveries``, each killed pid into ``pids``."""
+        for k, when in ((1, "while it publishes"), (2, "while a respawned driver starts")):
+            time.sleep(float(rng.uniform(0.5, 2.5)))    # a random moment while publishing
+            if k == 2:   # kill, then kill the respawned driver at a random moment of its set-up / warm-up
+                pids.append(self.kill_driver()[1])
+                respawned = self.wait_respawn(pids[-1], time.monotonic() + kill_bound)
+                self.assertIsNotNone(respawned, f"not respawned within {kill_bound:.1f} s")
+                time.sleep(float(rng.uniform(0.0, 2.5)))
+                figure("kill 2: the respawned driver killed after it started",
+                       time.monotonic() - started_monotonic(respawned), "s")
+            t_kill, pid = self.kill_driver()
+            pids.append(pid)
+            back = self.wait_fresh(t_kill + 0.1, kill_bound + 10.0)   # in flight at the kill: within 0.1 s
+            self.assertIsNotNone(back, f"kill {k}: no fresh position within {kill_bound + 10:.1f} s")
+            new_pid = self.wait_respawn(pid, back + 5.0)
+            self.assertIsNotNone(new_pid, f"kill {k}: positions again, but no new driver registered")
+            started = started_monotonic(new_pid)
+            recoveries[f"kill {k} ({when})"] = (back - t_kill, kill_bound, started - t_kill, back - started)
+
+    def link_loss(self, sim, link_bound, recoveries):
+        """Fault 3: the link silent for ``LINK_OUTAGE_S``; its recovery into ``recoveries``. The driver's
+        reconnection count before and after."""
+        reconnects_before = self.statuses[-1]["reconnects"]
+        sim.link_down(LINK_OUTAGE_S)
+        t_up = time.monotonic() + LINK_OUTAGE_S
+        back = self.wait_fresh(t_up, link_bound + 10.0)
+        self.assertIsNotNone(back, f"link: no fresh position within {link_bound + 10:.1f} s of its return")
+        recoveries["link"] = (back - t_up, link_bound, None, None)
+        time.sleep(1.5)   # a status report after the reconnection
+        return reconnects_before, self.statuses[-1]["reconnects"]
+
+    def check_recoveries(self, recoveries):
+        """Print every recovery's figures, then check each against its bound."""
         for name, (value, limit, to_start, from_start) in recoveries.items():
             if to_start is None:
                 figure(f"{name}: back after {LINK_OUTAGE_S:g} s -> fresh position", value, "s", limit)
@@ -184,8 +201,10 @@ class Ms60ChaosCheck(unittest.TestCase):
                 figure(f"{name}: process started -> fresh position", from_start, "s")
         for name, (value, limit, _, _) in recoveries.items():
             self.assertLessEqual(value, limit, name)
-        self.assertEqual(len(set(pids + [pid])), 4, f"the driver was not respawned: pids {pids}, then {pid}")
-        self.assertGreater(reconnects, reconnects_before, "the driver did not report the reconnection")
+
+    def check_positions(self, sim):
+        """Stamps strictly increase; every position is the simulator's truth nearest its stamp; no internal
+        error."""
         with self.lock:
             received = list(self.prisms)
         stamps = np.array([p[1] for p in received])
@@ -209,7 +228,6 @@ class Ms60ChaosCheck(unittest.TestCase):
         self.assertLess(float(stamp_err.max()), MAX_STAMP_ERROR_S)
         self.assertLess(max(pos_err), MAX_POSITION_ERROR_M)
         self.assertEqual(sim.internal_errors, [])
-
 
 if __name__ == "__main__":
     rostest.rosrun("aruco_abs_orient", "rt_ms60_chaos", Ms60ChaosCheck, sys.argv)

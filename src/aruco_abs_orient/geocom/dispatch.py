@@ -125,16 +125,6 @@ _SIGNATURES: Dict[int, Tuple[_Check, ...]] = {
     Rpc.AUS_GetUserLockState: (),
 }
 _MOTIONS = (Rpc.AUT_LockIn, Rpc.AUT_FineAdjust, Rpc.AUT_Search, Rpc.AUT_PS_SearchNext, Rpc.AUT_MakePositioning)
-#: settings the instrument only stores and reports back: RPC → (attribute, type, True for the setter)
-_STORED = {rpc: (name, kind, is_set) for set_rpc, get_rpc, name, kind in (
-    (Rpc.COM_SetDoublePrecision, Rpc.COM_GetDoublePrecision, "precision", int),
-    (Rpc.BAP_SetTargetType, Rpc.BAP_GetTargetType, "target_type", int),
-    (Rpc.BAP_SetPrismType, Rpc.BAP_GetPrismType, "prism_type", int),
-    (Rpc.TMC_SetEdmMode, Rpc.TMC_GetEdmMode, "edm_mode", int),
-    (Rpc.TMC_SetPrismCorr, Rpc.TMC_GetPrismCorr, "prism_constant_m", float),
-) for rpc, is_set in ((set_rpc, True), (get_rpc, False))}
-#: BAP_GetMeasPrg reports what BAP_SetMeasPrg stored (the setter refuses programs first)
-_STORED[Rpc.BAP_GetMeasPrg] = ("meas_prg", int, False)
 _ANGLE_RPCS = (Rpc.TMC_GetAngle1, Rpc.TMC_GetAngle5, Rpc.TMC_GetSimpleMea, Rpc.TMC_GetSimpleCoord,
                Rpc.TMC_GetFullMeas)
 
@@ -158,6 +148,107 @@ def _decode(request: Request) -> List[Union[int, float]]:
 
 def _trid(request: Request) -> int:
     return 0 if request.trid is None else request.trid
+
+
+# --- the non-motorised procedures: RPC → handler(instrument, decoded parameters, t_complete) → values ----
+_Params = Sequence[Union[int, float]]
+_Handler = Callable[[Ms60Instrument, _Params, float], tuple]
+
+
+def _stored(name: str, kind: type, is_set: bool) -> _Handler:
+    """The handler of a setting the instrument only stores (``is_set``) or reports back."""
+    def handler(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+        if not is_set:
+            return (getattr(ins, name),)
+        setattr(ins, name, kind(p[0]))
+        return ()
+
+    return handler
+
+
+def _date_time(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    """CSV_GetDateTime: year, then month, day, hour, minute, second as GeoCOM bytes (UTC)."""
+    tm = time.gmtime(t_complete)
+    return (tm.tm_year,) + tuple(Byte(v) for v in (tm.tm_mon, tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec))
+
+
+def _date_time_centisec(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    """CSV_GetDateTimeCentiSec: year, month, day, hour, minute, second, centiseconds (UTC)."""
+    tm = time.gmtime(t_complete)
+    return (tm.tm_year, tm.tm_mon, tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, int(t_complete * 100) % 100)
+
+
+def _set_user_lock(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    ins.set_user_lock(bool(p[0]))
+    return ()
+
+
+def _set_user_atr(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    ins.set_user_atr(bool(p[0]))
+    return ()
+
+
+def _set_meas_prg(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    if ins.config.model == "TPS1200" and int(p[0]) in (BAP_CONT_REF_FAST, BAP_CONT_REF_SYNCHRO):
+        raise _Refusal(RC.IVPARAM)   # this firmware does not know the program
+    ins.meas_prg = int(p[0])
+    return ()
+
+
+def _refuse_while_measured(ins: Ms60Instrument) -> None:
+    """TMC_BUSY (strict) while a distance exists: TMC_DoMeasure(TMC_CLEAR) first."""
+    if ins.config.strict and (ins.distance is not None or ins.tracking):
+        raise _Refusal(RC.TMC_BUSY)
+
+
+def _set_station(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    _refuse_while_measured(ins)
+    ins.station = tuple(float(v) for v in p)
+    return ()
+
+
+def _set_orientation(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    _refuse_while_measured(ins)
+    ins.orientation_rad = float(p[0])
+    return ()
+
+
+def _do_measure(ins: Ms60Instrument, p: _Params, t_complete: float) -> tuple:
+    if int(p[0]) == TMC_TRK_DIST and ins.config.strict:
+        raise _Refusal(RC.IVPARAM)  # not a TPS1200+/Captivate measurement program
+    ins.do_measure(int(p[0]), t_complete)
+    return ()
+
+
+_HANDLERS: Dict[int, _Handler] = {
+    Rpc.COM_NullProc: lambda ins, p, t: (),
+    Rpc.COM_GetSWVersion: lambda ins, p, t: ins.config.geocom,
+    Rpc.CSV_GetSWVersion: lambda ins, p, t: ins.config.firmware,
+    Rpc.CSV_GetInstrumentName: lambda ins, p, t: (ins.config.name,),
+    Rpc.CSV_GetInstrumentNo: lambda ins, p, t: (ins.config.serial_number,),
+    Rpc.CSV_GetDateTime: _date_time,
+    Rpc.CSV_GetDateTimeCentiSec: _date_time_centisec,
+    Rpc.MOT_ReadLockStatus: lambda ins, p, t: (1 if ins.locked else 0,),
+    Rpc.AUS_SetUserLockState: _set_user_lock,
+    Rpc.AUS_SetUserAtrState: _set_user_atr,
+    Rpc.AUS_GetUserLockState: lambda ins, p, t: (int(ins.user_lock),),
+    Rpc.AUS_GetUserAtrState: lambda ins, p, t: (int(ins.user_atr),),
+    Rpc.BAP_SetMeasPrg: _set_meas_prg,
+    Rpc.TMC_GetStation: lambda ins, p, t: ins.station,
+    Rpc.TMC_SetStation: _set_station,
+    Rpc.TMC_SetOrientation: _set_orientation,
+    Rpc.TMC_DoMeasure: _do_measure,
+}
+#: settings the instrument only stores and reports back: their setters and getters
+_HANDLERS.update({rpc: _stored(name, kind, is_set) for set_rpc, get_rpc, name, kind in (
+    (Rpc.COM_SetDoublePrecision, Rpc.COM_GetDoublePrecision, "precision", int),
+    (Rpc.BAP_SetTargetType, Rpc.BAP_GetTargetType, "target_type", int),
+    (Rpc.BAP_SetPrismType, Rpc.BAP_GetPrismType, "prism_type", int),
+    (Rpc.TMC_SetEdmMode, Rpc.TMC_GetEdmMode, "edm_mode", int),
+    (Rpc.TMC_SetPrismCorr, Rpc.TMC_GetPrismCorr, "prism_constant_m", float),
+) for rpc, is_set in ((set_rpc, True), (get_rpc, False))})
+#: BAP_GetMeasPrg reports what BAP_SetMeasPrg stored (the setter refuses programs first)
+_HANDLERS[Rpc.BAP_GetMeasPrg] = _stored("meas_prg", int, False)
 
 
 class GeoComDispatcher:
@@ -232,63 +323,10 @@ class GeoComDispatcher:
 
     def _execute(self, rpc: int, p: Sequence[Union[int, float]], t_complete: float) -> tuple:
         """Run a non-motorised procedure (state lock held); returns its values or raises _Refusal."""
-        ins, c = self.instrument, self.instrument.config
-        if rpc == Rpc.COM_NullProc:
-            return ()
-        if rpc in _STORED:  # a setting the instrument only stores and reports back
-            name, kind, is_set = _STORED[rpc]
-            if not is_set:
-                return (getattr(ins, name),)
-            setattr(ins, name, kind(p[0]))
-            return ()
-        if rpc == Rpc.COM_GetSWVersion:
-            return c.geocom
-        if rpc == Rpc.CSV_GetSWVersion:
-            return c.firmware
-        if rpc == Rpc.CSV_GetInstrumentName:
-            return (c.name,)
-        if rpc == Rpc.CSV_GetInstrumentNo:
-            return (c.serial_number,)
-        if rpc in (Rpc.CSV_GetDateTime, Rpc.CSV_GetDateTimeCentiSec):
-            tm = time.gmtime(t_complete)
-            if rpc == Rpc.CSV_GetDateTimeCentiSec:
-                return (tm.tm_year, tm.tm_mon, tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec,
-                        int(t_complete * 100) % 100)
-            return (tm.tm_year,) + tuple(Byte(v) for v in (tm.tm_mon, tm.tm_mday, tm.tm_hour, tm.tm_min,
-                                                               tm.tm_sec))
-        if rpc == Rpc.MOT_ReadLockStatus:
-            return (1 if ins.locked else 0,)
-        if rpc == Rpc.AUS_SetUserLockState:
-            ins.set_user_lock(bool(p[0]))
-            return ()
-        if rpc == Rpc.AUS_SetUserAtrState:
-            ins.set_user_atr(bool(p[0]))
-            return ()
-        if rpc == Rpc.AUS_GetUserLockState:
-            return (int(ins.user_lock),)
-        if rpc == Rpc.AUS_GetUserAtrState:
-            return (int(ins.user_atr),)
-        if rpc == Rpc.BAP_SetMeasPrg:
-            if c.model == "TPS1200" and int(p[0]) in (BAP_CONT_REF_FAST, BAP_CONT_REF_SYNCHRO):
-                raise _Refusal(RC.IVPARAM)   # this firmware does not know the program
-            ins.meas_prg = int(p[0])
-            return ()
-        if rpc == Rpc.TMC_GetStation:
-            return ins.station
-        if rpc in (Rpc.TMC_SetStation, Rpc.TMC_SetOrientation):
-            if c.strict and (ins.distance is not None or ins.tracking):
-                raise _Refusal(RC.TMC_BUSY)  # a distance exists: TMC_DoMeasure(TMC_CLEAR) first
-            if rpc == Rpc.TMC_SetStation:
-                ins.station = tuple(float(v) for v in p)
-            else:
-                ins.orientation_rad = float(p[0])
-            return ()
-        if rpc == Rpc.TMC_DoMeasure:
-            if int(p[0]) == TMC_TRK_DIST and c.strict:
-                raise _Refusal(RC.IVPARAM)  # not a TPS1200+/Captivate measurement program
-            ins.do_measure(int(p[0]), t_complete)
-            return ()
-        raise AssertionError(f"procedure {rpc} has a signature but no implementation")
+        handler = _HANDLERS.get(rpc)
+        if handler is None:
+            raise AssertionError(f"procedure {rpc} has a signature but no implementation")
+        return handler(self.instrument, p, t_complete)
 
     def _angles_reply(self, rpc: int, tick: int) -> Tuple[int, tuple]:
         """rc and values of the angle procedures with angles at counter ``tick``."""

@@ -169,6 +169,11 @@ def tum_track(path: str) -> Callable[[float], np.ndarray]:
     return position
 
 
+def _positioning_target(params: Sequence[Union[int, float]]) -> Tuple[float, float]:
+    """AUT_MakePositioning's target (Hz in [0, 2π), V), rad."""
+    return float(params[0]) % (2 * math.pi), float(params[1])
+
+
 class Ms60Instrument:
     """The instrument's state and physics (all times host ``time.time()`` seconds).
 
@@ -413,28 +418,55 @@ class Ms60Instrument:
         """Run the motorised procedure ``rpc`` (decoded ``params``) started at host time ``start_s`` to
         its end; ``wait(s)`` sleeps up to s seconds and returns True to abort (link down, stopped).
         Its rc, or None when aborted."""
-        c = self.config
-        if rpc == Rpc.AUT_LockIn:
-            if c.strict and not self.user_lock:
-                return RC.AUT_NOT_ENABLED
-            if c.strict and not (self.adjusted and self.prism_visible):
-                return RC.AUT_NO_TARGET
-            duration = c.lock_in_s if c.strict else 0.0
-        elif rpc == Rpc.AUT_FineAdjust:
-            duration = c.fine_adjust_s
-        elif rpc == Rpc.AUT_MakePositioning:
-            target = (float(params[0]) % (2 * math.pi), float(params[1]))
-            hz0, v0 = self.aim()
-            turn = max(abs(math.remainder(target[0] - hz0, 2 * math.pi)), abs(target[1] - v0))
-            duration = c.positioning_s + turn / c.slew_rad_s
-        else:
-            if rpc == Rpc.AUT_PS_SearchNext and c.model == "TPS1200":
-                return RC.NOT_IMPL   # no PowerSearch on this instrument
-            duration = c.power_search_s if rpc == Rpc.AUT_PS_SearchNext else c.search_s
+        refused = self._motion_refused(rpc)
+        if refused is not None:
+            return refused
+        duration = self._motion_duration(rpc, params)
         start_aim = self.aim()
         in_window = rpc == Rpc.AUT_FineAdjust and self.prism_visible and self._within(start_aim, params[0] / 2,
                                                                                        params[1] / 2)
-        end = start_s + duration
+        looked = self._look(rpc, params, start_aim, start_s, start_s + duration, wait)
+        if looked is None:
+            return None
+        seen, now = looked
+        if rpc == Rpc.AUT_MakePositioning:
+            target = _positioning_target(params)
+            self.change(lambda: self._turn_to(target))
+            return RC.OK
+        if rpc == Rpc.AUT_FineAdjust:  # the ATR looks where the telescope points, then centres the prism
+            seen = now if in_window else None
+        return self._motion_found(rpc, seen)
+
+    def _motion_refused(self, rpc: int) -> Optional[int]:
+        """The rc of a motorised procedure refused before it starts, else None."""
+        c = self.config
+        if rpc == Rpc.AUT_LockIn and c.strict:
+            if not self.user_lock:
+                return RC.AUT_NOT_ENABLED
+            if not (self.adjusted and self.prism_visible):
+                return RC.AUT_NO_TARGET
+        if rpc == Rpc.AUT_PS_SearchNext and c.model == "TPS1200":
+            return RC.NOT_IMPL   # no PowerSearch on this instrument
+        return None
+
+    def _motion_duration(self, rpc: int, params: Sequence[Union[int, float]]) -> float:
+        """How long (s) the motorised procedure ``rpc`` runs when it finds nothing."""
+        c = self.config
+        if rpc == Rpc.AUT_LockIn:
+            return c.lock_in_s if c.strict else 0.0
+        if rpc == Rpc.AUT_FineAdjust:
+            return c.fine_adjust_s
+        if rpc == Rpc.AUT_MakePositioning:
+            target = _positioning_target(params)
+            hz0, v0 = self.aim()
+            turn = max(abs(math.remainder(target[0] - hz0, 2 * math.pi)), abs(target[1] - v0))
+            return c.positioning_s + turn / c.slew_rad_s
+        return c.power_search_s if rpc == Rpc.AUT_PS_SearchNext else c.search_s
+
+    def _look(self, rpc: int, params: Sequence[Union[int, float]], start_aim: Tuple[float, float], start_s: float,
+              end: float, wait: Callable[[float], bool]) -> Optional[Tuple[Optional[float], float]]:
+        """Let the procedure ``rpc`` look for the prism until host time ``end``, or ``found_s`` after it
+        found it: (when it found it or None, the host time it stopped), or None when ``wait`` aborted."""
         seen: Optional[float] = None
         looked = 0.0   # s into the procedure up to which it has looked
         while True:
@@ -442,15 +474,13 @@ class Ms60Instrument:
             if seen is None and self.prism_visible and self._finds(rpc, params, start_aim, looked, now - start_s):
                 seen = now
             looked = now - start_s
-            if now >= end or (seen is not None and now >= seen + c.found_s):
-                break
+            if now >= end or (seen is not None and now >= seen + self.config.found_s):
+                return seen, now
             if wait(min(0.01, max(0.0, end - now))):
                 return None
-        if rpc == Rpc.AUT_MakePositioning:
-            self.change(lambda: self._turn_to(target))
-            return RC.OK
-        if rpc == Rpc.AUT_FineAdjust:  # the ATR looks where the telescope points, then centres the prism
-            seen = now if in_window else None
+
+    def _motion_found(self, rpc: int, seen: Optional[float]) -> int:
+        """End a lock-in, fine adjustment or search that found the prism at ``seen`` (None: did not)."""
         if not self.prism_visible or (rpc != Rpc.AUT_LockIn and seen is None):
             return RC.AUT_NO_TARGET
         if rpc == Rpc.AUT_LockIn:

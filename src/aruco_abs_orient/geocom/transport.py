@@ -22,12 +22,13 @@ import time
 import tty
 from typing import Callable, List, Optional, Tuple
 
-from .dispatch import GeoComDispatcher, Motion
+from .dispatch import Answer, GeoComDispatcher, Motion
 from .instrument import SimulatorError
 
 __all__ = ["GeoComServer"]
 
 _MAX_REMEASURE = 20  # then send late rather than never (a host too loaded to keep any timing)
+_DONE, _CUT, _GONE = "done", "cut", "gone"   # what became of a request line (_answer_line)
 
 
 class GeoComServer:
@@ -63,7 +64,7 @@ class GeoComServer:
 
     def _serve_stream(self, read: Callable[[float], bytes], write: Callable[[bytes], None]) -> None:
         """Read request lines, answer them one after the other with the wire timing."""
-        d, ins = self.dispatcher, self.instrument
+        d = self.dispatcher
         buf = bytearray()
         first_byte_t: Optional[float] = None
         while not self._stop.is_set():
@@ -83,31 +84,49 @@ class GeoComServer:
                 del buf[: i + 1]
                 t_complete = max(time.time(), (first_byte_t or time.time()) + d.wire_s(len(line)))
                 first_byte_t = time.time() if buf else None
-                answer = d.handle(line, t_complete)
-                if isinstance(answer, Motion):
-                    answer = d.motion_answer(answer, self._aborted_after)
-                if answer is None:
-                    continue
-                for _ in range(_MAX_REMEASURE):
-                    wait = answer.send_s - time.time()
-                    if wait > 0:
-                        time.sleep(wait)
-                    later = d.remeasured(answer, time.time())
-                    if later is None:
-                        break
-                    answer = later
-                truth = answer.truth
-                if not self.link_up or self._stop.is_set():
-                    if truth is not None:
-                        ins.truth.append(truth._replace(sent=False))
+                outcome = self._answer_line(line, t_complete, write)
+                if outcome == _GONE:
+                    return
+                if outcome == _CUT:
                     buf.clear()
                     break
-                if truth is not None:
-                    ins.truth.append(truth)
-                try:
-                    write(answer.prefix + answer.data)
-                except OSError:
-                    return
+
+    def _answer_line(self, line: bytes, t_complete: float, write: Callable[[bytes], None]) -> str:
+        """Answer the request ``line`` complete at host time ``t_complete`` (s) and write the reply when it
+        is due: _DONE (sent, or no reply), _CUT (the link went down or the server stopped meanwhile: not
+        sent) or _GONE (the write failed: the client is gone)."""
+        d, ins = self.dispatcher, self.instrument
+        answer = d.handle(line, t_complete)
+        if isinstance(answer, Motion):
+            answer = d.motion_answer(answer, self._aborted_after)
+        if answer is None:
+            return _DONE
+        answer = self._when_due(answer)
+        truth = answer.truth
+        if not self.link_up or self._stop.is_set():
+            if truth is not None:
+                ins.truth.append(truth._replace(sent=False))
+            return _CUT
+        if truth is not None:
+            ins.truth.append(truth)
+        try:
+            write(answer.prefix + answer.data)
+        except OSError:
+            return _GONE
+        return _DONE
+
+    def _when_due(self, answer: Answer) -> Answer:
+        """Sleep until ``answer`` is due; a coordinate that would go out late is measured again (at most
+        _MAX_REMEASURE times, then it goes out late)."""
+        for _ in range(_MAX_REMEASURE):
+            wait = answer.send_s - time.time()
+            if wait > 0:
+                time.sleep(wait)
+            later = self.dispatcher.remeasured(answer, time.time())
+            if later is None:
+                break
+            answer = later
+        return answer
 
     def serve_pty(self) -> str:
         """Start serving on a new pseudo-terminal; returns the path of its slave (the "serial

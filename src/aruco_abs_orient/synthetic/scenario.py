@@ -83,20 +83,7 @@ class Scenario:
         self.config = config.validate()
         c = config
         rng = np.random.default_rng([c.seed, 1])
-        # --- motion along the loop: θ(t) integrated so that |dP/dt| follows the speed profile
-        n = int(math.ceil((c.duration + _TAIL) / _DT)) + 1
-        self._tg = np.arange(n) * _DT
-        speed = (c.speed * _smoothstep((self._tg - c.standstill) / c.accel_time)).tolist()
-        self._theta0 = float(rng.uniform(-math.pi, math.pi))
-        self._rp_phase = rng.uniform(0.0, 2.0 * math.pi, 4)
-        a, b = c.track_radii
-        theta = [self._theta0]
-        th = self._theta0
-        for k in range(n - 1):  # midpoint rule; dθ/dt = v / |P'(θ)|
-            mid = th + 0.5 * _DT * speed[k] / math.hypot(a * math.sin(th), b * math.cos(th))
-            th += _DT * 0.5 * (speed[k] + speed[k + 1]) / math.hypot(a * math.sin(mid), b * math.cos(mid))
-            theta.append(th)
-        self._theta = np.array(theta)
+        self._loop_motion(rng)
         # --- the realistic world (its own random stream: the easy world's draws stay as they were)
         rng_real = np.random.default_rng([c.seed, 17])
         self._wander_phase = rng_real.uniform(0.0, 2.0 * math.pi, 2)
@@ -120,7 +107,37 @@ class Scenario:
         # --- markers around the track, facing it (± a random yaw/tilt), and the survey of them
         self.markers, self.marker_normals = self._place_markers(rng)
         self.surveyed_markers = self._survey(np.random.default_rng([c.seed, 29]))
-        # --- visual odometry: yaw error = drift·t + random walk; position integrates the motion
+        self._visual_odometry(rng)
+        # --- total station samples (true time stamps), with jitter, dropouts and gaps
+        self.prism = self._prism_track(rng)
+        # --- the interior around it all (walls, pillars, posters, lights), or None: the easy world's panorama
+        self.world = Hall(self, np.random.default_rng([c.seed, 18])) if c.world == "hall" else None
+        if any(c.moved_marker):  # a knocked marker: the truth moves, its survey and the world stay as they were
+            m = self.markers[self.markers.ids[0]]
+            self.markers.markers[m.id] = m._replace(position=m.position + np.asarray(c.moved_marker))
+
+    def _loop_motion(self, rng) -> None:
+        """The motion along the loop: θ(t) on the grid ``_tg`` integrated so that |dP/dt| follows the speed
+        profile, from ``_theta0`` (drawn from ``rng``, then the roll/pitch phases ``_rp_phase``)."""
+        c = self.config
+        n = int(math.ceil((c.duration + _TAIL) / _DT)) + 1
+        self._tg = np.arange(n) * _DT
+        speed = (c.speed * _smoothstep((self._tg - c.standstill) / c.accel_time)).tolist()
+        self._theta0 = float(rng.uniform(-math.pi, math.pi))
+        self._rp_phase = rng.uniform(0.0, 2.0 * math.pi, 4)
+        a, b = c.track_radii
+        theta = [self._theta0]
+        th = self._theta0
+        for k in range(n - 1):  # midpoint rule; dθ/dt = v / |P'(θ)|
+            mid = th + 0.5 * _DT * speed[k] / math.hypot(a * math.sin(th), b * math.cos(th))
+            th += _DT * 0.5 * (speed[k] + speed[k + 1]) / math.hypot(a * math.sin(mid), b * math.cos(mid))
+            theta.append(th)
+        self._theta = np.array(theta)
+
+    def _visual_odometry(self, rng) -> None:
+        """The visual odometry's errors (drawn from ``rng``): yaw error = drift·t + random walk, translation
+        jitter; its position integrates the motion through them (``_vo_pos`` on the grid ``_tg``)."""
+        c = self.config
         walk_dt = 0.1
         walk_n = int(math.ceil((c.duration + _TAIL) / walk_dt)) + 2
         steps = rng.normal(0.0, math.radians(c.vo_yaw_walk_deg_per_sqrt_s) * math.sqrt(walk_dt), walk_n)
@@ -133,7 +150,7 @@ class Scenario:
         self._jitter = rng.normal(0.0, c.vo_translation_noise, (jitter_n, 3))
         self._jitter -= self._jitter[0]
         p = self._path_point(self._theta)
-        psi0 = float(self._path_yaw(theta[0]) + self._crab(theta[0]))
+        psi0 = float(self._path_yaw(self._theta0) + self._crab(self._theta0))
         yaw_err = self.vo_yaw_error(self._tg + c.start_time)
         mid_err = 0.5 * (yaw_err[1:] + yaw_err[:-1])
         dp = np.diff(p, axis=0)
@@ -145,13 +162,6 @@ class Scenario:
         else:
             steps_o = (self._odom_R_map0 @ rot_z(mid_err) @ dp[:, :, None])[:, :, 0] * (1.0 + c.vo_scale_error)
         self._vo_pos = np.concatenate([np.zeros((1, 3)), np.cumsum(steps_o, axis=0)])
-        # --- total station samples (true time stamps), with jitter, dropouts and gaps
-        self.prism = self._prism_track(rng)
-        # --- the interior around it all (walls, pillars, posters, lights), or None: the easy world's panorama
-        self.world = Hall(self, np.random.default_rng([c.seed, 18])) if c.world == "hall" else None
-        if any(c.moved_marker):  # a knocked marker: the truth moves, its survey and the world stay as they were
-            m = self.markers[self.markers.ids[0]]
-            self.markers.markers[m.id] = m._replace(position=m.position + np.asarray(c.moved_marker))
 
     # ---- construction helpers --------------------------------------------------------------
     def _track_point(self, theta) -> np.ndarray:
