@@ -51,8 +51,8 @@ def upright_rotation(normal) -> np.ndarray:
 
 
 def square_corners(size: float, normal) -> np.ndarray:
-    """The corners (..., 4, 3) of upright square(s) of side ``size`` m and outward ``normal`` (..., 3), as
-    offsets from the centre in the normal's frame, in cyclic order (c0, c2 and c1, c3 opposite)."""
+    """The corners (..., 4, 3) of upright square(s) of side ``size`` m and outward ``normal`` (..., 3): offsets
+    from the centre in the axes ``normal`` is given in, in cyclic order (c0, c2 and c1, c3 opposite)."""
     half = 0.5 * size * np.array([[-1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0]])
     return np.einsum("...ij,kj->...ki", upright_rotation(normal), half)
 

@@ -166,9 +166,10 @@ class Problem:
         return np.einsum("nji,nkj->nki", map_R_base, self.K) @ Cb
 
     @staticmethod
-    def project(lenses: DualFisheye, q: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    def project(lenses: DualFisheye, q: np.ndarray, corners: Optional[np.ndarray]) -> np.ndarray:
         """Stitched bearings (N, 3) of the markers at camera-frame centres ``q`` (N, 3) with ``corners`` (N, 4,
-        3) from them: the diagonals of the corners' images where the lenses have two centres."""
+        3) from them (None for a single centre): the diagonals of the corners' images where the lenses have two
+        centres."""
         return lenses.project(q) if lenses.single_centre else lenses.project_marker(q, q[:, None, :] + corners)
 
     def predict(self, x, delta, theta, offsets) -> np.ndarray:
