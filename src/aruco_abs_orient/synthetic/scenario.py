@@ -49,7 +49,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 
 from ..camera import DualFisheye
-from ..markers import Marker, MarkerMap, upright_rotation
+from ..markers import Marker, MarkerMap, square_corners, upright_rotation
 from ..transforms import invert_T, make_T, matrix_to_rpy, rot_z, rpy_to_matrix, transform_points
 from ..tum import atomic_write_text, read_yaml
 from .config import PRESETS, ScenarioConfig, ScenarioError
@@ -441,8 +441,9 @@ class Scenario:
 
         Returns (frame index into ``t`` (K,), marker ids (K,), unit bearings (K, 3) in the true camera
         frame, boresight error included, where the stitched image shows the marker's centre: the lenses'
-        parallax and rotations included), each bearing perturbed by ``noise`` rad per axis (``rng``: a
-        numpy Generator). For tests and benchmarks of the geometry that detection would only slow down."""
+        parallax and rotations included, a marker across a seam by its corners' diagonals), each bearing
+        perturbed by ``noise`` rad per axis (``rng``: a numpy Generator). For tests and benchmarks of the
+        geometry that detection would only slow down."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         T = self.map_T_camera(t)                                                   # (N, 4, 4)
         M = np.array([m.position for m in self.markers])                           # (J, 3)
@@ -453,7 +454,13 @@ class Scenario:
         facing = -np.einsum("njk,jk->nj", d, normals) / r                          # cos(incidence)
         seen = (r < max_range) & (facing > math.cos(math.radians(max_incidence_deg)))
         frame, j = np.nonzero(seen)
-        u = self.lenses.project(np.einsum("nki,nk->ni", T[frame, :3, :3], d[frame, j]))
+        q = np.einsum("nki,nk->ni", T[frame, :3, :3], d[frame, j])
+        if self.lenses.single_centre:
+            u = self.lenses.project(q)
+        else:      # where a detector finds the centre: the diagonals of the corners, each through its lens
+            K = np.array([square_corners(m.size, n) for m, n in zip(self.markers, normals)]).reshape(-1, 4, 3)
+            corners = np.einsum("nki,nck->nci", T[frame, :3, :3], d[frame, j][:, None, :] + K[j])
+            u = self.lenses.project_marker(q, corners)
         if noise > 0:
             u = u + (rng or np.random.default_rng()).normal(0.0, noise, u.shape)
             u /= np.linalg.norm(u, axis=1, keepdims=True)
