@@ -203,7 +203,8 @@ class Problem:
         Cb = rpy_to_matrix(*x[:3]) @ self.R_bc
         q = w @ Cb                                                            # in the camera frame
         lenses = self.lenses_at(x)
-        corners = None if lenses.single_centre else self.corner_offsets(A, Cb)
+        lenses_free = [k for k in range(4) if 8 + k in free]               # the lenses: offset, rotation
+        corners = None if lenses.single_centre and not lenses_free else self.corner_offsets(A, Cb)
         d = self.project(lenses, q, corners)
         r = np.cross(self.u, d)
         # ∂d/∂q (N, 3, 3)
@@ -234,12 +235,10 @@ class Problem:
         Jg[:, :, 6] = through(np.einsum("nij,nj->ni", At, self.V))                          # Δτ: G + V Δτ
         Jg[:, :, 7] = through(-np.cross(self.omega * self.rows[:, None], AtG)
                               - np.einsum("nij,nj->ni", At, fV))                               # Δρ
-        for k in (k for k in range(4) if 8 + k in free):    # the lenses: offset, rotation
+        for k in lenses_free:
             e = np.zeros(len(x))
             e[8 + k] = h
             plus, minus = self.lenses_at(x + e), self.lenses_at(x - e)
-            if corners is None and not (plus.single_centre and minus.single_centre):
-                corners = self.corner_offsets(A, Cb)
             Jg[:, :, 8 + k] = np.cross(self.u, self.project(plus, q, corners) - self.project(minus, q, corners)) \
                 / (2 * h)
         c_delta = through(-np.einsum("nij,nj->ni", At, np.cross(np.array([0.0, 0.0, 1.0]), G)))
