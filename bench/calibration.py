@@ -25,9 +25,10 @@ Scenarios are cached in ``--work`` (re-rendered only with ``--force``).
 (``WORLDS``: easy, ci, ci with the odometry tilted as it started, ci-realistic and realistic, crabbing and not,
 with and without the VO's tilt drift; ``--world`` to choose, ``--fps``/``--width`` to change the camera), the
 user's CLI workflow with calibrate's defaults (bench/_workflow.py; the camera's rolling-shutter readout given as
-known), per run the error/σ of roll, pitch, yaw, the time offset and the lens offset, the heading model chosen,
-the calibrated heading RMSE beside the one with the true calibration, and the self-check's findings; then the
-share within 3 σ. A refusal is counted and its reason printed.
+known), per run the error/σ of roll, pitch, yaw, the time offset, the lens offset and the lenses' relative rotation
+(roll, pitch, yaw of the back lens against the front one), the heading model chosen, the calibrated heading RMSE
+beside the one with the true calibration, and the self-check's findings; then the share within 3 σ. A refusal is
+counted and its reason printed.
 
 Measured (demo preset, 60 s, 30 fps, 3840×1920, seed 3, every 3rd image, 2 cores): boresight error
 0.0070° (−0.0017, −0.0022, −0.0064 rpy; σ 0.0007, 0.0008, 0.0081); time offset 396.4 ms from the VO
@@ -125,13 +126,17 @@ def _honesty_run(a, preset: str, changes: dict, duration: float, seed: int):
 
 
 def _z_scores(run) -> list:
-    """error/σ of roll, pitch, yaw, the time offset and (when estimated) the lens offset."""
+    """error/σ of roll, pitch, yaw, the time offset and (when estimated) the lens offset and the three components
+    of the back lens's rotation against the front one (NaN where not estimated)."""
     rep, hidden = run["report"], run["hidden"]
     err = np.subtract(rep["boresight_rpy_deg"], hidden["boresight"]["rpy_deg"])
     z = list(err / np.array(rep["boresight_sigma_deg"]))
     z.append(run["offset_err_ms"] / rep["time_offset_sigma_ms"])
     lens_err = rep.get("lens_offset_mm", 0.0) - 1e3 * hidden["realism"]["camera_lenses"]["lens_offset_m"]
     z.append(lens_err / rep["lens_offset_sigma_mm"] if rep.get("lens_offset_sigma_mm") else float("nan"))
+    rot_err = np.subtract(rep.get("lens_rotation_deg", [math.nan] * 3),
+                          hidden["realism"]["camera_lenses"]["back_lens_rotation_deg"])
+    z += list(rot_err / np.array(rep.get("lens_rotation_sigma_deg", [math.nan] * 3)))
     return z
 
 
@@ -139,8 +144,9 @@ def honesty(a) -> int:
     """Are calibrate's σ honest, with its defaults, on recordings of every world the generator has? Per world and
     seed: the CLI workflow (bench/_workflow.py: timesync, the calibrate line it suggests with the lenses estimated
     and the heading model chosen by the data, process with the calibration, evaluate), the error over σ of roll,
-    pitch, yaw, the time offset and the lens offset, the model chosen, the calibrated heading RMSE beside the RMSE
-    with the true calibration (the recording's floor), and what the self-check of the processed run found."""
+    pitch, yaw, the time offset, the lens offset and the lenses' relative rotation, the model chosen, the calibrated
+    heading RMSE beside the RMSE with the true calibration (the recording's floor), and what the self-check of the
+    processed run found."""
     names = [w[0] for w in WORLDS]
     unknown = [w for w in a.world or () if w not in names]
     if unknown:
@@ -150,7 +156,7 @@ def honesty(a) -> int:
           f"fps {a.fps or 'preset'}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs", flush=True)
     zs, rmse, findings, refused, models = [], {}, [], [], {}
     print(f"{'world':36s} {'seed':>4s} {'model':>8s} {'roll z':>7s} {'pitch z':>7s} {'yaw z':>6s} {'τ z':>6s} "
-          f"{'lens z':>6s} {'RMSE deg':>9s} {'true cal':>9s} {'ratio':>6s} {'findings'}")
+          f"{'lens z':>6s} {'rotation z (r, p, y)':>20s} {'RMSE deg':>9s} {'true cal':>9s} {'ratio':>6s} {'findings'}")
     for name, preset, changes, duration in WORLDS:
         if a.world and name not in a.world:
             continue
@@ -167,7 +173,8 @@ def honesty(a) -> int:
             rmse.setdefault(name, []).append((run["rmse"], run["rmse_true"]))
             findings += [k for k in run["findings"] if k in ("camera_tilt", "boresight_yaw", "time_offset")]
             print(f"{name:36s} {seed:4d} {model:>8s} {z[0]:+7.2f} {z[1]:+7.2f} {z[2]:+6.2f} {z[3]:+6.2f} "
-                  f"{z[4]:+6.2f} {run['rmse']:9.4f} {run['rmse_true']:9.4f} {run['rmse'] / run['rmse_true']:6.2f} "
+                  f"{z[4]:+6.2f} {' '.join(f'{x:+6.2f}' for x in z[5:8]):>20s} {run['rmse']:9.4f} "
+                  f"{run['rmse_true']:9.4f} {run['rmse'] / run['rmse_true']:6.2f} "
                   f"{', '.join(run['findings']) or '—'}", flush=True)
     z = np.abs(np.array(zs))
     if not len(z):
