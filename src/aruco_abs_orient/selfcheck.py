@@ -38,6 +38,9 @@ class SelfCheckParams(Params):
 
     knot_spacing: float = param(5.0, "spacing of the hat functions of the common (filter) part of the residuals",
                                 "s", above=0.0)
+    common_drift_sigma: float = param(math.radians(0.5), "1-σ of the second difference of the common part over "
+                                      "three adjacent knots (how far its drift may bend; markers seen only in "
+                                      "separate stretches of the run are compared through it)", "rad", above=0.0)
     sigma_floor: float = param(math.radians(0.02), "added to each yaw σ (model errors beyond the pixel noise)",
                                "rad", 0.0)
     significance: float = param(5.0, "a finding needs |estimate| > this × its σ", "σ", 0.0)

@@ -4,14 +4,14 @@ In: marker yaws (times s, marker ids, yaws and σ rad, where each marker is in t
 Out: the bearing rate of a marker from the prism (how a time offset moves its yaw), hat functions for a smooth
 common part (the odometry's drift), Huber-weighted least squares with its covariance, and the self-check's fit
 of time offset + camera tilt + a yaw offset per marker, with the markers off the others taken out one by one.
-``p`` is the caller's parameters: ``knot_spacing`` (s), ``sigma_floor`` (rad), ``min_samples``,
-``min_marker_bias`` (rad) and ``significance`` (σ). ROS-free; angles in radians, times in seconds.
+``p`` is the caller's parameters: ``knot_spacing`` (s), ``common_drift_sigma`` (rad), ``sigma_floor`` (rad),
+``min_samples``, ``min_marker_bias`` (rad) and ``significance`` (σ). ROS-free; angles in radians, times in seconds.
 """
 
 from __future__ import annotations
 
 import math
-from typing import List, NamedTuple, Tuple
+from typing import List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
@@ -49,23 +49,26 @@ def hat_basis(t: np.ndarray, spacing: float) -> np.ndarray:
     return np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / step, 0.0, None)
 
 
-def robust_lsq(A: np.ndarray, y: np.ndarray, w: np.ndarray, iterations: int = 5) -> Tuple[np.ndarray, np.ndarray]:
+def robust_lsq(A: np.ndarray, y: np.ndarray, w: np.ndarray, iterations: int = 5,
+               prior: Optional[Tuple[np.ndarray, float]] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Huber-weighted least squares of y ≈ A x with prior weights ``w`` (1/σ²): x and its covariance
-    (scaled by the robust scale of the normalised residuals)."""
+    (scaled by the robust scale of the normalised residuals). ``prior`` (B, w_b): pseudo-observations B x ≈ 0
+    of weight w_b (1/σ²), never down-weighted."""
     wr = np.ones(len(y))
     sw = np.sqrt(w)
+    B, wb = prior if prior is not None else (np.zeros((0, A.shape[1])), 0.0)
     x = np.zeros(A.shape[1])
     scale = 1.0
     for _ in range(iterations):
         ww = np.sqrt(wr) * sw
-        x, *_ = np.linalg.lstsq(A * ww[:, None], y * ww, rcond=None)
+        x, *_ = np.linalg.lstsq(np.vstack([A * ww[:, None], B * math.sqrt(wb)]),
+                                np.concatenate([y * ww, np.zeros(len(B))]), rcond=None)
         z = (y - A @ x) * sw
         scale = max(1.4826 * float(np.median(np.abs(z))), 1e-9)
         a = np.abs(z) / (1.345 * scale)
         wr = np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-12))
     ww = wr * w
-    N = A.T @ (A * ww[:, None])
-    cov = np.linalg.pinv(N) * scale ** 2
+    cov = np.linalg.pinv(A.T @ (A * ww[:, None]) / scale ** 2 + wb * B.T @ B)
     return x, cov
 
 
@@ -83,8 +86,9 @@ class FitData(NamedTuple):
 
 
 def offsets_fit(d: FitData, mask: np.ndarray, p):
-    """(x, cov, {marker: (offset from the middle one rad, yaws, σ)}) of the fit over ``mask``: time offset,
-    tilt, the common part's hat functions and a yaw offset per marker (the most seen one's is the common part's)."""
+    """(x, cov, {marker: (offset from the middle one of those seen with it rad, yaws, its σ)}) of the fit over
+    ``mask``: time offset, tilt, the common part's hat functions and a yaw offset per marker (the most seen one's
+    is the common part's)."""
     seen, counts = np.unique(d.ids[mask], return_counts=True)
     te = np.tan(d.el[mask])
     hats = hat_basis(d.t[mask], p.knot_spacing)
@@ -92,14 +96,44 @@ def offsets_fit(d: FitData, mask: np.ndarray, p):
     others = [m for m in seen if m != ref]
     A = np.column_stack([d.k[mask], -te * np.cos(d.az[mask]), -te * np.sin(d.az[mask]), hats]
                         + [(d.ids[mask] == m).astype(float) for m in others])
-    xs, cs = robust_lsq(A, wrap_angle(d.y[mask]), 1.0 / (d.sig[mask] ** 2 + p.sigma_floor ** 2))
     n0 = 3 + hats.shape[1]
-    offsets = {int(ref): (0.0, 0.0)}
-    offsets.update({int(m): (float(xs[n0 + i]), float(math.sqrt(max(cs[n0 + i, n0 + i], 0.0))))
-                    for i, m in enumerate(others)})
-    middle = float(np.median([v[0] for v in offsets.values()]))
-    return xs, cs, {int(m): (offsets[int(m)][0] - middle, int(n), offsets[int(m)][1])
-                    for m, n in zip(seen, counts)}
+    # the common part drifts smoothly: its knots' second differences tied to 0 by common_drift_sigma. Markers
+    # seen only in stretches of the run apart (no marker between them) are then compared through its drift
+    # carried across the gap, with that σ, instead of through a singular fit
+    curvature = np.zeros((max(hats.shape[1] - 2, 0), A.shape[1]))
+    curvature[:, 3:n0] = np.diff(np.eye(hats.shape[1]), n=2, axis=0)
+    xs, cs = robust_lsq(A, wrap_angle(d.y[mask]), 1.0 / (d.sig[mask] ** 2 + p.sigma_floor ** 2),
+                        prior=(curvature, 1.0 / p.common_drift_sigma ** 2))
+    order = [ref] + others
+    value = np.concatenate([[0.0], xs[n0:]])
+    cov = np.zeros((len(order), len(order)))
+    cov[1:, 1:] = cs[n0:, n0:]
+    offsets = {}
+    for group in _seen_together(d.t[mask], d.ids[mask], order):
+        # against the middle of the markers seen in the same stretch of the run: the median of theirs, σ that
+        # of its offset minus their mean; fewer than 3 have no majority to be off (σ infinite)
+        contrast = np.eye(len(group)) - 1.0 / len(group)
+        sigma = np.sqrt(np.maximum(np.diag(contrast @ cov[np.ix_(group, group)] @ contrast.T), 0.0))
+        middle = float(np.median(value[group]))
+        for j, sd in zip(group, sigma if len(group) >= 3 else np.full(len(group), np.inf)):
+            offsets[int(order[j])] = (float(value[j]) - middle, float(sd))
+    count = dict(zip(seen.tolist(), counts.tolist()))
+    return xs, cs, {m: (v, int(count[m]), sd) for m, (v, sd) in offsets.items()}
+
+
+def _seen_together(t: np.ndarray, ids: np.ndarray, order) -> List[List[int]]:
+    """The markers (indices into ``order``) in groups whose spans of time (first to last yaw) overlap: markers
+    seen in stretches of the run apart, with none seen across the gap, are compared only through the common
+    part's drift across it, not with each other."""
+    spans = sorted((float(t[ids == m].min()), float(t[ids == m].max()), j) for j, m in enumerate(order))
+    groups: List[List[int]] = []
+    end = -math.inf
+    for lo, hi, j in spans:
+        if lo > end:
+            groups.append([])
+        groups[-1].append(j)
+        end = max(end, hi)
+    return groups
 
 
 def moved_markers(d: FitData, base: np.ndarray, p):
