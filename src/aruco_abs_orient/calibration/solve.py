@@ -10,7 +10,8 @@ Gauss-Newton over the free globals, the knots of δ(t) and of the odometry's til
 (``problem``): a Cauchy-weighted robust stage, a gate at ``outlier_gate`` σ, then least squares with the
 variance factors of three groups estimated (the bearings, the track headings, the markers' offsets: variance
 component estimation, the last never below the survey's σ), the covariance inflated for the residuals'
-correlation in time. Δτ and Δρ are linearised: :func:`calibrate` moves the clocks by them and solves again.
+correlation in time (all of them, and each marker's own). Δτ and Δρ are linearised: :func:`calibrate` moves the
+clocks by them and solves again.
 The heading model ``auto`` fits the recording both ways and keeps the VO's yaw unless a Hausman test says the
 platform crabs (the two boresight yaws differ beyond the σ of their difference) or the VO's direction of
 travel determines the boresight yaw better.
@@ -278,14 +279,25 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
     # with each group's σ inflated by √c, c from the residuals' own autocorrelation; the estimate keeps the
     # weights above.
     x, d, th, off = lay.unpack(p, x0)
-    order = np.argsort(pb.t, kind="stable")
-    r_o = pb.residuals(x, *pb.local(d, th, off))[order] / pb.sigma[order, None]
-    c_o = correlation_factor(r_o[weights.mask_o[order] > 0])
+    r_o = pb.residuals(x, *pb.local(d, th, off)) / pb.sigma[:, None]
+    c_o = _bearings_correlation(r_o, pb.t, pb.markers.index, weights.mask_o > 0)
     c_h = correlation_factor((pb.heading_residuals(x, d) / pb.sigma_head)[weights.mask_h > 0, None]) if n_h else 1.0
     vf.update({"markers_correlation": c_o, "heading_correlation": c_h})
     cov = _covariance(pb, lay, p, x0, weights._replace(scale_o=weights.scale_o * math.sqrt(c_o),
                                                        scale_h=weights.scale_h * math.sqrt(c_h)), params)
     return _Fit(p, cov, weights.mask_o.astype(bool), weights.mask_h.astype(bool), vf, it)
+
+
+def _bearings_correlation(r: np.ndarray, t: np.ndarray, marker: np.ndarray, used: np.ndarray) -> float:
+    """The bearings' variance inflation: the larger of the time series of all of them (a common error: the
+    VO's walk, the platform) and of each marker's own (its error the same frame after frame: a centre its
+    pattern biases, a seam), the markers' n_m / c_m summed to the effective count n / c."""
+    order = np.argsort(t, kind="stable")
+    order = order[used[order]]
+    pooled = correlation_factor(r[order])
+    m = marker[order]
+    effective = sum(float(np.sum(m == k)) / correlation_factor(r[order][m == k]) for k in np.unique(m))
+    return max(pooled, len(order) / effective) if effective > 0 else pooled
 
 
 def correlation_factor(series: np.ndarray, max_lag: int = 200) -> float:

@@ -17,6 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
+from aruco_abs_orient.calibration.solve import _bearings_correlation
 from aruco_abs_orient.solver import Mounting, yaw_from_marker
 from aruco_abs_orient.transforms import matrix_to_rpy, wrap_angle
 from aruco_abs_orient.tum import Trajectory
@@ -269,3 +270,34 @@ def test_readout_from_a_calibration_spin():
     assert abs(miss) < 0.001 and abs(miss) < 3 * cal.readout_sigma, (miss, cal.readout_sigma)
     err = np.array(cal.boresight_rpy) - np.array(matrix_to_rpy(spin.base_T_camera_true[:3, :3]))
     assert np.all(np.abs(err) < 3 * cal.boresight_sigma), (np.degrees(err), np.degrees(cal.boresight_sigma))
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n_markers=st.integers(4, 7), rho=st.floats(0.8, 0.9), bias_share=st.floats(0.3, 0.7),
+       seed=st.integers(0, 2 ** 16))
+def test_a_marker_error_that_persists_frame_after_frame_inflates_the_sigma(n_markers, rho, bias_share, seed):
+    """Four to seven markers seen in the same frames at 10 Hz, each bearing's error a slowly varying part of its
+    own (AR(1), as a centre its pattern biases) and white noise. Interleaved in time the pooled series looks nearly
+    white; the factor must still be the true inflation of the variance of the mean, which a Monte Carlo over
+    replicas gives."""
+    rng = np.random.default_rng(seed)
+    spans = [np.arange(int(a), int(a) + int(n)) for a, n in
+             zip(rng.integers(0, 50, n_markers), rng.integers(300, 400, n_markers))]
+    t = np.concatenate([0.1 * s for s in spans])
+    marker = np.concatenate([np.full(len(s), k) for k, s in enumerate(spans)])
+
+    def replica(r):
+        parts = []
+        for s in spans:
+            b = np.empty(len(s))
+            b[0] = r.normal()
+            for i in range(1, len(s)):
+                b[i] = rho * b[i - 1] + math.sqrt(1 - rho ** 2) * r.normal()
+            parts.append(math.sqrt(bias_share) * b + math.sqrt(1 - bias_share) * r.normal(size=len(s)))
+        return np.concatenate(parts)[:, None]
+
+    means = [float(np.mean(replica(rng))) for _ in range(300)]
+    truth = np.var(means) * len(t)           # the mean's variance over that of n independent unit residuals
+    used = np.ones(len(t), dtype=bool)
+    factor = _bearings_correlation(replica(rng), t, marker, used)
+    assert 0.5 * truth < factor < 1.6 * truth  # an autocorrelation estimated from one recording
