@@ -294,10 +294,10 @@ def _bearings_correlation(r: np.ndarray, t: np.ndarray, marker: np.ndarray, used
     pattern biases, a seam), the markers' n_m / c_m summed to the effective count n / c."""
     order = np.argsort(t, kind="stable")
     order = order[used[order]]
-    pooled = correlation_factor(r[order])
-    m = marker[order]
-    effective = sum(float(np.sum(m == k)) / correlation_factor(r[order][m == k]) for k in np.unique(m))
-    return max(pooled, len(order) / effective) if effective > 0 else pooled
+    r, m = r[order], marker[order]
+    pooled = correlation_factor(r)
+    effective = sum(float(np.sum(m == k)) / correlation_factor(r[m == k]) for k in np.unique(m))
+    return max(pooled, len(r) / effective) if effective > 0 else pooled
 
 
 def correlation_factor(series: np.ndarray, max_lag: int = 200) -> float:
