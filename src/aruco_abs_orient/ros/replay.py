@@ -2,7 +2,8 @@
 says in one line how it ended, ends the launch quietly, and leaves a master it did not start as it was.
 
 In: ``~bag`` (required), ``~rate``, ``~delay``, ``~loop``, ``~start``, ``~settle``, ``~node``, ``~record``,
-``~recorder``. Out: ``rosbag play --clock`` of the bag; at its end one line (images processed and dropped, poses
+``~recorder``. Out: ``rosbag play --clock`` of the bag (from ``~start``: the bag's static transforms before it
+also published by this node, latched); at its end one line (images processed and dropped, poses
 and EKF outputs counted, or why there were none) and a shutdown of its roslaunch as Ctrl-C does; exit status 1
 when the run did not do its job (the node reported an error or died, the recorder stopped, no image arrived on
 the node's topic); ``/use_sim_time`` deleted from a master its roslaunch did not start. ``replay
@@ -19,7 +20,8 @@ import threading
 import time
 from typing import Dict, List, Mapping, Optional, Sequence
 
-__all__ = ["main", "summary_line", "parent_is_roslaunch", "process_parent", "prepare_record", "Watch"]
+__all__ = ["main", "summary_line", "parent_is_roslaunch", "process_parent", "prepare_record", "Watch",
+           "static_transforms_before"]
 
 
 def process_parent(pid: int) -> Optional[int]:
@@ -294,6 +296,7 @@ def main(argv=None) -> int:
         names["recorder"] = rospy.resolve_name(rospy.get_param("~recorder", "recorder"))
     watch = Watch(master, names)
     listener = _Listener(node)
+    static = _publish_static_transforms(bag, start) if start > 0 else None  # latched while the bag plays
     cmd = (["rosbag", "play", "--clock", f"--rate={rate:g}", f"--delay={delay:g}", f"--start={start:g}", bag]
            + (["--loop"] if loop else []))
     player, stopped = _play(cmd, watch, listener)
@@ -308,6 +311,8 @@ def main(argv=None) -> int:
     else:
         line, failed = _played_to_its_end(bag, settle, watch, listener, record)
     listener.unregister()
+    if static is not None:
+        static.unregister()
     if failed:
         rospy.logerr(line)
         return 1  # roslaunch: "REQUIRED process [replay] has died ... exit code 1", then it ends everything
@@ -317,6 +322,41 @@ def main(argv=None) -> int:
         os.kill(ppid, signal.SIGINT)  # end the launch as Ctrl-C does: no red "REQUIRED process has died"
         rospy.spin()
     return 0
+
+
+def static_transforms_before(bag: str, start: float, topic: str = "/tf_static") -> list:
+    """The static transforms that ``bag`` publishes on ``topic`` in its first ``start`` s, one per child frame
+    (the last one sent for it, whichever node sent it), in the order of the frames' first appearance."""
+    import rosbag
+    import rospy
+
+    with rosbag.Bag(bag) as b:
+        end = rospy.Time.from_sec(b.get_start_time() + start)
+        latest = {}
+        for _, msg, _ in b.read_messages(topics=[topic], end_time=end):
+            for tr in msg.transforms:
+                latest[tr.child_frame_id] = tr
+    return list(latest.values())
+
+
+def _publish_static_transforms(bag: str, start: float):
+    """Publish (latched) the static transforms before ``start``: ``rosbag play --start`` publishes them too, but
+    a subscriber that connects while roscpp is sending them gets neither the message nor the latched copy (its
+    latched copy is stored after the send is queued); rospy stores it first. The publisher, or None."""
+    import rosbag
+    import rospy
+    from tf2_msgs.msg import TFMessage
+
+    try:
+        transforms = static_transforms_before(bag, start)
+    except (rosbag.ROSBagException, OSError) as e:  # rosbag play says what is wrong with the bag
+        rospy.logwarn(f"replay: could not read the static transforms of {bag}: {e}")
+        return None
+    if not transforms:
+        return None
+    pub = rospy.Publisher("/tf_static", TFMessage, queue_size=1, latch=True)
+    pub.publish(TFMessage(transforms=transforms))
+    return pub
 
 
 def _image_topics(bag: str) -> List[str]:

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from aruco_abs_orient.ros.replay import process_parent, summary_line
+from aruco_abs_orient.ros.replay import process_parent, static_transforms_before, summary_line
 
 
 def test_summary_line_says_what_the_node_did_and_why_there_is_no_pose():
@@ -53,6 +53,38 @@ def test_summary_line_says_what_the_node_did_and_why_there_is_no_pose():
 def test_process_parent_reads_proc():
     assert process_parent(os.getpid()) == os.getppid()
     assert process_parent(2 ** 22 + 12345) is None
+
+
+def test_the_static_transforms_before_the_start_are_the_last_per_frame_from_every_node(tmp_path):
+    """A bag whose /tf_static comes from two nodes and is updated once before the start and once after it:
+    playing from the start, the replay publishes what a subscriber would hold then."""
+    import rosbag
+    import rospy
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    def tf(child, x):
+        t = TransformStamped()
+        t.header.frame_id, t.child_frame_id = "base_link", child
+        t.transform.translation.x, t.transform.rotation.w = x, 1.0
+        return TFMessage(transforms=[t])
+
+    t0 = 1700000000.0
+    written = [("/robot", 0.0, "/tf_static", [tf("camera", 0.1), tf("prism", -0.25)]),
+               ("/imu_driver", 1.0, "/tf_static", [tf("imu", 0.3)]),
+               ("/robot", 2.0, "/tf", [tf("odom_child", 9.0)]),
+               ("/robot", 3.0, "/tf_static", [tf("camera", 0.12)]),
+               ("/robot", 10.0, "/tf_static", [tf("camera", 0.5)])]
+    path = str(tmp_path / "static.bag")
+    with rosbag.Bag(path, "w") as bag:
+        for node, dt, topic, msgs in written:
+            for m in msgs:
+                header = {"callerid": node, "latching": "1" if topic == "/tf_static" else "0", "topic": topic,
+                          "type": m._type, "md5sum": m._md5sum, "message_definition": m._full_text}
+                bag.write(topic, m, rospy.Time.from_sec(t0 + dt), connection_header=header)
+    got = [(t.child_frame_id, round(t.transform.translation.x, 6)) for t in static_transforms_before(path, 5.0)]
+    assert got == [("camera", 0.12), ("prism", -0.25), ("imu", 0.3)]
+    assert [t.child_frame_id for t in static_transforms_before(path, 0.5)] == ["camera", "prism"]
 
 
 def _free_port() -> int:
