@@ -21,6 +21,7 @@ from ..markers import square_corners
 from ..timesync import TimeSyncError, heading_from_track
 from ..transforms import quat_to_matrix, rot_z, rotvec_to_matrix, rpy_to_matrix, wrap_angle, yaw_of
 from ..tum import Trajectory
+from .bias import pattern_bias_sigma
 from .model import N_GLOBALS, CalibrationError, CalibrationParams, Recording
 
 __all__ = ["Problem", "Setup", "setup_problem"]
@@ -105,6 +106,7 @@ class Problem:
         self.tilt_drift_sigma = math.radians(params.tilt_drift_sigma_deg)   # rad per tilt-knot interval
         self.markers = markers
         self.lenses = lenses
+        self.bias = np.zeros(len(obs.t))     # rad, 1-σ of each observation's pattern bias (setup_problem)
         self.set_heading(*heading)
         self.drift_sigma = math.radians(params.drift_sigma_deg)      # rad per knot interval
 
@@ -278,6 +280,17 @@ def _as_array(x, shape_tail, name: str, n: Optional[int] = None) -> np.ndarray:
         want = f"({n if n is not None else 'N'}{''.join(f', {s}' for s in shape_tail)})"
         raise CalibrationError(f"{name}: expected an array of shape {want}, got {a.shape}")
     return a
+
+
+def _pattern_bias(rec: Recording, params: CalibrationParams, n: int) -> np.ndarray:
+    """The 1-σ (rad) of each observation's pattern bias from the recording's cell widths and pixel pitch (0 when
+    it has none)."""
+    if rec.cell_px is None:
+        return np.zeros(n)
+    cell = _as_array(rec.cell_px, (), "cell_px", n)
+    if not (np.all(cell > 0) and rec.pixel_pitch > 0):      # NaN fails too
+        raise CalibrationError("cell_px, pixel_pitch: expected cell widths (px) and a pixel pitch (rad/px) > 0")
+    return pattern_bias_sigma(params, rec.pixel_pitch, cell)
 
 
 def _corners(marker_map, ids: np.ndarray, viewpoints: np.ndarray) -> np.ndarray:
@@ -505,4 +518,5 @@ def setup_problem(rec: Recording, params: CalibrationParams, time_shift: float, 
     rng = np.maximum(np.linalg.norm(pb.camera_to_marker(np.zeros(N_GLOBALS), zero, np.zeros((len(idx), 2)),
                                                         np.zeros((len(idx), 3))), axis=1), 1e-3)
     pb.sigma = np.sqrt(pb.sigma ** 2 + params.prism_sigma ** 2 / rng ** 2)   # the survey's error: the offsets
+    pb.bias = _pattern_bias(rec, params, n)[idx]
     return Setup(pb, idx, keep, ids, skipped)

@@ -10,8 +10,8 @@ Gauss-Newton over the free globals, the knots of δ(t) and of the odometry's til
 (``problem``): a Cauchy-weighted robust stage, a gate at ``outlier_gate`` σ, then least squares with the
 variance factors of three groups estimated (the bearings, the track headings, the markers' offsets: variance
 component estimation, the last never below the survey's σ), the covariance inflated for the residuals'
-correlation in time (all of them, and each marker's own). Δτ and Δρ are linearised: :func:`calibrate` moves the
-clocks by them and solves again.
+correlation in time (all of them, and each marker's own) and for the markers' pattern biases (``bias``).
+Δτ and Δρ are linearised: :func:`calibrate` moves the clocks by them and solves again.
 The heading model ``auto`` fits the recording both ways and keeps the VO's yaw unless a Hausman test says the
 platform crabs (the two boresight yaws differ beyond the σ of their difference) or the VO's direction of
 travel determines the boresight yaw better.
@@ -26,6 +26,7 @@ from typing import Dict, List, NamedTuple, Optional, Tuple
 import numpy as np
 
 from ..solver import yaw_consensus
+from .bias import pattern_bias_covariance
 from .model import N_GLOBALS, Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
 from .problem import Problem, setup_problem
 
@@ -285,6 +286,11 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
     vf.update({"markers_correlation": c_o, "heading_correlation": c_h})
     cov = _covariance(pb, lay, p, x0, weights._replace(scale_o=weights.scale_o * math.sqrt(c_o),
                                                        scale_h=weights.scale_h * math.sqrt(c_h)), params)
+    if np.any(pb.bias > 0):    # the markers' pattern biases: the same on every frame (calibration.bias)
+        _, J, idx = _observation_jacobian(pb, lay, x, d, th, off)
+        cov = cov + pattern_bias_covariance(_normal_equations(pb, lay, p, x0, weights, params)[0], J, idx,
+                                            weights.mask_o / (pb.sigma * weights.scale_o) ** 2, pb.u,
+                                            pb.predict(x, *pb.local(d, th, off)), pb.bias, pb.markers.index, lay.n)
     return _Fit(p, cov, weights.mask_o.astype(bool), weights.mask_h.astype(bool), vf, it)
 
 

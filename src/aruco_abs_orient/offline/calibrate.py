@@ -36,7 +36,7 @@ class CalibrateResult:
     """Observations of a bag as arrays (see :func:`collect_observations`)."""
 
     def __init__(self, data: BagData, times, ids, bearings, sigmas, frames: int, skipped: dict, rows=None,
-                 corners=None):
+                 corners=None, cell_px=None, pixel_pitch: float = float("nan")):
         self.data = data
         self.times = np.asarray(times, dtype=float).reshape(-1)          # s, camera clock
         self.ids = np.asarray(ids, dtype=int).reshape(-1)
@@ -46,6 +46,9 @@ class CalibrateResult:
         self.rows = np.zeros(len(self.times)) if rows is None else np.asarray(rows, dtype=float).reshape(-1)
         # corner bearings (N, 4, 3) of each, ArUco order (None: not kept)
         self.corners = None if corners is None else np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+        # width of each one's cells in the image (px; None: not known) and the image's pitch (rad/px)
+        self.cell_px = None if cell_px is None else np.asarray(cell_px, dtype=float).reshape(-1)
+        self.pixel_pitch = float(pixel_pitch)
         self.frames = frames                                              # images searched
         self.skipped = skipped
 
@@ -63,18 +66,23 @@ def collect_observations(bag: str, marker_map: Optional[MarkerMap], topics: Opti
     topics = topics or BagTopics()
     data = data or read_bag_data(bag, topics)
     if marker_map is None:
-        find = MarkerDetector(dictionary, detector_params).detect
+        detector = MarkerDetector(dictionary, detector_params)
+        find = detector.detect
     else:
         tracker = MarkerTracker(marker_map, detector_params)
+        detector = tracker.detector
 
         def find(grey):
             return tracker.process(grey, None).observations
+    cells_across = detector.backend.bits
+    pitch = float("nan")
     times: List[float] = []
     ids: List[int] = []
     bearings: List[np.ndarray] = []
     sigmas: List[float] = []
     rows: List[float] = []
     corners: List[np.ndarray] = []
+    cells: List[float] = []
     skipped: dict = {}
     frames = 0
     bar = None
@@ -96,6 +104,7 @@ def collect_observations(bag: str, marker_map: Optional[MarkerMap], topics: Opti
                 grey = decode_jpeg(payload) if isinstance(payload, bytes) else payload
                 found = find(grey)
                 row = row_fraction(np.array([o.centre for o in found]).reshape(-1, 3), grey.shape[0])
+                pitch = 2.0 * math.pi / grey.shape[1]
             except DetectionError as e:
                 key = f"bad image: {str(e).split(':')[0]}"
                 skipped[key] = skipped.get(key, 0) + 1
@@ -107,10 +116,11 @@ def collect_observations(bag: str, marker_map: Optional[MarkerMap], topics: Opti
                 sigmas.append(o.sigma)
                 rows.append(float(f))
                 corners.append(o.corners)
+                cells.append(o.angular_size / pitch / cells_across)
     finally:
         if bar is not None:
             bar.close()
-    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped, rows, np.array(corners))
+    return CalibrateResult(data, times, ids, bearings, sigmas, frames, skipped, rows, np.array(corners), cells, pitch)
 
 
 def _until_broken(images, skipped: dict):
@@ -165,7 +175,8 @@ def calibrate_bag(bag: str, marker_map: MarkerMap, time_offset: float = 0.0, top
         raise CalibrationError(f"{bag_name(bag)}: no prism track: the calibration needs the total station's "
                                "prism positions")
     rec = Recording(obs.times, obs.ids, obs.bearings, obs.sigmas, d.odom, d.prism_stamps + time_offset,
-                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism, obs.rows, lenses)
+                    d.prism_positions, marker_map, d.base_T_camera, d.base_T_prism, obs.rows, lenses,
+                    obs.cell_px, obs.pixel_pitch)
     cal = calibrate(rec, unknowns, params, readout=readout)
     for k, v in obs.skipped.items():
         cal.skipped[k] = cal.skipped.get(k, 0) + v
