@@ -73,8 +73,9 @@ class CalibrationParams(Params):
     prism_sigma: float = param(PipelineParams.prism_sigma, "1-σ per axis of a prism position; enters each bearing "
                                "as σ / range", "m", above=0.0)
     pattern_bias_px: float = param(0.1, "1-σ per axis of a marker centre's bias that its pattern sets (the same on "
-                                   "every frame) where its cells are pattern_bias_cell_px wide; ∝ 1/cell³; in the "
-                                   "σ only", "px", 0.0)
+                                   "every frame) where its cells are pattern_bias_cell_px wide; ∝ 1/cell³, and "
+                                   "along a marker's long edges × (their length over its short ones)^1.5 "
+                                   "(seen obliquely); in the σ only", "px", 0.0)
     pattern_bias_cell_px: float = param(1.8, "the cell width of pattern_bias_px", "px", above=0.0)
     min_observations: int = param(20, "least usable observations", "", above=0)
     min_markers: int = param(2, "least distinct marker ids", "", above=0)
@@ -266,8 +267,9 @@ class Recording:
       ``obs_times + obs_rows · ρ``.
     - ``lenses``: the camera's lenses as known before (``camera.DualFisheye``; the single centre by default):
       the start of their estimate, or fixed.
-    - ``cell_px`` (N,): the width of each observed marker's cells in image pixels, and ``pixel_pitch`` (rad per
-      pixel) of the image: the markers' pattern bias in the σ (``bias``); None: not taken into account.
+    - ``cell_px`` (N, 2): the width of each observed marker's cells in image pixels along the azimuth and the
+      elevation ((N,): the same along both), and ``pixel_pitch`` (rad per pixel) of the image: the markers'
+      pattern bias in the σ (``bias``); None: not taken into account.
     """
 
     obs_times: np.ndarray

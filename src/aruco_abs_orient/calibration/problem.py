@@ -106,7 +106,7 @@ class Problem:
         self.tilt_drift_sigma = math.radians(params.tilt_drift_sigma_deg)   # rad per tilt-knot interval
         self.markers = markers
         self.lenses = lenses
-        self.bias = np.zeros(len(obs.t))     # rad, 1-σ of each observation's pattern bias (setup_problem)
+        self.bias = np.zeros((len(obs.t), 2))   # rad, 1-σ of each observation's pattern bias (setup_problem)
         self.set_heading(*heading)
         self.drift_sigma = math.radians(params.drift_sigma_deg)      # rad per knot interval
 
@@ -283,11 +283,12 @@ def _as_array(x, shape_tail, name: str, n: Optional[int] = None) -> np.ndarray:
 
 
 def _pattern_bias(rec: Recording, params: CalibrationParams, n: int) -> np.ndarray:
-    """The 1-σ (rad) of each observation's pattern bias from the recording's cell widths and pixel pitch (0 when
-    it has none)."""
+    """The 1-σ (rad, (N, 2)) of each observation's pattern bias along the azimuth and the elevation from the
+    recording's cell widths and pixel pitch (0 when it has none)."""
     if rec.cell_px is None:
-        return np.zeros(n)
-    cell = _as_array(rec.cell_px, (), "cell_px", n)
+        return np.zeros((n, 2))
+    cell = np.asarray(rec.cell_px, dtype=float)
+    cell = _as_array(cell, (2,) if cell.ndim == 2 else (), "cell_px", n)
     if not (np.all(cell > 0) and rec.pixel_pitch > 0):      # NaN fails too
         raise CalibrationError("cell_px, pixel_pitch: expected cell widths (px) and a pixel pitch (rad/px) > 0")
     return pattern_bias_sigma(params, rec.pixel_pitch, cell)

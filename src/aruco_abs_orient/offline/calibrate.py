@@ -20,6 +20,7 @@ from typing import List, Optional
 import numpy as np
 
 from ..calibration import Calibration, CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
+from ..calibration.bias import marker_cell_widths
 from ..camera import SINGLE_CENTRE, DualFisheye
 from ..detection import DetectionError, DetectorParams, MarkerDetector, decode_jpeg
 from ..errors import AbsOrientError
@@ -46,8 +47,9 @@ class CalibrateResult:
         self.rows = np.zeros(len(self.times)) if rows is None else np.asarray(rows, dtype=float).reshape(-1)
         # corner bearings (N, 4, 3) of each, ArUco order (None: not kept)
         self.corners = None if corners is None else np.asarray(corners, dtype=float).reshape(-1, 4, 3)
-        # width of each one's cells in the image (px; None: not known) and the image's pitch (rad/px)
-        self.cell_px = None if cell_px is None else np.asarray(cell_px, dtype=float).reshape(-1)
+        # width of each one's cells in the image along the azimuth and the elevation (px; None: not known) and the
+        # image's pitch (rad/px)
+        self.cell_px = None if cell_px is None else np.asarray(cell_px, dtype=float).reshape(-1, 2)
         self.pixel_pitch = float(pixel_pitch)
         self.frames = frames                                              # images searched
         self.skipped = skipped
@@ -116,7 +118,9 @@ def collect_observations(bag: str, marker_map: Optional[MarkerMap], topics: Opti
                 sigmas.append(o.sigma)
                 rows.append(float(f))
                 corners.append(o.corners)
-                cells.append(o.angular_size / pitch / cells_across)
+            if found:
+                cells.extend(marker_cell_widths(np.array([o.centre for o in found]),
+                                                np.array([o.corners for o in found]), cells_across) / pitch)
     finally:
         if bar is not None:
             bar.close()
