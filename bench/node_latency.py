@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
 """Latency of the abs_orient node at 30 fps on this machine, and the images it keeps up with.
 
-``--world realistic`` (the default): the realistic world's recording (preset ``demo``: 3840×1920 JPEG 85
-at 30 fps, 19 cm markers at 2–12 m in the hall, a 30 ms rolling shutter; ``--seconds`` long, rendered once
-into .cache/bench/, or the scenario directory ``--scenario``) replayed as a user replays a recording: its
-own ROS master, the ``replay`` node (``rosbag play --clock``, the player), the node (owning map->odom, the
-bag's time offset) and the real robot_localization EKF on ``cfg/ekf.yaml`` (fed by the node, its own
-map->odom broadcast switched off so that the node's is the one measured), all on the same cores. It prints:
+``--world realistic`` (the default): the realistic world's recording (preset ``demo``: 3840×1920 JPEG 85 at 30
+fps, 19 cm markers at 2–12 m in the hall, a 30 ms rolling shutter; ``--seconds`` long, rendered once into
+.cache/bench/, or the scenario directory ``--scenario``) replayed as a user replays a recording: its own ROS
+master, the ``replay`` node (``rosbag play --clock``, the player), the node (owning map->odom, the bag's time
+offset, the recording's calibration made once by ``calibrate --every 3``: bench/offline.py) and the real
+robot_localization EKF on ``cfg/ekf.yaml`` (fed by the node, its own map->odom broadcast switched off so that
+the node's is the one measured), all on the same cores. It prints:
 
 - images: in the bag, received by the node, processed, dropped (the node's /diagnostics at the end);
 - latency from the image's stamp to map->odom: the wall time between the image's arrival here (the
@@ -51,6 +52,7 @@ LAUNCH = """<launch>
   <include file="$(find aruco_abs_orient)/launch/abs_orient.launch">
     <arg name="markers" value="{markers}"/>
     <arg name="time_offset" value="{offset}"/>
+    <arg name="calibration" value="{calibration}"/>
     <arg name="state_file" value=""/>
     <arg name="respawn" value="false"/>
   </include>
@@ -144,6 +146,9 @@ def realistic(args) -> int:
     import yaml
 
     scen = realistic_scenario(args)
+    from offline import calibration
+
+    cal = calibration(scen)
     with open(os.path.join(scen, "hidden.yaml")) as f:
         offset = float(yaml.safe_load(f)["camera_time_offset"])
     with open(os.path.join(ROOT, "cfg", "ekf.yaml")) as f:
@@ -155,7 +160,7 @@ def realistic(args) -> int:
     with open(os.path.join(tmp, "bench.launch"), "w") as f:
         f.write(LAUNCH.format(bag=os.path.abspath(os.path.join(scen, "scenario.bag")),
                               markers=os.path.abspath(os.path.join(scen, "markers.yaml")), offset=offset,
-                              ekf=os.path.join(tmp, "ekf.yaml")))
+                              ekf=os.path.join(tmp, "ekf.yaml"), calibration=cal))
     port = free_port()
     env = dict(os.environ, ROS_MASTER_URI=f"http://localhost:{port}", ROS_HOSTNAME="localhost",
                ROS_HOME=os.path.join(tmp, "ros_home"))
