@@ -14,7 +14,9 @@ infinity and at 2 m. Each recording goes through the CLI workflow (bench/_workfl
                   stitching distance known)
 
 and the table prints the heading RMSE, p95, the markers' pairwise agreement (median), the lens offset's and
-rotation's errors with their σ; the summary compares each with the single-centre rendering of its seed.
+rotation's errors with their σ; the summary compares each with the single-centre rendering of its seed and
+counts the seeds whose calibrated lens offset is within 2 mm and relative rotation within 0.02°, and within
+2.5 σ.
 
 Usage: bench/lenses.py [--seeds 101 102 103] [--duration 20] [--width 3840] [--workers 2]
 """
@@ -90,6 +92,8 @@ def main(argv=None) -> int:
                     err = np.array(rep["lens_rotation_deg"]) - truth_rot
                     rot = " ".join(f"{e:+.3f}" for e in err) + " ±" + "/".join(
                         f"{s:.3f}" for s in rep["lens_rotation_sigma_deg"])
+                if "lens_offset_mm" in rep:
+                    r["lens_error"] = (miss, rep["lens_offset_sigma_mm"], err, np.array(rep["lens_rotation_sigma_deg"]))
                 table[(seed, cam, model)] = r
                 print(f"{seed:4d} {cam:34s} {model:14s} {r['rmse']:9.4f} {r['p95']:8.4f} {r['agreement_median']:9.4f} "
                       f"{lens:>18s} {rot:>24s} {', '.join(r['findings']) or '—'}", flush=True)
@@ -103,6 +107,16 @@ def main(argv=None) -> int:
                 print(f"{cam}, {model}: heading RMSE / one-centre rendering's {np.mean(ratios):.2f} mean, "
                       f"{np.max(ratios):.2f} worst (target ≤ 1.2 calibrated); markers' agreement median "
                       f"{np.median(agree):.4f}° (target ≤ 0.03°)")
+        errors = [table[(s, cam, "calibrated")]["lens_error"] for s in a.seeds
+                  if "lens_error" in table.get((s, cam, "calibrated"), {})]
+        if errors:
+            n = len(errors)
+            print(f"{cam}, calibrated: lens offset within 2 mm in {sum(abs(e[0]) <= 2.0 for e in errors)} of {n}, "
+                  f"|error|/σ ≤ 2.5 in {sum(abs(e[0]) / e[1] <= 2.5 for e in errors)} of {n} (worst "
+                  f"{max(abs(e[0]) for e in errors):.2f} mm); relative rotation within 0.02° on every axis in "
+                  f"{sum(np.max(np.abs(e[2])) <= 0.02 for e in errors)} of {n}, |error|/σ ≤ 2.5 in "
+                  f"{sum(np.max(np.abs(e[2]) / e[3]) <= 2.5 for e in errors)} of {n} (worst "
+                  f"{max(np.max(np.abs(e[2])) for e in errors):.3f}°); targets: ≥ 9 of 10")
     return 0
 
 
