@@ -67,21 +67,25 @@ def video_inputs(scen: str) -> list:
 
 def calibration(scen: str) -> str:
     """The calibration file of scenario directory ``scen`` as its user makes it (`calibrate --every 3` at the
-    truth's time offset), made once into .cache/bench/calibrated/: the realistic world's camera is mounted
-    0.3° off and has two lenses, and a user processes and runs the node with its calibration (without it the
-    ROI views miss and the tracker falls back to full-frame searches)."""
+    truth's time offset), made once into .cache/bench/calibrated/ (keyed by the bag's path, size and time): the
+    realistic world's camera is mounted 0.3° off and has two lenses, and a user processes and runs the node with
+    its calibration (without it the ROI views miss and the tracker falls back to full-frame searches)."""
+    import hashlib
+
     import yaml
 
-    path = os.path.join(ROOT, ".cache", "bench", "calibrated", os.path.basename(os.path.normpath(scen)) + ".yaml")
+    bag = os.path.join(scen, "scenario.bag")
+    stamp = f"{os.path.abspath(bag)} {os.path.getsize(bag)} {os.path.getmtime(bag)}"
+    path = os.path.join(ROOT, ".cache", "bench", "calibrated", f"{os.path.basename(os.path.normpath(scen))}_"
+                        f"{hashlib.sha1(stamp.encode()).hexdigest()[:10]}.yaml")
     if not os.path.exists(path):
         with open(os.path.join(scen, "hidden.yaml")) as f:
             offset = yaml.safe_load(f)["camera_time_offset"]
         print(f"calibrating {scen} into {path} (once)", file=sys.stderr)
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        subprocess.run([sys.executable, "-m", "aruco_abs_orient.offline.cli", "calibrate",
-                        os.path.join(scen, "scenario.bag"), "--markers", os.path.join(scen, "markers.yaml"),
-                        "--time-offset", repr(offset), "--every", "3", "--quiet", "--out", path],
-                       stdout=subprocess.DEVNULL, check=True)
+        subprocess.run([sys.executable, "-m", "aruco_abs_orient.offline.cli", "calibrate", bag,
+                        "--markers", os.path.join(scen, "markers.yaml"), "--time-offset", repr(offset),
+                        "--every", "3", "--quiet", "--out", path], stdout=subprocess.DEVNULL, check=True)
     return path
 
 
