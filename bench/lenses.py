@@ -92,7 +92,6 @@ def main(argv=None) -> int:
                     err = np.array(rep["lens_rotation_deg"]) - truth_rot
                     rot = " ".join(f"{e:+.3f}" for e in err) + " ±" + "/".join(
                         f"{s:.3f}" for s in rep["lens_rotation_sigma_deg"])
-                if "lens_offset_mm" in rep:
                     r["lens_error"] = (miss, rep["lens_offset_sigma_mm"], err, np.array(rep["lens_rotation_sigma_deg"]))
                 table[(seed, cam, model)] = r
                 print(f"{seed:4d} {cam:34s} {model:14s} {r['rmse']:9.4f} {r['p95']:8.4f} {r['agreement_median']:9.4f} "

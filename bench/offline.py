@@ -72,20 +72,17 @@ def calibration(scen: str) -> str:
     its calibration (without it the ROI views miss and the tracker falls back to full-frame searches)."""
     import hashlib
 
-    import yaml
+    import _workflow
 
     bag = os.path.join(scen, "scenario.bag")
     stamp = f"{os.path.abspath(bag)} {os.path.getsize(bag)} {os.path.getmtime(bag)}"
     path = os.path.join(ROOT, ".cache", "bench", "calibrated", f"{os.path.basename(os.path.normpath(scen))}_"
                         f"{hashlib.sha1(stamp.encode()).hexdigest()[:10]}.yaml")
     if not os.path.exists(path):
-        with open(os.path.join(scen, "hidden.yaml")) as f:
-            offset = yaml.safe_load(f)["camera_time_offset"]
         print(f"calibrating {scen} into {path} (once)", file=sys.stderr)
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        subprocess.run([sys.executable, "-m", "aruco_abs_orient.offline.cli", "calibrate", bag,
-                        "--markers", os.path.join(scen, "markers.yaml"), "--time-offset", repr(offset),
-                        "--every", "3", "--quiet", "--out", path], stdout=subprocess.DEVNULL, check=True)
+        _workflow.cli("calibrate", bag, "--markers", os.path.join(scen, "markers.yaml"), "--time-offset",
+                      repr(_workflow.hidden_of(scen)["camera_time_offset"]), "--every", 3, "--quiet", "--out", path)
     return path
 
 
