@@ -463,8 +463,9 @@ def _check_determined(cal: Calibration, unknowns: Unknowns, params: CalibrationP
             f"{', '.join(f'{math.degrees(s):.3f}' for s in cal.lens_rotation_sigma)}°; their prior "
             f"± {1e3 * params.lens_offset_prior:.0f} mm, ± {params.lens_rotation_prior_deg}°): their uncertainty is "
             "in the boresight's σ. They show in markers at several ranges (2-10 m) on both sides of the camera, "
-            "near its seams (±90° from its front): drive past markers on both sides, or give the camera's values "
-            "(pipeline lens_offset, doc/field_guide.md) and calibrate --no-lenses")
+            "near its seams (±90° from its front): turn in place beside markers about 2 m away, which shows each "
+            "to both lenses (doc/field_guide.md, 'How to drive a calibration run'), or drive past markers on both "
+            "sides; or give the camera's values (pipeline lens_offset) and calibrate --no-lenses")
     if not bad:
         return warnings
     advice += warnings
