@@ -12,6 +12,8 @@ infinity and at 2 m. Each recording goes through the CLI workflow (bench/_workfl
                   table value, not calibrated)
   calibrated      calibrate's default: the lens offset and relative rotation estimated (from the nominal 0, the
                   stitching distance known)
+  true camera     no calibration: processed with the rendering's true mounting, readout, lenses and time offset
+                  (bench/_workflow.true_calibration), the floor a perfect calibration reaches on that rendering
 
 With --calibration-run each rendering is calibrated, as a user calibrates a camera, on its seed's calibration run
 (preset calibration-rs rendered with the same camera: the same world, mounting and clocks, a 360° spin in place
@@ -20,8 +22,8 @@ spin shows every marker to both lenses at one range, which a 20 s drive does for
 
 The table prints the heading RMSE, p95, the markers' pairwise agreement (median), the lens offset's and
 rotation's errors with their σ; the summary compares each with the single-centre rendering of its seed and
-counts the seeds whose calibrated lens offset is within 2 mm and relative rotation within 0.02°, and within
-2.5 σ.
+with its own true camera, and counts the seeds whose calibrated lens offset is within 2 mm and relative rotation
+within 0.02°, and within 2.5 σ.
 
 Usage: bench/lenses.py [--seeds 101 102 103] [--duration 20] [--width 3840] [--workers 2] [--calibration-run]
 """
@@ -110,6 +112,9 @@ def main(argv=None) -> int:
                 table[(seed, cam, model)] = r
                 print(f"{seed:4d} {cam:34s} {model:14s} {r['rmse']:9.4f} {r['p95']:8.4f} {r['agreement_median']:9.4f} "
                       f"{lens:>18s} {rot:>24s} {', '.join(r['findings']) or '—'}", flush=True)
+            true = _workflow.true_calibration_rmse(scen, os.path.join(scen, "runs", "true_camera"))
+            table[(seed, cam, "true camera")] = {"rmse": true}
+            print(f"{seed:4d} {cam:34s} {'true camera':14s} {true:9.4f}", flush=True)
     print()
     for cam, _ in CAMERAS[1:]:
         for model in ("single centre", "nominal", "calibrated"):
@@ -120,6 +125,11 @@ def main(argv=None) -> int:
                 print(f"{cam}, {model}: heading RMSE / one-centre rendering's {np.mean(ratios):.2f} mean, "
                       f"{np.max(ratios):.2f} worst (target ≤ 1.2 calibrated); markers' agreement median "
                       f"{np.median(agree):.4f}° (target ≤ 0.03°)")
+        floor = [table[(s, cam, "calibrated")]["rmse"] / table[(s, cam, "true camera")]["rmse"]
+                 for s in a.seeds if (s, cam, "calibrated") in table]
+        if floor:
+            print(f"{cam}, calibrated: heading RMSE / the same rendering's with its true camera {np.mean(floor):.2f} "
+                  f"mean, {np.max(floor):.2f} worst")
         errors = [table[(s, cam, "calibrated")]["lens_error"] for s in a.seeds
                   if "lens_error" in table.get((s, cam, "calibrated"), {})]
         if errors:
