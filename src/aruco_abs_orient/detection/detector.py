@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, Collection, Dict, List, NamedTuple, Optional, Sequence, Tuple
+from typing import Callable, Collection, Dict, List, Mapping, NamedTuple, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -24,7 +24,7 @@ from .backend import ArucoBackend
 from .images import to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectorParams
-from .quads import decode_quad, decode_quads, image_sampler, refine_quads
+from .quads import decode_quads, image_sampler, refine_quads
 from .sphere import decode_markers, marker_angular_size, refine_corners_many, sphere_centre_bearing
 
 __all__ = ["MarkerDetector", "Wanted"]
@@ -222,7 +222,7 @@ class MarkerDetector:
         assigned to its view and kept only if it is that view's ``expect_ids`` entry; its
         corners are edge-refined in the view image. Views whose marker OpenCV did not read
         get their rejected quads within ``gate`` (radians: the tracking gate) of the view centre decoded
-        (:func:`decode_quad`), as in :meth:`detect`; with ``expect_sizes`` (predicted
+        (:func:`decode_quads`), as in :meth:`detect`; with ``expect_sizes`` (predicted
         angular sizes, radians) only quads within ``view_size_tolerance`` (35 %) of that size are tried.
         """
         if not views:
@@ -258,20 +258,8 @@ class MarkerDetector:
             if k >= 0 and i == expect_ids[k] and k not in keep:
                 keep[k] = c
 
-        def near_centre(c, k):  # the expected marker's centre is within the gate of the view's
-            dx = c.mean(axis=0) - (views[k].cx, views[k].cy + tops[k])
-            return float(np.hypot(*dx)) <= math.tan(gate) * views[k].focal + 2.0
-
-        def plausible(quad, k):
-            if expect_sizes is None:
-                return True
-            side = float(np.mean(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1)))
-            return abs(side / (expect_sizes[k] * views[k].focal) - 1.0) <= q.view_size_tolerance
-
-        tries = [(k, quad) for c, k in ((c, tile_of(c)) for c in rejected)
-                 if k >= 0 and k not in keep and near_centre(c, k)
-                 for quad in (c.mean(axis=0) + shrink * (c - c.mean(axis=0)) for shrink in q.rescue_shrink)
-                 if plausible(quad, k)]
+        tries = self._view_tries(np.array(rejected, dtype=float).reshape(-1, 4, 2), views, imgs, tops, keep,
+                                 expect_sizes, gate)
         # OpenCV's finds and the rejected quads worth reading, refined in one batch; OpenCV's
         # corners in a view are close: short profiles do (12 × 12 per edge)
         batch = [(k, keep[k], True) for k in keep] + [(k, quad, False) for k, quad in tries]
@@ -280,14 +268,42 @@ class MarkerDetector:
         quads = np.array([b[1] for b in batch])
         refined = (refine_quads(sample, quads, bits, q.view_refine_iterations, q.edge_fit(view=True))
                    if q.edge_refine or tries else quads)
-        for (k, c, read_by_opencv), r in zip(batch, refined):
+        readable = [j for j, ((_, _, by_opencv), r) in enumerate(zip(batch, refined))
+                    if not by_opencv and not np.isnan(r).any()]
+        hits = dict(zip(readable, decode_quads(sample, refined[readable], self.backend.codes, q.decode())))
+        for j, ((k, c, read_by_opencv), r) in enumerate(zip(batch, refined)):
             if read_by_opencv:
                 add(k, expect_ids[k], c if (np.isnan(r).any() or not q.edge_refine) else r)
-            elif k not in found and not np.isnan(r).any():
-                hit = decode_quad(sample, r, self.backend.codes, self.params.decode())
-                if hit is not None and hit[0] == expect_ids[k]:
-                    add(k, hit[0], hit[1])
+            elif k not in found and hits.get(j) is not None and hits[j][0] == expect_ids[k]:
+                add(k, hits[j][0], hits[j][1])
         return self.observations(equirect, marker_ids, np.array(bearings), method) if bearings else []
+
+    def _view_tries(self, rejected: np.ndarray, views: Sequence[GnomonicView], imgs: Sequence[np.ndarray],
+                    tops: np.ndarray, keep: Mapping[int, np.ndarray], expect_sizes: Optional[Sequence[float]],
+                    gate: float) -> List[Tuple[int, np.ndarray]]:
+        """:meth:`detect_in_views`' rejected quads worth reading, ``(view k, quad (4, 2))`` in the order of
+        ``rejected`` (M, 4, 2) and ``rescue_shrink``: those wholly inside a view OpenCV found nothing in
+        (not in ``keep``), centred within ``gate`` of its centre, shrunk by each ``rescue_shrink`` and (with
+        ``expect_sizes``) of the expected size within ``view_size_tolerance``."""
+        q = self.params
+        centre = rejected.mean(axis=1)                                        # (M, 2)
+        k = np.searchsorted(tops, centre[:, 1], side="right") - 1
+        kk = np.clip(k, 0, len(views) - 1)
+        heights = np.array([im.shape[0] for im in imgs])
+        widths = np.array([im.shape[1] for im in imgs])
+        focal = np.array([v.focal for v in views])
+        axis = np.array([(v.cx, v.cy) for v in views]) + np.stack([np.zeros(len(views)), tops[:-1]], axis=1)
+        ok = ((k >= 0) & (k < len(views)) & (rejected[:, :, 1].max(axis=1) < tops[kk] + heights[kk])
+              & (rejected[:, :, 0].max(axis=1) < widths[kk]) & ~np.isin(kk, list(keep))
+              & (np.hypot(*(centre - axis[kk]).T) <= math.tan(gate) * focal[kk] + 2.0))
+        shrunk = centre[:, None, None] + np.asarray(q.rescue_shrink)[None, :, None, None] \
+            * (rejected - centre[:, None])[:, None]                          # (M, S, 4, 2)
+        plausible = np.ones(shrunk.shape[:2], dtype=bool)
+        if expect_sizes is not None:
+            side = np.linalg.norm(shrunk - np.roll(shrunk, -1, axis=2), axis=3).mean(axis=2)
+            expected = np.asarray(expect_sizes, dtype=float)[kk] * focal[kk]
+            plausible = np.abs(side / expected[:, None] - 1.0) <= q.view_size_tolerance
+        return [(int(kk[m]), shrunk[m, j]) for m, j in np.argwhere(ok[:, None] & plausible)]
 
     def detect_columns(self, grey: np.ndarray, equirect: Equirect, u0: int, width: int,
                        method: str = "full", max_el: float = math.pi / 2, across: Optional[float] = None,
