@@ -186,7 +186,7 @@ def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
     templates = codes.astype(float)
     templates -= templates.mean(axis=(1, 2), keepdims=True)
     templates /= np.maximum(np.linalg.norm(templates, axis=(1, 2), keepdims=True), 1e-12)
-    quads = np.array([q[::-1] if _signed_area(q) < 0 else q for q in quads])
+    quads = np.where((_signed_areas(quads) < 0)[:, None, None], quads[:, ::-1], quads)   # all clockwise
     pts = np.stack([cv2.perspectiveTransform(grid, cv2.getPerspectiveTransform(square, q.astype(np.float32)))
                     for q in quads]).reshape(len(quads), len(gx), len(gx), 2)
     cm = sample(pts).reshape(len(quads), cells + 2, 3, cells + 2, 3).mean(axis=(2, 4))
@@ -216,9 +216,10 @@ def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
     return out
 
 
-def _signed_area(q: np.ndarray) -> float:
-    """Signed area of a polygon (N, 2); positive when clockwise in a y-down image."""
-    return 0.5 * float(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
+def _signed_areas(q: np.ndarray) -> np.ndarray:
+    """Signed areas (M,) of polygons (M, N, 2); positive when clockwise in a y-down image."""
+    x, y = q[..., 0], q[..., 1]
+    return 0.5 * np.sum(x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y, axis=-1)
 
 
 def _fit_lines(p: np.ndarray, ok: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
