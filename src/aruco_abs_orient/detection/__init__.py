@@ -19,7 +19,7 @@ from .detector import MarkerDetector, Wanted
 from .images import decode_jpeg, frame_to_grey, to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectionError, DetectorParams
-from .quads import decode_quad, decode_quads, image_sampler, refine_quad, refine_quads
+from .quads import decode_quads, image_sampler, refine_quads
 from .sphere import (
     decode_marker,
     decode_markers,
@@ -48,9 +48,7 @@ __all__ = [
     "refine_corners_many",
     "decode_marker",
     "decode_markers",
-    "refine_quad",
     "refine_quads",
-    "decode_quad",
     "decode_quads",
     "dedupe_observations",
     "image_sampler",

@@ -55,6 +55,17 @@ class _Searched(NamedTuple):
     perspective: bool
 
 
+def _tiles(quads: np.ndarray, tops: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """The mosaic tile (view index) wholly holding each quad (M, 4, 2), -1 where none: tile k spans
+    rows ``tops[k]`` to ``tops[k] + sizes[k, 0]`` and columns 0 to ``sizes[k, 1]``; a quad belongs to
+    the tile its centre's row falls in."""
+    k = np.searchsorted(tops, quads[:, :, 1].mean(axis=1), side="right") - 1
+    kk = np.clip(k, 0, len(sizes) - 1)
+    inside = ((k >= 0) & (k < len(sizes)) & (quads[:, :, 1].max(axis=1) < tops[kk] + sizes[kk, 0])
+              & (quads[:, :, 0].max(axis=1) < sizes[kk, 1]))
+    return np.where(inside, k, -1)
+
+
 class MarkerDetector:
     """Full-frame ArUco detection in equirect frames, seam- and pole-aware.
 
@@ -239,11 +250,6 @@ class MarkerDetector:
         bits, q = self.backend.bits, self.params
         found = set()
 
-        def tile_of(c):
-            k = int(np.searchsorted(tops, float(c[:, 1].mean()), side="right")) - 1
-            inside = 0 <= k < len(views) and c[:, 1].max() < tops[k] + imgs[k].shape[0]
-            return k if inside and c[:, 0].max() < imgs[k].shape[1] else -1
-
         def add(k, marker_id, quad):
             view, y0 = views[k], float(tops[k])
             bearings.append(view.pixel_to_bearing(quad[:, 0], quad[:, 1] - y0))
@@ -252,14 +258,14 @@ class MarkerDetector:
 
         bearings, marker_ids = [], []
 
+        sizes = np.array([im.shape for im in imgs])
         keep = {}
-        for i, c in zip(ids, corners):
-            k = tile_of(c)
+        for i, c, k in zip(ids, corners, _tiles(np.array(corners, dtype=float).reshape(-1, 4, 2), tops, sizes)):
             if k >= 0 and i == expect_ids[k] and k not in keep:
-                keep[k] = c
+                keep[int(k)] = c
 
-        tries = self._view_tries(np.array(rejected, dtype=float).reshape(-1, 4, 2), views, imgs, tops, keep,
-                                 expect_sizes, gate)
+        rejected = np.array(rejected, dtype=float).reshape(-1, 4, 2)
+        tries = self._view_tries(rejected, _tiles(rejected, tops, sizes), views, tops, keep, expect_sizes, gate)
         # OpenCV's finds and the rejected quads worth reading, refined in one batch; OpenCV's
         # corners in a view are close: short profiles do (12 × 12 per edge)
         batch = [(k, keep[k], True) for k in keep] + [(k, quad, False) for k, quad in tries]
@@ -278,23 +284,19 @@ class MarkerDetector:
                 add(k, hits[j][0], hits[j][1])
         return self.observations(equirect, marker_ids, np.array(bearings), method) if bearings else []
 
-    def _view_tries(self, rejected: np.ndarray, views: Sequence[GnomonicView], imgs: Sequence[np.ndarray],
+    def _view_tries(self, rejected: np.ndarray, tiles: np.ndarray, views: Sequence[GnomonicView],
                     tops: np.ndarray, keep: Mapping[int, np.ndarray], expect_sizes: Optional[Sequence[float]],
                     gate: float) -> List[Tuple[int, np.ndarray]]:
         """:meth:`detect_in_views`' rejected quads worth reading, ``(view k, quad (4, 2))`` in the order of
-        ``rejected`` (M, 4, 2) and ``rescue_shrink``: those wholly inside a view OpenCV found nothing in
-        (not in ``keep``), centred within ``gate`` of its centre, shrunk by each ``rescue_shrink`` and (with
-        ``expect_sizes``) of the expected size within ``view_size_tolerance``."""
+        ``rejected`` (M, 4, 2) and ``rescue_shrink``: those wholly inside a view (``tiles``: :func:`_tiles`)
+        OpenCV found nothing in (not in ``keep``), centred within ``gate`` of its centre, shrunk by each
+        ``rescue_shrink`` and (with ``expect_sizes``) of the expected size within ``view_size_tolerance``."""
         q = self.params
         centre = rejected.mean(axis=1)                                        # (M, 2)
-        k = np.searchsorted(tops, centre[:, 1], side="right") - 1
-        kk = np.clip(k, 0, len(views) - 1)
-        heights = np.array([im.shape[0] for im in imgs])
-        widths = np.array([im.shape[1] for im in imgs])
+        kk = np.maximum(tiles, 0)
         focal = np.array([v.focal for v in views])
         axis = np.array([(v.cx, v.cy) for v in views]) + np.stack([np.zeros(len(views)), tops[:-1]], axis=1)
-        ok = ((k >= 0) & (k < len(views)) & (rejected[:, :, 1].max(axis=1) < tops[kk] + heights[kk])
-              & (rejected[:, :, 0].max(axis=1) < widths[kk]) & ~np.isin(kk, list(keep))
+        ok = ((tiles >= 0) & ~np.isin(kk, list(keep))
               & (np.hypot(*(centre - axis[kk]).T) <= math.tan(gate) * focal[kk] + 2.0))
         shrunk = centre[:, None, None] + np.asarray(q.rescue_shrink)[None, :, None, None] \
             * (rejected - centre[:, None])[:, None]                          # (M, S, 4, 2)

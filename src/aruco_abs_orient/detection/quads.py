@@ -16,7 +16,7 @@ from typing import List, Optional, Tuple
 import cv2
 import numpy as np
 
-__all__ = ["EdgeFitParams", "DecodeParams", "refine_quad", "refine_quads", "decode_quad", "decode_quads",
+__all__ = ["EdgeFitParams", "DecodeParams", "refine_quads", "decode_quads",
            "image_sampler"]
 
 
@@ -69,13 +69,6 @@ def _remap_points(img: np.ndarray, x: np.ndarray, y: np.ndarray, border: int) ->
     my[:n] = y.reshape(-1)
     out = cv2.remap(img, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=border)
     return out.reshape(-1)[:n].astype(float).reshape(x.shape)
-
-
-def refine_quad(sample, q: np.ndarray, bits: int = 6, iterations: int = 2,
-                fit: EdgeFitParams = EDGE_FIT) -> Optional[np.ndarray]:
-    """Refined corners (4, 2) of one marker quad, or None: :func:`refine_quads` for one."""
-    r = refine_quads(sample, np.asarray(q, dtype=float)[None], bits, iterations, fit)[0]
-    return None if np.isnan(r).any() else r
 
 
 def refine_quads(sample, quads: np.ndarray, bits: int = 6, iterations: int = 2,
@@ -149,10 +142,11 @@ def image_sampler(img: np.ndarray):
     return sample
 
 
-def decode_quad(sample, q: np.ndarray, codes: np.ndarray,
-                thresholds: DecodeParams = DECODE) -> Optional[Tuple[int, np.ndarray]]:
-    """Read a marker quad (4, 2) of a perspective image: ``(id, corners (4, 2) in ArUco
-    order)`` or None. ``sample(pts)``: grey levels at image points (..., 2).
+def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
+                 thresholds: DecodeParams = DECODE) -> List[Optional[Tuple[int, np.ndarray]]]:
+    """Read M marker quads (M, 4, 2) of a perspective image: one ``(id, corners (4, 2) in ArUco
+    order)`` or None per quad. ``sample(pts)``: grey levels at the image points (M, ..., 2) of
+    all quads in one call.
 
     For small markers whose bits OpenCV cannot threshold (1–2 px cells, blurred). The
     centres of the marker's cells and of the one-cell white quiet zone around it are mapped
@@ -165,13 +159,6 @@ def decode_quad(sample, q: np.ndarray, codes: np.ndarray,
     correlates ≥ ``min_pattern_correlation`` with the grey levels (:class:`DecodeParams`).
     ``codes``: (N, n, n) inner bits of the dictionary (1 = white), rotation 0.
     """
-    return decode_quads(lambda pts: sample(pts[0])[None], np.asarray(q, dtype=float)[None], codes, thresholds)[0]
-
-
-def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
-                 thresholds: DecodeParams = DECODE) -> List[Optional[Tuple[int, np.ndarray]]]:
-    """:func:`decode_quad` of M quads (M, 4, 2) at once: ``sample(pts)`` gets the points
-    (M, ..., 2) of all of them in one call; one ``(id, corners)`` or None per quad."""
     min_contrast, min_correlation, min_lead, min_pattern_correlation = (
         thresholds.min_contrast, thresholds.min_correlation, thresholds.min_lead, thresholds.min_pattern_correlation)
     quads = np.asarray(quads, dtype=float).reshape(-1, 4, 2)

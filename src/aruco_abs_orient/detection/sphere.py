@@ -115,7 +115,7 @@ def refine_corners(grey: np.ndarray, equirect: Equirect, corners, bits: int = 6,
     """Refined corner bearings (4, 3) of a marker from approximate ones (4, 3), or None.
 
     The four outer edges of the black square are straight lines in a gnomonic view centred
-    on the marker (not in the equirect, where they are curved): :func:`refine_quad` runs in
+    on the marker (not in the equirect, where they are curved): :func:`refine_quads` runs in
     such a virtual view, its profiles sampled straight from the equirect ``grey`` image
     (one bilinear interpolation, through camera.py's mappings).
     ``bits``: cells across the marker including its black border (6 for 4×4 dictionaries).
@@ -142,7 +142,7 @@ def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int
 def decode_marker(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
                   thresholds: DecodeParams = DECODE) -> Optional[Tuple[int, np.ndarray]]:
     """Read a candidate quad (corner bearings (4, 3)) straight from the equirect:
-    ``(id, corner bearings in ArUco order)`` or None. :func:`decode_quad` in a virtual
+    ``(id, corner bearings in ArUco order)`` or None. :func:`decode_quads` in a virtual
     gnomonic view centred on the quad (exact homography for a planar marker), sampling the
     equirect through camera.py's mappings.
     """
