@@ -130,14 +130,15 @@ def _observation_jacobian(pb: Problem, lay: _Layout, x, d, th, off) -> Tuple[np.
 
 
 def _normal_equations(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, weights: _Weights,
-                      params: CalibrationParams):
-    """(H, g) of the weighted problem at p (size n + 1, the sink last), with the robust weights when asked."""
+                      params: CalibrationParams, linear: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None):
+    """(H, g) of the weighted problem at p (size n + 1, the sink last), with the robust weights when asked;
+    ``linear``: :func:`_observation_jacobian` at p when already computed."""
     mask_o, mask_h, robust, scale_o, scale_h, scale_m = weights
     x, d, th, off = lay.unpack(p, x0)
     n1 = lay.n + 1
     H = np.zeros((n1, n1))
     g = np.zeros(n1)
-    r, J, idx = _observation_jacobian(pb, lay, x, d, th, off)
+    r, J, idx = linear if linear is not None else _observation_jacobian(pb, lay, x, d, th, off)
     sig = pb.sigma * scale_o
     w = mask_o / sig ** 2
     rh = pb.heading_residuals(x, d)
@@ -194,8 +195,9 @@ def _normal_equations(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, 
 
 
 def _solve(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, weights: _Weights,
-           params: CalibrationParams) -> Tuple[np.ndarray, int]:
-    """Gauss-Newton from p; the solution and the iterations."""
+           params: CalibrationParams) -> Tuple[np.ndarray, int, np.ndarray]:
+    """Gauss-Newton from p; the solution, the iterations and the normal matrix of the last one (at the solution
+    but for its last step, below 1e-9 once converged: the covariance's)."""
     iterations = 0
     for iterations in range(1, params.max_iterations + 1):  # noqa: B007  (reported)
         H, g = _normal_equations(pb, lay, p, x0, weights, params)
@@ -210,12 +212,11 @@ def _solve(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, weights: _W
         p = p + dp
         if float(np.max(np.abs(dp))) < 1e-9:    # rad, m, s: far below any σ
             break
-    return p, iterations
+    return p, iterations, H
 
 
-def _covariance(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, weights: _Weights,
-                params: CalibrationParams) -> np.ndarray:
-    H, _ = _normal_equations(pb, lay, p, x0, weights, params)
+def _inverse(H: np.ndarray) -> np.ndarray:
+    """The covariance from a normal matrix (CalibrationError when it is singular)."""
     cov = np.linalg.inv(H)
     if not np.all(np.isfinite(cov)):
         raise CalibrationError("the normal equations are singular: the recording does not determine "
@@ -244,7 +245,7 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
     weights = _Weights(np.ones(n_o), np.ones(n_h), True, 1.0, 1.0, 1.0)
     # the robust stage only has to find the outliers for the gate: a few reweightings do
     robust = replace(params, max_iterations=min(params.max_iterations, _ROBUST_ITERATIONS))
-    p, it = _solve(pb, lay, p, x0, weights, robust)
+    p, it, _ = _solve(pb, lay, p, x0, weights, robust)
     vf = {"markers": float("nan"), "heading": float("nan"), "marker_positions": float("nan")}
     cov = None
     for _ in range(5):
@@ -252,9 +253,9 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
         # a 2-D residual: gate on its norm; heading: on its absolute value
         weights = weights._replace(mask_o=(e <= params.outlier_gate).astype(float),
                                    mask_h=(eh <= params.outlier_gate).astype(float), robust=False)
-        p, it2 = _solve(pb, lay, p, x0, weights, params)
+        p, it2, H = _solve(pb, lay, p, x0, weights, params)
         it += it2
-        cov = _covariance(pb, lay, p, x0, weights, params)
+        cov = _inverse(H)
         e, eh = _normalised(pb, lay, p, x0, weights)
         mo, mh = weights.mask_o, weights.mask_h
         f_o = float(np.sum(mo * e ** 2) / max(2.0 * mo.sum(), 1.0))
@@ -280,15 +281,17 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
     # with each group's σ inflated by √c, c from the residuals' own autocorrelation; the estimate keeps the
     # weights above.
     x, d, th, off = lay.unpack(p, x0)
-    r_o = pb.residuals(x, *pb.local(d, th, off)) / pb.sigma[:, None]
+    linear = _observation_jacobian(pb, lay, x, d, th, off)
+    r_o = linear[0] / pb.sigma[:, None]
     c_o = _bearings_correlation(r_o, pb.t, pb.markers.index, weights.mask_o > 0)
     c_h = correlation_factor((pb.heading_residuals(x, d) / pb.sigma_head)[weights.mask_h > 0, None]) if n_h else 1.0
     vf.update({"markers_correlation": c_o, "heading_correlation": c_h})
-    cov = _covariance(pb, lay, p, x0, weights._replace(scale_o=weights.scale_o * math.sqrt(c_o),
-                                                       scale_h=weights.scale_h * math.sqrt(c_h)), params)
+    cov = _inverse(_normal_equations(pb, lay, p, x0, weights._replace(scale_o=weights.scale_o * math.sqrt(c_o),
+                                                                      scale_h=weights.scale_h * math.sqrt(c_h)),
+                                     params, linear)[0])
     if np.any(pb.bias > 0):    # the markers' pattern biases: the same on every frame (calibration.bias)
-        _, J, idx = _observation_jacobian(pb, lay, x, d, th, off)
-        cov = cov + pattern_bias_covariance(_normal_equations(pb, lay, p, x0, weights, params)[0], J, idx,
+        _, J, idx = linear
+        cov = cov + pattern_bias_covariance(_normal_equations(pb, lay, p, x0, weights, params, linear)[0], J, idx,
                                             weights.mask_o / (pb.sigma * weights.scale_o) ** 2, pb.u,
                                             pb.predict(x, *pb.local(d, th, off)), pb.bias, pb.markers.index, lay.n)
     return _Fit(p, cov, weights.mask_o.astype(bool), weights.mask_h.astype(bool), vf, it)

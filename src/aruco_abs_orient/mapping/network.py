@@ -124,7 +124,7 @@ def _heading_start(pb: Problem) -> np.ndarray:
     p[lay.o_d:lay.o_t] = yaw_consensus(yh[sub], sh[sub], floor=math.radians(2.0))[0]
     weights = _Weights(np.zeros(len(pb.u)), np.ones(len(yh)), True, 1.0, 1.0, 1.0)
     try:
-        p, _ = _solve(pb, lay, p, np.zeros(N_GLOBALS), weights, pb.params)
+        p, _, _ = _solve(pb, lay, p, np.zeros(N_GLOBALS), weights, pb.params)
     except CalibrationError as e:
         raise MappingError(f"the track headings alone do not determine the map->odom yaw: {e}") from None
     return lay.unpack(p, np.zeros(N_GLOBALS))[1]
