@@ -153,8 +153,10 @@ def model_check(obs: Mapping[str, np.ndarray], prism, model: ModelContext, time_
         keep = frames[::int(math.ceil(ok.sum() / p.model_observations))]
         ok &= np.isin(t, keep)
     ids = np.asarray(obs.get("id", ()), dtype=int)
-    params = replace(model.params or CalibrationParams(), max_boresight_sigma_deg=1e9,
-                     max_time_offset_sigma=1e9)   # the check judges by significance, it refuses nothing
+    # the check judges by significance, it refuses nothing; a time offset error well below the smallest it reports
+    # needs no second solve with the clock moved by it (that moves the estimates by a fraction of their σ)
+    params = replace(model.params or CalibrationParams(), max_boresight_sigma_deg=1e9, max_time_offset_sigma=1e9,
+                     clock_tolerance=p.min_offset / 4)
     rec = Recording(t[ok], ids[ok], azel_to_bearing(az[ok], el[ok]), sig[ok], model.odometry,
                     np.asarray(prism[0], dtype=float), np.asarray(prism[1], dtype=float).reshape(-1, 3),
                     model.marker_map, model.base_T_camera, model.base_T_prism, -el[ok] / math.pi, model.lenses)

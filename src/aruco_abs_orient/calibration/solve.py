@@ -367,8 +367,8 @@ def calibrate(rec: Recording, unknowns: Optional[Unknowns] = None, params: Optio
         cal = _calibrate_once(rec, unknowns, params, 0.0, readout)
     params = replace(params, heading_model=model)
     shift, readout = cal.time_offset_delta, readout + cal.readout
-    for _ in range(4):  # Δτ, Δρ are linearised: move the clocks by them and solve again until they are ≪ 1 ms
-        if abs(cal.time_offset_delta) < 2e-4 and abs(cal.readout) < 2e-4:
+    for _ in range(4):  # Δτ, Δρ are linearised: move the clocks by them and solve again until they are small
+        if abs(cal.time_offset_delta) < params.clock_tolerance and abs(cal.readout) < params.clock_tolerance:
             break
         cal = _calibrate_once(rec, unknowns, params, shift, readout)
         shift += cal.time_offset_delta
