@@ -229,7 +229,7 @@ def _iterate(pb: _Problem, E: np.ndarray, R: np.ndarray, p: np.ndarray, loss: st
         R = R @ _so3_exp(step[:3])
         if pb.estimate_p:
             p = p + step[3:]
-        if np.linalg.norm(step) < 1e-13:
+        if np.linalg.norm(step) < 1e-9:    # rad, m: far below any σ (as calibrate's)
             break
     return R, p, it
 
