@@ -129,6 +129,16 @@ def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: t
         out.put(None)
 
 
+def _yield_to_pipeline() -> None:
+    """A decoder thread's start: it runs at a lower priority (nice + 5) than the pipeline's thread, whose work
+    is the run's critical path; the decoders fill what the pipeline leaves of the cores (4 frames ahead)."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + 5)
+    except (AttributeError, OSError):  # not Linux: as before
+        pass
+
+
 def _done(value) -> Future:
     future: Future = Future()
     future.set_result(value)
@@ -413,7 +423,8 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     tally = _Tally(SightingSample(tunables.mapcheck.max_sightings))
     items: queue.Queue = queue.Queue(maxsize=4)  # with the frames being decoded: ≤ 4 + 2 frames in memory
     stop = threading.Event()
-    decoders = ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1), thread_name_prefix="jpeg")
+    decoders = ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1), thread_name_prefix="jpeg",
+                                  initializer=_yield_to_pipeline)
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
     reader = threading.Thread(target=_reader, args=(readable, topics, int(params.jpeg_reduce), items, stop,
                                                     decoders), daemon=True)
