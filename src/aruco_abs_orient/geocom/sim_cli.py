@@ -81,18 +81,20 @@ def _serve(argv: Optional[List[str]]) -> int:
                        lock_in_s=args.lock_in_s, name="MS60" if args.model == "MS60" else "TCRP1201+")
     track = tum_track(args.trajectory) if args.trajectory else builtin_track
     sim = Ms60Simulator(config, track, seed=args.seed)
-    where = sim.serve_pty() if args.pty else f"socket://127.0.0.1:{sim.serve_tcp(args.tcp)}"
-    print(where, flush=True)
-    print(f"{args.model} simulator ({args.profile}) at {args.baud} baud, "
-          f"latency {args.latency_ms}±{args.jitter_ms} ms; Ctrl-C to stop", file=sys.stderr, flush=True)
+    # Ctrl-C and SIGTERM stop it from the moment it serves (a KeyboardInterrupt between announcing the port and
+    # waiting would skip close(), and its serving thread would keep the process alive)
     done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
     try:
+        where = sim.serve_pty() if args.pty else f"socket://127.0.0.1:{sim.serve_tcp(args.tcp)}"
+        print(where, flush=True)
+        print(f"{args.model} simulator ({args.profile}) at {args.baud} baud, "
+              f"latency {args.latency_ms}±{args.jitter_ms} ms; Ctrl-C to stop", file=sys.stderr, flush=True)
         while not done.wait(0.5):
             pass
-    except KeyboardInterrupt:
-        pass
-    sim.close()
+    finally:
+        sim.close()
     if args.truth:
         from ..tum import atomic_write_text
 
