@@ -44,7 +44,8 @@ def test_live_launch_has_one_map_odom_owner(use_ekf):
     n = nodes(c)
     assert ("aruco_abs_orient", "static_tfs") in n and c.params["/lever_arms/calibration"].value == "/c.yaml"
     assert ("aruco_abs_orient", "ms60_driver") in n
-    assert ("aruco_abs_orient", "tf_to_odometry") not in n  # the EKF takes the node's abs_orient/odometry
+    # the EKF takes the node's abs_orient/odometry, and the VO's yaw changes relayed from tf
+    assert (("aruco_abs_orient", "tf_to_odometry") in n) == (use_ekf == "true")
     assert c.params["/abs_orient/markers"].value == "/m.yaml"
 
 
@@ -106,7 +107,13 @@ def test_ekf_launch_loads_the_package_config():
     assert ekf + "pose1" not in c.params  # the marker yaws are in the node's yaw already
     assert len(c.params[ekf + "process_noise_covariance"].value) == 225
     assert len(c.params[ekf + "initial_estimate_covariance"].value) == 225
-    assert ("aruco_abs_orient", "tf_to_odometry") not in nodes(c)
+    # the VO relayed from tf: its yaw changes only, differentially (the node's odometry has its motion)
+    assert c.params[ekf + "odom2"].value == "odometry/vo" and ("aruco_abs_orient", "tf_to_odometry") in nodes(c)
+    assert c.params[ekf + "odom2_differential"].value is True
+    assert c.params[ekf + "odom2_config"].value == [False] * 5 + [True] + [False] * 9
+    assert ekf + "odom3" not in c.params
+    c = load("ekf.launch", odom_from_tf="false", odom_topic="wheels/odom")  # a robot's own odometry topic
+    assert c.params[ekf + "odom2"].value == "wheels/odom" and ("aruco_abs_orient", "tf_to_odometry") not in nodes(c)
     c = load("ekf.launch", markers_only="true")  # no prism: the relayed odometry and the resections
     assert c.params[ekf + "odom0"].value == "odometry/vo" and ("aruco_abs_orient", "tf_to_odometry") in nodes(c)
 
