@@ -363,13 +363,22 @@ def _write_trajectory(out_dir: str, tally: _Tally, marker_map: MarkerMap, north:
     return traj_path, extra
 
 
-def _summary(bag, marker_map: MarkerMap, setup: RunSetup, pipe: AbsOrientPipeline, data: BagData, tally: _Tally,
-             params, t_start: tuple, north: NorthReference) -> Dict[str, object]:
-    """summary.json's content but for the map check and the self-checks: counts, rates, settings, what was
-    skipped and why, the pipeline's ``params``, the timings since ``t_start`` (wall, CPU, this thread's CPU); a
-    run without a pose says why in its warnings."""
+def _timings(t_start: tuple, duration: float) -> Dict[str, object]:
+    """summary.json's timings since ``t_start`` (wall, CPU, this thread's CPU) of a recording ``duration`` s long:
+    the whole run, its checks included."""
     wall, cpu, pipeline_cpu = (now - then for now, then in zip(
         (time.perf_counter(), time.process_time(), time.thread_time()), t_start))
+    return {"wall_time_s": wall, "real_time_factor": duration / wall if wall > 0 else None,
+            # CPU seconds of all threads, and of the one running the pipeline (the others read and decode): on N
+            # free cores the wall time would be about max(pipeline, all / N)
+            "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu}}
+
+
+def _summary(bag, marker_map: MarkerMap, setup: RunSetup, pipe: AbsOrientPipeline, data: BagData, tally: _Tally,
+             params, north: NorthReference) -> Dict[str, object]:
+    """summary.json's content but for the map check, the self-checks and the timings (:func:`_timings`): counts,
+    rates, settings, what was skipped and why, the pipeline's ``params``; a run without a pose says why in its
+    warnings."""
     frames = tally.frames
     duration = max(data.end - data.start, 0.0)
     reason = pipe.waiting_reason if tally.with_pose == 0 else ""
@@ -400,11 +409,6 @@ def _summary(bag, marker_map: MarkerMap, setup: RunSetup, pipe: AbsOrientPipelin
         "mean_ms_per_frame": {k: v / max(frames, 1) for k, v in tally.timing_sum.items()},
         "params": asdict(params),
         "bag_duration_s": duration,
-        "wall_time_s": wall,
-        "real_time_factor": duration / wall if wall > 0 else None,
-        # CPU seconds of all threads, and of the one running the pipeline (the others read and decode): on N
-        # free cores the wall time would be about max(pipeline, all / N)
-        "cpu_time_s": {"all_threads": cpu, "pipeline_thread": pipeline_cpu},
         "recording_start_s": float(data.start),
         "north": north.describe(),
         "meridian_convergence_deg": math.degrees(north.gamma),
@@ -452,13 +456,14 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
         decoders.shutdown(wait=False)
         if bar is not None:
             bar.close()
-    summary = _summary(bag, marker_map, setup, pipe, data, tally, params, t_start, north)
+    summary = _summary(bag, marker_map, setup, pipe, data, tally, params, north)
     summary["map_check"] = map_check.as_dict()
     summary["selfcheck"] = _selfcheck(tally.checked, data, marker_map, tally.stamps, tally.poses, summary, bag, pipe,
                                       tunables)
     if map_check.status == DOES_NOT_FIT:  # first: the self-checks' findings follow from it
         found = {f["message"] for f in summary["selfcheck"]["findings"]}
         summary["warnings"] = [map_check.message] + [w for w in summary["warnings"] if w not in found]
+    summary.update(_timings(t_start, summary["bag_duration_s"]))
     summary_path = os.path.join(out_dir, "summary.json")
     atomic_write_text(summary_path, json.dumps(summary, indent=2, default=float) + "\n")
     return ProcessResult(traj_path, obs_path, summary_path, summary, extra)
