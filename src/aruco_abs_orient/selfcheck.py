@@ -155,8 +155,9 @@ def model_check(obs: Mapping[str, np.ndarray], prism, model: ModelContext, time_
     ids = np.asarray(obs.get("id", ()), dtype=int)
     # the check judges by significance, it refuses nothing; a time offset error well below the smallest it reports
     # needs no second solve with the clock moved by it (that moves the estimates by a fraction of their σ)
-    params = replace(model.params or CalibrationParams(), max_boresight_sigma_deg=1e9, max_time_offset_sigma=1e9,
-                     clock_tolerance=p.min_offset / 4)
+    params = model.params or CalibrationParams()
+    params = replace(params, max_boresight_sigma_deg=1e9, max_time_offset_sigma=1e9,
+                     clock_tolerance=max(p.min_offset / 4, params.clock_tolerance))
     rec = Recording(t[ok], ids[ok], azel_to_bearing(az[ok], el[ok]), sig[ok], model.odometry,
                     np.asarray(prism[0], dtype=float), np.asarray(prism[1], dtype=float).reshape(-1, 3),
                     model.marker_map, model.base_T_camera, model.base_T_prism, -el[ok] / math.pi, model.lenses)
