@@ -49,6 +49,19 @@ def test_live_launch_has_one_map_odom_owner(use_ekf):
     assert c.params["/abs_orient/markers"].value == "/m.yaml"
 
 
+@pytest.mark.parametrize("name", ["live.launch", "postprocess.launch"])
+@pytest.mark.parametrize("markers_only", ["false", "true"])
+def test_a_robots_own_odometry_reaches_the_ekf(name, markers_only):
+    """odom_topic with odom_from_tf:=false: the EKF listens to the robot's topic and nothing relays tf onto it."""
+    c = load(name, markers="/m.yaml", bag="/b.bag", use_ms60="false", use_ekf="true", markers_only=markers_only,
+             odom_from_tf="false", odom_topic="wheels/odom")
+    assert c.params["/ekf_map/" + ("odom0" if markers_only == "true" else "odom2")].value == "wheels/odom"
+    assert ("aruco_abs_orient", "tf_to_odometry") not in nodes(c)
+    c = load(name, markers="/m.yaml", bag="/b.bag", use_ms60="false", use_ekf="true", markers_only=markers_only)
+    assert c.params["/ekf_map/" + ("odom0" if markers_only == "true" else "odom2")].value == "odometry/vo"
+    assert ("aruco_abs_orient", "tf_to_odometry") in nodes(c)
+
+
 def test_live_launch_without_calibration_or_ms60():
     c = load("live.launch", markers="/m.yaml", use_ms60="false")
     n = nodes(c)
