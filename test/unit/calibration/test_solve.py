@@ -300,4 +300,7 @@ def test_a_marker_error_that_persists_frame_after_frame_inflates_the_sigma(n_mar
     truth = np.var(means) * len(t)           # the mean's variance over that of n independent unit residuals
     used = np.ones(len(t), dtype=bool)
     factor = _bearings_correlation(replica(rng), t, marker, used)
-    assert 0.5 * truth < factor < 1.6 * truth  # an autocorrelation estimated from one recording
+    # an autocorrelation estimated from one recording: over 500 draws of these worlds factor/truth had its
+    # median at 0.81 and 99 % within 0.49-1.52 (truth itself from 300 replicas: ±8 %); ignoring the correlation
+    # (factor 1) gives 0.09-0.29 of the truth's 3.5-11
+    assert 0.4 * truth < factor < 2.0 * truth
