@@ -14,7 +14,8 @@ textured background), full size (3840×1920 by default). Prints one table per se
   speed     a moving-camera sequence: ms/frame of plain full-frame OpenCV detection vs the
             map-guided tracker, their ratio, and what each finds
   fullframe the whole-frame search (MarkerDetector.detect: seam, poles, rescue) vs one plain
-            cv2.aruco call on the same frame (near, far, seam, pole): ms, ratio, ids found
+            cv2.aruco call on the same frame (near, far, seam, pole, and three halls of the realistic
+            world): ms, ratio, ids found
   opencv_api OpenCV 4.2's function API (.venv-noetic, a Noetic robot's Python stack) vs this venv's
             ArucoDetector on the same frames: markers found, bearing differences, ms/frame
 
@@ -357,7 +358,16 @@ def section_speed(args, det):
 
 
 def fullframe_scenes(width):
-    """Rendered frames of the fullframe section: (name, image, markers)."""
+    """Frames of the fullframe section: (name, grey image, truth {id: unit bearing}): markers on a textured
+    panorama (near, far, seam, pole, none), then frames of the realistic world's hall (three seeds: three halls,
+    their walls, pillars and posters, 10 s into the demo drive, JPEG as in a bag; the truth is each marker the
+    camera sees within 12 m and 80° of its face, where the stitched image shows its centre)."""
+    import dataclasses
+
+    from aruco_abs_orient.synthetic.render import PROFILES
+    from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
+    from aruco_abs_orient.synthetic.world import render_frame
+
     rng = np.random.default_rng(31)
     scenes = [
         ("near 1-3 m", [facing_marker(i, SIZE, d * azel_to_bearing(-3.0 + 0.75 * i, rng.uniform(-0.6, 0.6)),
@@ -376,15 +386,22 @@ def fullframe_scenes(width):
                              for i, d in enumerate([1.0, 1.5, 2.0, 3.0] * 2)]),
         ("textured, no marker", []),
     ]
-    return [(name, render_equirect(width, ms, seed=40 + k), ms) for k, (name, ms) in enumerate(scenes)]
+    out = [(name, render_equirect(width, ms, seed=40 + k), {m.id: unit(m.center) for m in ms})
+           for k, (name, ms) in enumerate(scenes)]
+    for seed in (301, 302, 303):
+        sc = Scenario(dataclasses.replace(PRESETS["demo"], seed=seed, width=width))
+        index = int(np.searchsorted(sc.frame_times, 10.0))
+        _, ids, bearings = sc.marker_bearings(sc.frame_times[index])
+        image = render_frame(sc, index, PROFILES[sc.config.profile])  # with its JPEG round trip, as in a bag
+        out.append((f"hall, seed {seed}", image, dict(zip(ids.tolist(), bearings))))
+    return out
 
 
 def section_fullframe(args, det):
     import cv2
 
     rows, ratios, cpu_ratios = [], [], []
-    for name, img, ms in fullframe_scenes(args.width):
-        truth = {m.id: unit(m.center) for m in ms}
+    for name, img, truth in fullframe_scenes(args.width):
         runs = {"plain": ([], []), "ours": ([], [])}  # wall ms, CPU ms (all threads)
         for _ in range(args.repeat):  # interleaved: both see the same machine load
             for key, fn in (("plain", lambda im=img: det.backend.detect(im, det.params.min_marker_perimeter_px)),

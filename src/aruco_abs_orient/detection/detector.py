@@ -24,7 +24,7 @@ from .backend import ArucoBackend
 from .images import to_grey
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectorParams
-from .quads import decode_quads, image_sampler, refine_quads
+from .quads import decode_quads, image_sampler, quiet_zone_contrast, refine_quads
 from .sphere import decode_markers, marker_angular_size, refine_corners_many, sphere_centre_bearing
 
 __all__ = ["MarkerDetector", "Wanted"]
@@ -150,7 +150,11 @@ class MarkerDetector:
         perimeters = np.sum(np.linalg.norm(rejected - np.roll(rejected, -1, axis=1), axis=2), axis=1)
         mid = rejected.mean(axis=1, keepdims=True)
         shrunk = mid[:, None] + np.asarray(q.rescue_shrink)[None, :, None, None] * (rejected - mid)[:, None]
-        tries = shrunk[(perimeters <= small) | (perspective & (perimeters >= large))].reshape(-1, 4, 2)
+        tries = shrunk[(perimeters <= small) | (perspective & (perimeters >= large))]   # (M, S, 4, 2)
+        if len(tries) and q.rescue_min_contrast > 0:  # most are texture: no dark square in a bright quiet zone
+            contrast = quiet_zone_contrast(sample, tries.reshape(-1, 4, 2), bits).reshape(tries.shape[:2])
+            tries = tries[contrast.max(axis=1) >= q.rescue_min_contrast]
+        tries = tries.reshape(-1, 4, 2)
         refined = refine_quads(sample, tries, bits, fit=q.edge_fit())
         refined = refined[~np.isnan(refined).any(axis=(1, 2))]
         hits = [h for h in decode_quads(sample, refined, codes, self.params.decode())

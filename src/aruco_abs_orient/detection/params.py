@@ -88,6 +88,10 @@ class DetectorParams(Params):
     rescue_shrink: Tuple[float, ...] = param((1.0, 0.75, 0.55), "scales tried on a rejected quad: the black "
                                              "square, the outline of its quiet zone (6/8 for 4×4 codes), a looser "
                                              "outline", "", above=0.0, high=1.0)
+    rescue_min_contrast: float = param(10.0, "a small rejected quad is refined and read only when, at one of its "
+                                       "rescue_shrink scales, its quiet zone is on average this much brighter than "
+                                       "its border at OpenCV's corners (texture: about 0; markers read: 22 and more)",
+                                       "grey levels", 0.0)
     decode_min_contrast: float = param(DecodeParams.min_contrast, "every quiet-zone cell must be this much brighter "
                                        "than every border cell (decode_marker)", "grey levels", 0.0)
     decode_min_correlation: float = param(DecodeParams.min_correlation, "correlation of the inner cells with the "

@@ -16,7 +16,7 @@ from typing import List, Optional, Tuple
 import cv2
 import numpy as np
 
-__all__ = ["EdgeFitParams", "DecodeParams", "refine_quads", "decode_quads",
+__all__ = ["EdgeFitParams", "DecodeParams", "refine_quads", "decode_quads", "quiet_zone_contrast",
            "image_sampler"]
 
 
@@ -201,6 +201,26 @@ def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
             continue
         out[k] = (int(best[1]), np.roll(q, -int(best[0]), axis=0))
     return out
+
+
+def quiet_zone_contrast(sample, quads: np.ndarray, cells: int = 6) -> np.ndarray:
+    """How much brighter (grey levels, (M,)) the one-cell quiet zone around each quad (M, 4, 2) of a perspective
+    image is than its border cells, on average: the cells' centres placed bilinearly in the quad (its corners as
+    given, not refined), one sample each. A marker's is its black-on-white contrast, somewhat less where the
+    corners are off; a texture's is about 0. ``cells``: the marker's side in cells, border included."""
+    quads = np.asarray(quads, dtype=float).reshape(-1, 4, 2)
+    if not len(quads):
+        return np.zeros(0)
+    c = (np.arange(-1, cells + 1) + 0.5) / cells                        # cell centres, the quiet zone included
+    u, v = (a.reshape(-1) for a in np.meshgrid(c, c))
+    weights = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], axis=1)   # (G, 4), corners 0-3
+    grey = sample(weights @ quads).reshape(len(quads), cells + 2, cells + 2)     # (M, G, 2) points
+    quiet = np.ones((cells + 2, cells + 2), dtype=bool)
+    quiet[1:-1, 1:-1] = False
+    border = np.zeros_like(quiet)
+    border[1:-1, 1:-1] = True
+    border[2:-2, 2:-2] = False
+    return grey[:, quiet].mean(axis=1) - grey[:, border].mean(axis=1)
 
 
 def _signed_areas(q: np.ndarray) -> np.ndarray:
