@@ -123,10 +123,12 @@ def expected_type(spec: Spec, default) -> str:
 
 def coerce(value, spec: Spec, default):
     """``value`` (from YAML or a ROS parameter) as the parameter's type (an int is a fine float; a list a fine
-    tuple), or raise ValueError saying what was expected."""
+    tuple; a boolean whose word is a choice, that word), or raise ValueError saying what was expected."""
     if value is None and spec.optional:
         return None
     kind = spec.kind
+    if kind is str and isinstance(value, bool) and str(value).lower() in spec.choices:
+        value = str(value).lower()  # roslaunch and YAML read the word true (a choice: ~north) as a boolean
     if kind is bool:
         ok = isinstance(value, bool)
     elif kind is int:

@@ -87,3 +87,15 @@ def test_coerce_reads_yaml_and_ros_values_as_the_declared_type():
         coerce(2.5, spec_of(Toy, "count"), 3)
     with pytest.raises(ValueError, match="expected true or false, got 'yes'"):
         coerce("yes", spec_of(Toy, "on"), True)
+
+
+def test_a_word_roslaunch_reads_as_a_boolean_is_the_choice_it_spells():
+    """roslaunch's <param value="true"/> and YAML's true are booleans: ~north's choice 'true' must still be read."""
+    from aruco_abs_orient.nodeconfig import NodeConfig
+
+    north = spec_of(NodeConfig, "north")
+    assert coerce(True, north, "grid") == "true" and coerce("grid", north, "grid") == "grid"
+    with pytest.raises(ValueError, match="got False"):
+        coerce(False, north, "grid")
+    with pytest.raises(ValueError, match="got True"):
+        coerce(True, spec_of(Toy, "loss"), "cauchy")
