@@ -131,6 +131,22 @@ def test_ekf_launch_loads_the_package_config():
     assert c.params[ekf + "odom0"].value == "odometry/vo" and ("aruco_abs_orient", "tf_to_odometry") in nodes(c)
 
 
+def test_north_true_reaches_the_node_as_the_word():
+    """roslaunch would read north:=true as a boolean; the node's ~north is the string."""
+    for name in ("abs_orient.launch", "live.launch", "postprocess.launch"):
+        c = load(name, markers="/m.yaml", bag="/b.bag", use_ms60="false", north="true")
+        assert c.params["/abs_orient/north"].value == "true", name
+
+
+def test_live_launch_starts_the_heading_check_with_a_receiver():
+    assert ("aruco_abs_orient", "heading_check") not in nodes(load("live.launch", markers="/m.yaml", use_ms60="false"))
+    c = load("live.launch", markers="/m.yaml", use_ms60="false", gnss_heading="gps/heading", gnss_mounting_yaw_deg="90")
+    assert ("aruco_abs_orient", "heading_check") in nodes(c)
+    assert c.params["/heading_check/gnss_topic"].value == "gps/heading"
+    assert c.params["/heading_check/convention"].value == "compass"
+    assert c.params["/heading_check/mounting_yaw_deg"].value == 90.0
+
+
 def test_abs_orient_launch_requires_markers():
     with pytest.raises(roslaunch.core.RLException, match="markers"):
         load("abs_orient.launch")
