@@ -3,9 +3,11 @@
 In: a ``sample(pts, rows)`` function giving grey levels at image points (:func:`image_sampler`
 for an image, or a virtual view's sampler from :mod:`.sphere`) and approximate quads (M, 4, 2)
 (pixels). Out: refined corners (:func:`refine_quads`: lines fitted to the four edges,
-intersected) and ``(id, corners in ArUco order)`` readings (:func:`decode_quads`: the cells
-correlated with the dictionary's codes). Works in any perspective image (a gnomonic view, a
-tracking ROI); never in the equirect, whose edges are curved.
+intersected), ``(id, corners in ArUco order)`` readings (:func:`decode_quads`: the cells
+correlated with the dictionary's codes) and how much brighter the quiet zone is than the border at
+the corners as given (:func:`quiet_zone_contrast`: a first look that sets texture aside). Works in
+any perspective image (a gnomonic view, a tracking ROI), and on quads small enough for the
+equirect's curvature not to matter.
 """
 
 from __future__ import annotations
