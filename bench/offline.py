@@ -20,6 +20,8 @@ The speed section (issue 17), on the realistic world with its 30 ms rolling shut
               scenario's truth.tum (`evaluate --reference`: the speed must not cost accuracy), and the
               x real time the CPU seconds make on free cores (summary.json's cpu_time_s: the wall
               time is about max(the pipeline thread's CPU, all threads' CPU / cores));
+  decode      the shipped JPEG decode of the bag's frames against a 1/8-scale one (the entropy decoding alone):
+              the most a decoder that skipped the rows the tracker does not read could save;
   render      CPU seconds per frame of the demo preset's frames (world.render_frame + JPEG, one OpenCV
               thread as in the generator's workers) and the 60 s demo's rendering time that makes on
               2 workers (budget: 3 minutes).
@@ -155,6 +157,35 @@ def naive(scen: str, frames: int) -> dict:
     return {"frames": len(payloads), "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
 
 
+def decode_floor(scen: str, frames: int) -> tuple:
+    """(ms per frame of the shipped decode: the whole grey frame, ms of a 1/8-scale decode: its DC coefficients
+    only, i.e. the entropy decoding that every decoder does whatever part of the frame it keeps), one thread,
+    the bag's first ``frames`` images, best of 3."""
+    import itertools
+
+    import cv2
+
+    from aruco_abs_orient.detection import decode_jpeg
+    from aruco_abs_orient.offline.bagio import iter_images
+
+    payloads = [p for _, p in itertools.islice(iter_images(os.path.join(scen, "scenario.bag")), frames)]
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        best = []
+        for reduce in (1, 8):
+            runs = []
+            for _ in range(3):
+                t0 = time.process_time()
+                for p in payloads:
+                    decode_jpeg(p, reduce=reduce)
+                runs.append(1e3 * (time.process_time() - t0) / len(payloads))
+            best.append(min(runs))
+        return tuple(best)
+    finally:
+        cv2.setNumThreads(threads)
+
+
 def render_cost(frames: int) -> tuple:
     """(CPU s per frame of the ``demo`` preset, rendered and JPEG-encoded as a generator worker does it
     (one OpenCV thread), the demo's frame count)."""
@@ -209,6 +240,11 @@ def speed(a) -> None:
     print(f"ratios: shipped / before {r_ours / r_before:.2f}x frames/s, {before['cpu_s'] / ours['cpu_s']:.2f}x less "
           f"CPU; shipped / naive {r_ours / r_naive:.2f}x frames/s; "
           f"stages of the shipped run, ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in ours["ms"].items()))
+    whole, floor = decode_floor(scen, a.naive_frames)
+    print(f"decode: {whole:.1f} ms/frame whole (shipped), {floor:.1f} ms at 1/8 scale (the entropy decoding, which "
+          f"no region-of-interest decode avoids): decoding only the rows the tracker reads could save at most "
+          f"{whole - floor:.1f} ms/frame, {100 * (whole - floor) / whole:.0f} % of a decode, "
+          f"{100 * (whole - floor) / (1e3 * ours['cpu_s'] / ours['frames']):.0f} % of the shipped CPU per frame")
     per, n_demo = render_cost(a.render_frames)
     print(f"render: demo preset, {a.render_frames} frames rendered + JPEG-encoded as a generator worker does: "
           f"{per:.3f} s/frame CPU; the 60 s demo ({n_demo} frames) on 2 workers: {n_demo * per / 2:.0f} s "
