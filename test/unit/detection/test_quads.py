@@ -32,7 +32,8 @@ def draw_marker(rng, quad, black, white, size=200):
     square's corners at ``quad`` (OpenCV draws it; a homography places it), blurred by a lens's worth."""
     dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
     cell_px = 20
-    code = cv2.aruco.generateImageMarker(dictionary, int(rng.integers(0, 50)), CELLS * cell_px)
+    generate = getattr(cv2.aruco, "generateImageMarker", None) or cv2.aruco.drawMarker  # OpenCV 4.7+, 4.2
+    code = generate(dictionary, int(rng.integers(0, 50)), CELLS * cell_px)
     tile = np.full(((CELLS + 2) * cell_px,) * 2, 255, np.uint8)
     tile[cell_px:-cell_px, cell_px:-cell_px] = code
     tile = (black + (white - black) * (tile.astype(np.float32) / 255.0)).astype(np.float32)
