@@ -82,7 +82,8 @@ class HeadingAgreement:
         """A receiver heading (base_link's ENU yaw, :func:`receiver_yaw`) at ``t``: paired when marker headings
         within ``max_gap`` of each other bracket ``t``, now or when the next arrives (the marker heading comes an
         image's processing later)."""
-        if self._pair(float(t), float(yaw)) is None and (not self._markers or t > self._markers[-1][0]):
+        if self._pair(float(t), float(yaw)) is None and self._markers and \
+                self._markers[-1][0] < t <= self._markers[-1][0] + self.max_gap:  # else no heading can bracket it
             self._waiting.append((float(t), float(yaw)))
 
     def _pair(self, t: float, yaw: float) -> Optional[float]:

@@ -88,17 +88,20 @@ def test_a_baseline_turned_from_its_parameter_is_named(seed, offset_deg, sign):
 def test_pairs_wait_for_the_marker_heading_and_gaps_pair_nothing():
     check = HeadingAgreement(min_pairs=3, max_gap=0.5)
     ref = NorthReference("true", None, 0.0, "test")
-    check.add_receiver(0.5, 0.0)                              # before any marker heading: waits...
-    check.add_markers(1.0, 0.1)                               # ...and is not bracketed by the first: dropped
+    check.add_receiver(0.5, 0.0)                              # before any marker heading: never bracketed
+    check.add_markers(1.0, 0.1)
     check.add_markers(2.0, 0.2)                               # a gap of 1 s: nothing paired inside it
     check.add_receiver(1.5, 0.15)
     check.add_receiver(2.1, 0.3)                              # after the last marker heading: waits for the next
     assert check.summary(ref).pairs == 0
     check.add_markers(2.2, 0.4)                               # brackets 2.1 (halfway: 0.3, difference 0)
     assert check.summary(ref).level == "waiting" and check.summary(ref).pairs == 1
-    check.add_receiver(3.0, 0.0)                              # waits...
+    check.add_receiver(2.5, 0.5)                              # waits...
+    check.add_receiver(3.0, 0.0)                              # more than max_gap after the last: never bracketed
+    assert len(check._waiting) == 1
     check.add_markers(2.1, 9.0)                               # older than the last: ignored
-    check.add_markers(3.6, 1.8)                               # ...but 1.4 s on: too far apart to bracket it
+    check.add_markers(3.6, 1.8)                               # ...1.4 s on: too far apart to bracket it
+    assert len(check._waiting) == 0
     check.add_markers(3.7, 1.9)
     for t in (3.62, 3.65, 3.68):
         check.add_receiver(t, 1.8 + (t - 3.6))

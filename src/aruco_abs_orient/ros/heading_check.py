@@ -17,6 +17,8 @@ import math
 import sys
 import threading
 
+import numpy as np
+
 from ..errors import ConfigurationError
 from ..headingcheck import CONVENTIONS, HeadingAgreement, receiver_yaw
 from ..markers import MarkerMap
@@ -38,7 +40,9 @@ def main(argv=None) -> int:
 
 
 def _yaw(q) -> float:
-    return float(yaw_of(quat_to_matrix([q.x, q.y, q.z, q.w])))
+    """The yaw (rad) of a quaternion message; NaN for a NaN or zero one."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return float(yaw_of(quat_to_matrix([q.x, q.y, q.z, q.w])))
 
 
 def _check(argv) -> int:
@@ -75,8 +79,10 @@ def _check(argv) -> int:
     lock = threading.Lock()  # the subscribers' threads and the timer's
 
     def on_markers(msg: PoseWithCovarianceStamped) -> None:
-        with lock:
-            check.add_markers(msg.header.stamp.to_sec(), _yaw(msg.pose.pose.orientation))
+        yaw = _yaw(msg.pose.pose.orientation)
+        if math.isfinite(yaw):
+            with lock:
+                check.add_markers(msg.header.stamp.to_sec(), yaw)
 
     def on_receiver(msg) -> None:
         angle = _yaw(msg.orientation if kind is Imu else msg.quaternion)
