@@ -144,6 +144,7 @@ def test_live_launch_starts_the_heading_check_with_a_receiver():
     assert ("aruco_abs_orient", "heading_check") in nodes(c)
     assert c.params["/heading_check/gnss_topic"].value == "gps/heading"
     assert c.params["/heading_check/convention"].value == "compass"
+    assert c.params["/heading_check/gnss_msg"].value == "Imu"
     assert c.params["/heading_check/mounting_yaw_deg"].value == 90.0
 
 
