@@ -230,7 +230,9 @@ def test_link_outage_reconnects_within_1s(transport):
     finally:
         run.close()
     assert first is not None and first - t_back < 1.0, (first, t_back, run.states)
-    assert stats.lost_samples >= 15
+    # the outage's second counted in EDM periods, as the tracker knows them: 50 ms, or 100 ms on a host too starved
+    # to poll every distance (a CI run's Python 3.8 lane: 7 Hz polled, 12 lost over the second)
+    assert stats.lost_samples >= 0.75 * 1000.0 / stats.edm_period_ms, stats
     if transport == "tcp":
         assert stats.reconnects >= 1
 
