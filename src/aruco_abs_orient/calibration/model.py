@@ -97,8 +97,8 @@ class CalibrationParams(Params):
                                          "warning saying what to drive), not refused", "m", above=0.0)
     max_lens_rotation_sigma_deg: float = param(0.05, "the same for the lenses' relative rotation", "deg", above=0.0)
     max_iterations: int = param(30, "Gauss-Newton iterations per stage", "", above=0)
-    clock_tolerance: float = param(2e-4, "Δτ and Δρ are linearised: calibrate solves again with the clocks moved "
-                                   "by them until both are below this", "s", above=0.0)
+    clock_tolerance: float = param(2e-4, "Δτ and Δρ are linearised: calibrate (and map's network) solves again "
+                                   "with the clocks moved by them until both are below this", "s", above=0.0)
     heading_model: str = param("auto", "how the prism track's heading measures the map→odom yaw: against the VO's "
                                "yaw (precise; a platform that crabs biases it), its direction of travel (any "
                                "platform; noisy when its translation is), or auto", choices=HEADING_MODELS)

@@ -46,7 +46,6 @@ FREE_SIGMA = 100.0
 #: headings alone is good to a few tenths of a degree)
 _FIRST_TOLERANCE = math.radians(1.5)
 _CLOCK_ITERATIONS = 4     # Δτ and Δρ are linearised: the clocks are moved by them and the network adjusted again
-_CLOCK_CONVERGED = 2e-4   # s
 _FEW_OUTLIERS = 2  # sightings beyond the gate a marker may have without a warning (the gate's own share: 0.03 %)
 
 
@@ -197,7 +196,7 @@ def _adjust(rec: Recording, positions: Dict[int, np.ndarray], priors: Dict[int, 
             raise MappingError(f"the network: {e}") from None
         net = _Net(setup, lay, fit, x0, shift, readout, np.asarray(rec.sigmas, dtype=float)[setup.index])
         x, d, _, _ = net.unpack()
-        if abs(x[6]) < _CLOCK_CONVERGED and abs(x[7]) < _CLOCK_CONVERGED:
+        if abs(x[6]) < params.clock_tolerance and abs(x[7]) < params.clock_tolerance:
             break
         shift, readout = shift + float(x[6]), readout + float(x[7])
         positions = {i: p for i, p in net.positions().items() if i not in priors}
