@@ -30,6 +30,7 @@ Each run is a separate process (its peak RSS is its own); the bags are rendered 
 generator into .cache/bench/ and reused, their videos written by `synthetic.export` beside them.
 """
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -157,22 +158,31 @@ def naive(scen: str, frames: int) -> dict:
     return {"frames": len(payloads), "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
 
 
+@contextlib.contextmanager
+def _one_opencv_thread():
+    """OpenCV on one thread inside (a generator worker's setting, a decoder thread's), as it was after."""
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+
+
 def decode_floor(scen: str, frames: int) -> tuple:
     """(ms per frame of the shipped decode: the whole grey frame, ms of a 1/8-scale decode: its DC coefficients
     only, i.e. the entropy decoding that every decoder does whatever part of the frame it keeps), one thread,
     the bag's first ``frames`` images, best of 3."""
     import itertools
 
-    import cv2
-
     from aruco_abs_orient.detection import decode_jpeg
     from aruco_abs_orient.offline.bagio import iter_images
 
     payloads = [p for _, p in itertools.islice(iter_images(os.path.join(scen, "scenario.bag")), frames)]
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        best = []
+    best = []
+    with _one_opencv_thread():
         for reduce in (1, 8):
             runs = []
             for _ in range(3):
@@ -181,23 +191,17 @@ def decode_floor(scen: str, frames: int) -> tuple:
                     decode_jpeg(p, reduce=reduce)
                 runs.append(1e3 * (time.process_time() - t0) / len(payloads))
             best.append(min(runs))
-        return tuple(best)
-    finally:
-        cv2.setNumThreads(threads)
+    return tuple(best)
 
 
 def render_cost(frames: int) -> tuple:
     """(CPU s per frame of the ``demo`` preset, rendered and JPEG-encoded as a generator worker does it
     (one OpenCV thread), the demo's frame count)."""
-    import cv2
-
     from aruco_abs_orient.synthetic.render import encode_jpeg
     from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario
     from aruco_abs_orient.synthetic.world import render_frame
 
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
+    with _one_opencv_thread():
         sc = Scenario(PRESETS["demo"])
         step = sc.frame_times.size // frames
         render_frame(sc, 0)  # caches
@@ -205,8 +209,6 @@ def render_cost(frames: int) -> tuple:
         for i in range(0, step * frames, step):
             encode_jpeg(render_frame(sc, i), sc.config.jpeg_quality)
         return (time.process_time() - t0) / frames, int(sc.frame_times.size)
-    finally:
-        cv2.setNumThreads(threads)
 
 
 def speed(a) -> None:
