@@ -108,8 +108,8 @@ class FrameSolver:
         M = np.array([self.marker_map[o.id].position for o in observations])
         origins, directions, sigma = self._rays(observations, prism_p)
         try:
-            noise = NoiseModel(bearing=sigma, prism_cov=prism_cov,
-                               marker=np.array([self.marker_map[o.id].sigma for o in observations]))
+            across = [self.marker_map[o.id].sigma_across(prism_p) for o in observations]
+            noise = NoiseModel(bearing=sigma, prism_cov=prism_cov, marker=np.array(across))
             est = attitude_from_markers(
                 directions, M, prism_p, self._mounting(), noise=noise, tilt=(tilt.roll, tilt.pitch),
                 settings=self.fit_settings, min_spread=math.radians(self.params.attitude_min_spread_deg),
@@ -140,7 +140,9 @@ class FrameSolver:
             start = self.filter.map_T_odom(t)[0] @ odom_T_base
         origins, directions, sigma = self._rays(obs, None if start is None else start[:3, 3])
         try:
-            noise = NoiseModel(bearing=sigma, marker=np.array([self.marker_map[o.id].sigma for o in obs]))
+            near = None if start is None else start[:3, 3]  # None: the sight lines unknown, the worst axis
+            noise = NoiseModel(bearing=sigma, marker=np.array([self.marker_map[o.id].sigma_across(near)
+                                                               for o in obs]))
             est = resection(directions, np.array([self.marker_map[o.id].position for o in obs]),
                             self.base_T_camera, noise=noise, tilt=(tilt.roll, tilt.pitch),
                             tilt_sigma=max(tilt.sigma, _MIN_TILT_SIGMA), initial_pose=start,
@@ -213,8 +215,8 @@ class FrameSolver:
             try:
                 est = yaw_from_marker(
                     directions[k], m.position, p_o, (roll_o, pitch_o), self._mounting(),
-                    NoiseModel(bearing=float(sigma[k]), prism_cov=prism_cov, marker=m.sigma, tilt=tilt.sigma,
-                               lever=q.lever_sigma), min_range=q.min_range, origin=origins[k])
+                    NoiseModel(bearing=float(sigma[k]), prism_cov=prism_cov, marker=m.sigma_across(p_o),
+                               tilt=tilt.sigma, lever=q.lever_sigma), min_range=q.min_range, origin=origins[k])
             except SolverError as e:
                 self._count("degenerate")
                 res.observations.append(ObservationResult(o, reason=f"geometry: {e}"))

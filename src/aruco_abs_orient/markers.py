@@ -11,7 +11,8 @@ markers:
 Positions in metres in ``frame_id``. Optional per-marker ``sigma`` (survey 1-σ, metres,
 default the map's ``survey_sigma``, itself default 0.002 m) and ``normal`` (unit vector out of the
 marker's face, from its surveyed corners: ``aruco-abs-orient markers``; a marker is not looked for
-from behind).
+from behind); ``covariance_mm2`` (``aruco-abs-orient map``'s, six numbers): a bearing then weighs the marker by
+its σ across the sight line (:meth:`Marker.sigma_across`), not by ``sigma``, its worst axis.
 
 National grids: with ``origin: [E, N, H]`` the positions are written as surveyed (full coordinates,
 LV95 E ≈ 2 600 000) and the map holds them relative to the origin, as everything in ROS is (float32
@@ -73,6 +74,20 @@ class Marker(NamedTuple):
     sigma: float
     normal: Optional[np.ndarray] = None
     covariance: Optional[np.ndarray] = None
+
+    def sigma_across(self, point) -> float:
+        """1-σ (m) of the position across the line of sight from ``point`` (map, relative to the origin): the
+        larger semi-axis of its covariance projected on the plane perpendicular to that line, which is what a
+        bearing from there sees (a mapped marker's worst axis is usually along the sight lines it was mapped
+        from); ``sigma`` without a covariance or a point (the line undefined)."""
+        if self.covariance is None or point is None:
+            return self.sigma
+        d = self.position - np.asarray(point, dtype=float)
+        n = float(np.linalg.norm(d))
+        if not n > 0.0:
+            return self.sigma
+        across = np.eye(3) - np.outer(d, d) / n ** 2
+        return math.sqrt(max(float(np.linalg.eigvalsh(across @ self.covariance @ across)[-1]), 0.0))
 
     def visible_from(self, point, margin: float = 0.0) -> bool:
         """False when ``point`` (map, relative to the origin) is more than ``margin`` m behind the plane
