@@ -99,6 +99,10 @@ class PipelineParams(Params):
     attitude_min_spread_deg: float = param(20.0, "with the prism, a frame whose markers span at least this angle "
                                            "also measures roll and pitch (a gated update of the tilt; 90: off)",
                                            "deg", 0.0, 90.0)
+    tilt_fit_interval: float = param(0.1, "at most one of those measurements in each slot of this much time (a "
+                                     "frame's fit shares its markers, geometry and errors with the next frame's: at 30 "
+                                     "fps the fits of 0.1 s say little more than one, and each costs 1-2 ms of CPU; 0: "
+                                     "every frame)", "s", 0.0, 10.0)
     tilt_from_markers: bool = param(False, "let that measurement (and a resection's roll and pitch) correct the "
                                     "odometry's tilt without a calibration file (see the class doc)")
     lens_offset: float = param(0.0, "each fisheye lens's centre from the camera origin along its axis (0: one "
@@ -186,6 +190,7 @@ class AbsOrientPipeline(FrameSolver):
         self.tilt = TiltEstimator(self.tilt_params, math.radians(self.params.tilt_sigma_deg))
         self.last_stamp: Optional[float] = None
         self._last_odom: Optional[Tuple[float, np.ndarray]] = None   # (t, roll/pitch/yaw) of the last frame
+        self._tilt_fit_slot: Optional[int] = None   # the tilt_fit_interval slot of the last tilt taken from the markers
         self._uninitialised_frames = 0
 
     @property
@@ -196,6 +201,17 @@ class AbsOrientPipeline(FrameSolver):
         0.0253° → 0.0249°, p95 0.044° → 0.040°, and the self-check no longer takes the tilt drift for a
         0.32° camera tilt)."""
         return self.params.tilt_from_markers or self.calibrated
+
+    def _tilt_slot(self, t: float) -> Optional[int]:
+        interval = self.params.tilt_fit_interval
+        return None if interval <= 0.0 else math.floor(t / interval)
+
+    def _tilt_fit_due(self, t: float) -> bool:
+        """Whether a frame at ``t`` (s) measures roll and pitch: the first of each ``tilt_fit_interval`` slot of
+        time to take one (slots, not the time since the last one: a 10 fps camera's jittered stamps keep all their
+        fits at 0.1 s), every frame with an interval of 0."""
+        slot = self._tilt_slot(t)
+        return slot is None or slot != self._tilt_fit_slot
 
     def _count(self, key: str, n: int = 1) -> None:
         self.stats[key] = self.stats.get(key, 0) + n
@@ -364,8 +380,9 @@ class AbsOrientPipeline(FrameSolver):
             prism_cov = res.prism_cov + np.eye(3) * extra_sigma ** 2
             self.filter.add_prism(t, p, prism_cov, odom_T_base)
             tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
-            if (self.tilt_from_markers and tilt.source != "imu"
+            if (self.tilt_from_markers and tilt.source != "imu" and self._tilt_fit_due(t)
                     and self._tilt_from_markers(t, observations, p, prism_cov, tilt, odom_roll, odom_pitch, odom_yaw)):
+                self._tilt_fit_slot = self._tilt_slot(t)
                 tilt = self.tilt.tilt(t, odom_roll, odom_pitch, odom_yaw)
             rows = self._row_times(t, list(observations) + list(gated), image_height, odom_rpy)
             self._solve_frame(t, res, observations, (p, prism_cov), tilt, odom_T_base, gated, rows)

@@ -196,3 +196,28 @@ def test_a_drifting_odometry_tilt_is_corrected_by_the_imu_or_the_markers(imu):
     assert math.degrees(np.max(np.abs(np.array([used.roll, used.pitch]) - true_rp))) < 0.1
     assert results[-1].tilt_source == used.source
     assert math.degrees(rms(eh[rel > 2.0])) < 0.03
+
+
+@pytest.mark.parametrize("fps, drift, seed", [(30.0, 3.0, 5), (15.0, -2.0, 6)])
+def test_the_markers_tilt_is_fitted_once_per_interval_and_still_follows_a_drifting_odometry(fps, drift, seed):
+    """tilt_fit_interval (0.1 s): at 30 and 15 fps one roll and pitch fit per 0.1 s slot at most, most slots have
+    one, and the tilt and heading stay as good as with a fit in every frame while the VO's tilt drifts."""
+    cfg = replace(HALL, seed=seed, duration=20.0, fps=fps, vo_tilt_drift_deg_per_min=drift, prism_dropout=0.0,
+                  prism_gaps=0)   # every frame with the prism: no resection's tilt in the count
+    sc = Scenario(cfg)
+    t_end = sc.frame_times[-1]
+    true_rp = np.array(matrix_to_rpy(sc.map_T_base(t_end)[:3, :3])[:2])
+    runs = {}
+    for interval in (0.1, 0.0):
+        rel, eh, _, results, pipe = errors(cfg, PipelineParams(tilt_from_markers=True, tilt_fit_interval=interval))
+        used = pipe.tilt.tilt(t_end, *matrix_to_rpy(sc.odom_T_base(t_end)[:3, :3]))
+        assert "no_prism" not in pipe.stats
+        runs[interval] = (pipe.stats.get("tilt_from_markers", 0),
+                          math.degrees(np.max(np.abs(np.array([used.roll, used.pitch]) - true_rp))),
+                          math.degrees(rms(eh[rel > 2.0])))
+    slots = cfg.duration / 0.1
+    (fits, tilt_err, heading), (every_fits, every_tilt_err, every_heading) = runs[0.1], runs[0.0]
+    assert 0.6 * slots <= fits <= slots + 1
+    assert every_fits > 0.9 * fps * 0.1 * fits
+    assert tilt_err < 0.1 and every_tilt_err < 0.1
+    assert heading < max(1.2 * every_heading, 0.01)
