@@ -100,9 +100,9 @@ class PipelineParams(Params):
                                            "also measures roll and pitch (a gated update of the tilt; 90: off)",
                                            "deg", 0.0, 90.0)
     tilt_fit_interval: float = param(0.1, "at most one of those measurements in each slot of this much time (a "
-                                     "frame's fit shares its markers, geometry and errors with the next frame's: at 30 "
-                                     "fps the fits of 0.1 s say little more than one, and each costs 1-2 ms of CPU; 0: "
-                                     "every frame)", "s", 0.0, 10.0)
+                                     "frame's fit shares its markers, geometry and errors with the next frame's: at "
+                                     "30 fps the fits of 0.1 s say little more than one, and each costs about 2 ms of "
+                                     "CPU; 0: every frame)", "s", 0.0, 10.0)
     tilt_from_markers: bool = param(False, "let that measurement (and a resection's roll and pitch) correct the "
                                     "odometry's tilt without a calibration file (see the class doc)")
     lens_offset: float = param(0.0, "each fisheye lens's centre from the camera origin along its axis (0: one "
@@ -203,6 +203,7 @@ class AbsOrientPipeline(FrameSolver):
         return self.params.tilt_from_markers or self.calibrated
 
     def _tilt_slot(self, t: float) -> Optional[int]:
+        """The ``tilt_fit_interval`` slot of time ``t`` (s); None with an interval of 0 (no slots)."""
         interval = self.params.tilt_fit_interval
         return None if interval <= 0.0 else math.floor(t / interval)
 
