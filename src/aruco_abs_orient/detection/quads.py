@@ -179,11 +179,9 @@ def decode_quads(sample, quads: np.ndarray, codes: np.ndarray,
     pts = np.stack([cv2.perspectiveTransform(grid, cv2.getPerspectiveTransform(square, q.astype(np.float32)))
                     for q in quads]).reshape(len(quads), len(gx), len(gx), 2)
     cm = sample(pts).reshape(len(quads), cells + 2, 3, cells + 2, 3).mean(axis=(2, 4))
-    ring = np.concatenate([cm[:, 0], cm[:, -1], cm[:, 1:-1, 0], cm[:, 1:-1, -1]], axis=1)  # quiet zone
-    border = np.concatenate([cm[:, 1, 1:-1], cm[:, -2, 1:-1], cm[:, 2:-2, 1], cm[:, 2:-2, -2]], axis=1)
-    contrast = np.min(ring, axis=1) - np.max(border, axis=1) >= min_contrast
-    whole = np.ones((cells + 2, cells + 2))  # the whole pattern: quiet zone, border, bits
-    whole[1:-1, 1:-1] = 0.0
+    quiet, border = _quiet_zone_and_border(cells)
+    contrast = np.min(cm[:, quiet], axis=1) - np.max(cm[:, border], axis=1) >= min_contrast
+    whole = quiet.astype(float)  # the whole pattern: quiet zone, border, bits
     out: List[Optional[Tuple[int, np.ndarray]]] = [None] * len(quads)
     for k in np.flatnonzero(contrast):
         m, q = cm[k], quads[k]
@@ -217,12 +215,19 @@ def quiet_zone_contrast(sample, quads: np.ndarray, cells: int = 6) -> np.ndarray
     u, v = (a.reshape(-1) for a in np.meshgrid(c, c))
     weights = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], axis=1)   # (G, 4), corners 0-3
     grey = sample(weights @ quads).reshape(len(quads), cells + 2, cells + 2)     # (M, G, 2) points
+    quiet, border = _quiet_zone_and_border(cells)
+    return grey[:, quiet].mean(axis=1) - grey[:, border].mean(axis=1)
+
+
+def _quiet_zone_and_border(cells: int) -> Tuple[np.ndarray, np.ndarray]:
+    """Masks (cells + 2, cells + 2) of a marker's cell grid with its one-cell quiet zone around it (``cells``: its
+    side in cells, border included): the quiet zone (the outer ring) and the black border (the ring inside it)."""
     quiet = np.ones((cells + 2, cells + 2), dtype=bool)
     quiet[1:-1, 1:-1] = False
     border = np.zeros_like(quiet)
     border[1:-1, 1:-1] = True
     border[2:-2, 2:-2] = False
-    return grey[:, quiet].mean(axis=1) - grey[:, border].mean(axis=1)
+    return quiet, border
 
 
 def _signed_areas(q: np.ndarray) -> np.ndarray:
