@@ -15,6 +15,12 @@ Passes (``--passes``):
             it; the other markers' errors with the controls.
   compare   the first seed recorded again with its lowest id knocked by (0, 3, -4) cm (scenario moved_marker):
             `map --compare` of the two maps: the markers reported moved.
+  bearings  the detections themselves, before any network: each sighting's bearing against the true marker centre
+            seen from the true pose at its row's capture time (truth.tum, the true mounting, lenses and readout,
+            the camera clock's offset and rate from hidden.yaml), through the lenses' marker rays; the spread
+            per range and near the lenses' seams (within 6° of them) against the detection's own σ, and the
+            RMS of each marker's mean error (what the network's bias_deg stands for). The truth is sampled per
+            image and interpolated (slerp) to the rows; the sightings on the middle rows need no interpolation.
   scale     the network's CPU time and peak memory (tracemalloc) for 50 markers and 10 minutes of the generator's
             exact bearings (synthetic.feed, 0.02° noise, every 3rd image and every image).
 
@@ -22,7 +28,7 @@ Scenarios are cached in .cache/bench/mapping/ (keyed by a digest of their config
 each scenario's directory (observations.pkl). Rendering one 60 s scenario takes about 2.5 min on 2 cores, detecting
 its 1800 images about 3 min of CPU (4.5 min before the rescue's first look): 10 seeds about 70 min.
 
-Usage: bench/mapping.py [--seeds 101 ... 110] [--passes rendered control compare scale] [--workers 2]
+Usage: bench/mapping.py [--seeds 101 ... 110] [--passes rendered control compare bearings scale] [--workers 2]
 """
 import argparse
 import dataclasses
@@ -51,6 +57,7 @@ from aruco_abs_orient.markers import Marker, MarkerMap  # noqa: E402
 from aruco_abs_orient.offline.bagio import read_bag_data  # noqa: E402
 from aruco_abs_orient.offline.calibrate import collect_observations  # noqa: E402
 from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario  # noqa: E402
+from aruco_abs_orient.tum import read_tum  # noqa: E402
 
 MOVE = (0.0, 0.03, -0.04)   # m, the knocked marker of the compare pass (5 cm)
 
@@ -203,12 +210,69 @@ def pass_scale() -> None:
         del rec, corners, res
 
 
+def bearing_errors(scen: str) -> dict:
+    """Per sighting of a map marker, against the truth (see the bearings pass): range (m), error across the sight
+    line, horizontal and vertical (rad), the detection's σ (rad), azimuth from the front lens's axis (rad), marker
+    id and row (v/H − ½)."""
+    (obs, _), hidden = observations(scen), hidden_of(scen)
+    cal, truth = load_calibration(true_calibration(scen)), read_tum(os.path.join(scen, "truth.tum"))
+    rate = 1e-6 * hidden["realism"]["camera_clock"]["rate_error_ppm"]
+    # stamp = t + offset + rate (t - t0), t0 the first true stamp; the row's capture time after the stamp's
+    t = (np.asarray(obs.times) - hidden["camera_time_offset"] + rate * truth.stamps[0]) / (1.0 + rate) \
+        + np.asarray(obs.rows) * float(cal["readout"])
+    T, valid = truth.transforms_at(t)
+    ids = np.asarray(obs.ids)
+    known = valid & np.isin(ids, list(hidden["marker_positions"]))
+    Tc = T[known] @ cal["camera"]
+    bearings = np.asarray(obs.bearings)[known]
+    o, w = cal["lenses"].marker_rays(bearings, np.asarray(obs.corners)[known])
+    origins = Tc[:, :3, 3] + np.einsum("nij,nj->ni", Tc[:, :3, :3], o)
+    seen = np.einsum("nij,nj->ni", Tc[:, :3, :3], w)
+    to = np.array([hidden["marker_positions"][int(i)] for i in ids[known]]) - origins
+    rng = np.linalg.norm(to, axis=1)
+    to /= rng[:, None]
+    across = np.cross([0.0, 0.0, 1.0], to)
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    e = seen - to
+    return {"range": rng, "horizontal": np.sum(e * across, axis=1),
+            "vertical": np.sum(e * np.cross(to, across), axis=1), "sigma": np.asarray(obs.sigmas)[known],
+            "azimuth": np.arctan2(bearings[:, 1], bearings[:, 0]) - cal["lenses"].axis_azimuth, "id": ids[known],
+            "row": np.asarray(obs.rows)[known]}
+
+
+def pass_bearings(seeds) -> None:
+    print("\n## bearings: each sighting against the truth (mdeg: thousandths of a degree)")
+    runs = [bearing_errors(scenario_dir(dataclasses.replace(PRESETS["demo"], seed=seed), "mapping", ARGS.workers))
+            for seed in seeds]
+    e = {k: np.concatenate([r[k] for r in runs]) for k in runs[0]}
+    seam = np.abs(np.cos(e["azimuth"])) < math.sin(math.radians(6.0))   # within 6° of the lenses' seams
+    mdeg = 1e3 * 180.0 / math.pi
+    print(f"{'sightings':>22} {'n':>6} {'sd horizontal':>14} {'sd vertical':>12} {'median σ':>9} {'sd / σ':>7}")
+    for lo, hi in ((0, 4.5), (4.5, 8), (8, 20)):
+        for name, part in (("off the seams", ~seam), ("at the seams", seam)):
+            s = (e["range"] >= lo) & (e["range"] < hi) & part
+            if s.sum() < 20:
+                continue
+            sd = np.std(e["horizontal"][s]), np.std(e["vertical"][s])
+            sig = float(np.median(e["sigma"][s]))
+            print(f"{f'{lo:g}-{hi:g} m, {name}':>22} {s.sum():>6} {mdeg * sd[0]:>14.1f} {mdeg * sd[1]:>12.1f} "
+                  f"{mdeg * sig:>9.1f} {max(sd) / sig:>7.1f}")
+    mid = np.abs(e["row"]) < 0.005
+    print(f"{mid.sum()} sightings on the frame's middle rows (captured at a true pose's stamp: no interpolation): "
+          f"sd horizontal {mdeg * np.std(e['horizontal'][mid]):.1f}, vertical {mdeg * np.std(e['vertical'][mid]):.1f}")
+    means = [(np.mean(r["horizontal"][r["id"] == i]), np.mean(r["vertical"][r["id"] == i]))
+             for r in runs for i in np.unique(r["id"])]
+    print(f"each marker's mean error (its sightings' common part), RMS over {len(means)} markers: horizontal "
+          f"{mdeg * math.sqrt(np.mean(np.square(means)[:, 0])):.1f}, vertical "
+          f"{mdeg * math.sqrt(np.mean(np.square(means)[:, 1])):.1f} mdeg", flush=True)
+
+
 def main(argv=None) -> int:
     global ARGS
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(101, 111)))
-    ap.add_argument("--passes", nargs="+", choices=("rendered", "control", "compare", "scale"),
+    ap.add_argument("--passes", nargs="+", choices=("rendered", "control", "compare", "bearings", "scale"),
                     default=["rendered", "control", "compare", "scale"])
     ap.add_argument("--workers", type=int, default=2)
     ARGS = ap.parse_args(argv)
@@ -216,7 +280,8 @@ def main(argv=None) -> int:
           flush=True)
     for name in ARGS.passes:
         {"rendered": lambda: pass_rendered(ARGS.seeds), "control": lambda: pass_control(ARGS.seeds),
-         "compare": lambda: pass_compare(ARGS.seeds), "scale": pass_scale}[name]()
+         "compare": lambda: pass_compare(ARGS.seeds), "bearings": lambda: pass_bearings(ARGS.seeds),
+         "scale": pass_scale}[name]()
     return 0
 
 
