@@ -11,6 +11,7 @@ except ImportError:
 
 setup(
     **kwargs,
+    package_data={"aruco_abs_orient.detection": ["jpegrows.c"]},  # compiled on first use (detection/jpegrows.py)
     entry_points={
         "console_scripts": [
             "aruco-abs-orient = aruco_abs_orient.offline.cli:main",

@@ -36,6 +36,7 @@ APT_PKGS=(
   catkin catkin-lint python3-venv tf2-tools python3-rostopic python3-rosnode python3-rosservice rosbash
   ros-std-msgs ros-geometry-msgs ros-sensor-msgs ros-nav-msgs ros-diagnostic-msgs ros-visualization-msgs
   ros-message-generation ros-message-runtime python3-genpy python3-gencpp python3-genmsg g++ make
+  libjpeg62-turbo-dev  # process's row decoder (detection/jpegrows.c, compiled on first use)
 )
 missing=$(dpkg-query -W -f='${Package} ${db:Status-Status}\n' "${APT_PKGS[@]}" 2>/dev/null |
   awk '$2 == "installed" { print $1 }' | sort | comm -13 - <(printf '%s\n' "${APT_PKGS[@]}" | sort)) || true

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional
+from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
@@ -29,11 +29,13 @@ from .detection import (
     dedupe_observations,
     to_grey,
 )
+from .detection.jpegrows import RowsMissing
 from .markers import MarkerMap
 from .paramspec import Params, param
 from .transforms import invert_T, rot_z, transform_points, wrap_angle
 
-__all__ = ["TrackingError", "TrackingParams", "MarkerPrediction", "TrackingStats", "TrackingResult", "MarkerTracker"]
+__all__ = ["TrackingError", "TrackingParams", "MarkerPrediction", "TrackingStats", "TrackingResult", "RowPlan",
+           "MarkerTracker"]
 
 
 class TrackingError(DetectionError):
@@ -113,6 +115,27 @@ class TrackingResult:
     gated: List[MarkerObservation] = field(default_factory=list)
 
 
+class RowPlan(NamedTuple):
+    """The image rows tracking will read in the frames after the last one, each span [r0, r1) widened already:
+    the last frame's ROI views' ``rois`` (None: it had none) and, in the frames that sweep (tracker frame numbers
+    ``frame + n`` divisible by ``every``), the sweep's band ``sweep``; ``whole``: the whole frame (a search of the
+    whole frame may come next)."""
+
+    frame: int
+    every: int
+    rois: Optional[Tuple[int, int]]
+    sweep: Tuple[int, int]
+    whole: bool
+
+    def rows(self, ahead: int) -> Optional[Tuple[int, int]]:
+        """The rows of the frame ``ahead`` frames after the next one (0: the next), None for the whole frame."""
+        spans = [span for span, used in ((self.rois, True), (self.sweep, (self.frame + ahead) % self.every == 0))
+                 if used and span is not None]
+        if self.whole or not spans:
+            return None
+        return min(s[0] for s in spans), max(s[1] for s in spans)
+
+
 class MarkerTracker:
     """Markers of a map, tracked frame to frame from a predicted camera pose.
 
@@ -136,6 +159,8 @@ class MarkerTracker:
         self._misses = 0
         self._lost_after = self.params.lost_after_frames  # misses before the next recovery search
         self._views = {}
+        self._last_maps: list = []  # the last frame's ROI views' remap maps (what row_plan reads)
+        self.completed = 0  # frames decoded in part whose missing rows a read needed (decoded then)
 
     def _roi(self, equirect: Equirect, m: MarkerPrediction, fov: float, upsample: float):
         """The ROI view of marker ``m`` and its remap maps. Last frame's are reused, turned
@@ -155,6 +180,25 @@ class MarkerTracker:
         maps = self.detector.view_maps(view, equirect, step=4)
         self._views[key] = (view, maps, fov, az, el)
         return view, maps
+
+    def row_plan(self, height: int, margin: float) -> RowPlan:
+        """What the next frames of ``height`` rows will read (:class:`RowPlan`): the rows of the last frame's ROI
+        views and of the sweep's band, each widened by ``margin`` (radians) for the markers' motion meanwhile."""
+        eq = Equirect(2 * height, height)
+        pad = int(math.ceil(margin / eq.rad_per_px))
+        q = self.params
+        rois = None
+        if self._last_maps:
+            ys = [(float(my.min()), float(my.max())) for _, my in self._last_maps]
+            rois = (int(math.floor(min(y[0] for y in ys))) - pad, int(math.floor(max(y[1] for y in ys))) + 2 + pad)
+        el = math.radians(q.sweep_max_el_deg)
+        top, bottom = eq.azel_to_pixel(0.0, el)[1], eq.azel_to_pixel(0.0, -el)[1]   # as detect_columns' band
+        sweep = (int(math.floor(top)) - pad, int(math.ceil(bottom)) + 1 + pad)
+        # whole: the last frame searched the whole image (no pose to predict from yet, or a recovery: the next
+        # one may too), a recovery may come next, or a forced search is due
+        whole = (not self._since_full or self._misses + 1 >= self._lost_after
+                 or (q.max_full_interval > 0 and self._since_full + 1 >= q.max_full_interval))
+        return RowPlan(self.frame, max(1, int(q.sweep_every_frames)), rois, sweep, whole)
 
     def predict(self, map_T_camera, equirect: Equirect) -> List[MarkerPrediction]:
         """Predicted bearings of all the map's markers (where the camera's stitched image shows them), nearest
@@ -186,8 +230,16 @@ class MarkerTracker:
         frames in a row with predictions but no accepted marker, the whole frame is searched
         and every map id accepted without the prediction gate (``stats.recovery``). Raises
         DetectionError (or TrackingError) for an unusable image or pose; the state is
-        unchanged then.
+        unchanged then. A frame decoded in part (``detection.jpegrows.RowFrame``) that lacks rows a search
+        reads is decoded whole then and searched again (``completed`` counts them): the same observations.
         """
+        try:
+            return self._process(image, map_T_camera, what)
+        except RowsMissing:
+            self.completed += 1
+            return self._process(image.complete(), map_T_camera, what)
+
+    def _process(self, image: np.ndarray, map_T_camera, what: str) -> TrackingResult:
         t0 = time.perf_counter()
         grey = to_grey(image, what)
         eq = Equirect(grey.shape[1], grey.shape[0])
@@ -201,6 +253,7 @@ class MarkerTracker:
         if full:
             candidates = self.detector.detect(grey, what)
             self._since_full = 0
+            self._last_maps = []
         else:
             gate = math.radians(q.gate_deg)
             views, maps, expect, sizes = [], [], [], []
@@ -216,6 +269,7 @@ class MarkerTracker:
                 expect.append(m.id)
                 sizes.append(m.angular_size)
             stats.predicted = len(views)
+            self._last_maps = maps
             candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked", sizes, gate=gate)
             every = max(1, int(q.sweep_every_frames))
             if self.frame % every == 0:

@@ -9,8 +9,9 @@ import pytest
 
 from aruco_abs_orient.camera import Equirect, angle_between
 from aruco_abs_orient.detection import DetectionError
+from aruco_abs_orient.detection.jpegrows import RowFrame, decode_jpeg_rows
 from aruco_abs_orient.markers import Marker, MarkerMap
-from aruco_abs_orient.synthetic.render import facing_marker, render_equirect
+from aruco_abs_orient.synthetic.render import encode_jpeg, facing_marker, render_equirect
 from aruco_abs_orient.tracking import MarkerTracker, TrackingError, TrackingParams
 from aruco_abs_orient.transforms import invert_T, make_T, rot_z, transform_points
 
@@ -159,6 +160,39 @@ def test_sweeping_tile_finds_markers_the_prediction_skips():
             assert (u - res.stats.sweep_u0) % W < math.radians(50.0) / eq.rad_per_px
             seen.add(o.id)
     assert seen == set(range(len(POSITIONS)))
+
+
+def _seen(result):
+    return [(o.id, o.method, o.centre.tobytes(), o.corners.tobytes(), o.sigma) for o in result.observations]
+
+
+@pytest.mark.parametrize("turn_deg_s,every", [(20.0, 2), (-45.0, 3), (0.0, 1)])
+def test_frames_decoded_to_the_plan_give_what_whole_frames_give(turn_deg_s, every):
+    """`process` decodes only the rows the tracker's plan (row_plan) says the next frames read: along walks that
+    turn (or not), sweeping every 1-3 frames, frames decoded to the plan made ahead of them give exactly the
+    observations of the whole frames, without decoding more; a frame lacking rows a search reads is decoded
+    whole by the tracker (``completed``), with the same observations."""
+    params = TrackingParams(sweep_every_frames=every)
+    whole, part = MarkerTracker(MAP, params=params), MarkerTracker(MAP, params=params)
+    rate = math.radians(turn_deg_s)
+
+    def walk(k):
+        return make_T(rot_z(rate * k / 30.0), np.array([0.5 * k / 30.0, 0.1 * k / 30.0, 1.0]))
+
+    plans, in_part = [], 0
+    for k in range(9):
+        data = encode_jpeg(frame(k, T=walk(k))[0], 95)
+        plans.append(part.row_plan(W // 2, math.radians(3.0)))
+        ahead = 1 if k >= 2 else 0            # decoded one frame ahead: the plan made after frame k - 2
+        rows = plans[k - ahead].rows(ahead)
+        img = decode_jpeg_rows(data, rows)
+        in_part += isinstance(img, RowFrame)
+        assert _seen(part.process(img, walk(k))) == _seen(whole.process(decode_jpeg_rows(data, None), walk(k)))
+    assert part.completed == 0 and in_part >= 6
+    data = encode_jpeg(frame(9, T=walk(9))[0], 95)
+    assert _seen(part.process(decode_jpeg_rows(data, (0, 8)), walk(9))) == _seen(
+        whole.process(decode_jpeg_rows(data, None), walk(9)))
+    assert part.completed == 1
 
 
 def test_textured_frames_without_markers_accept_nothing():

@@ -22,6 +22,7 @@ import numpy as np
 from ..camera import Equirect, GnomonicView
 from .backend import ArucoBackend
 from .images import to_grey
+from .jpegrows import need_rows, partial
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectorParams
 from .quads import decode_quads, image_sampler, quiet_zone_contrast, refine_quads
@@ -243,6 +244,8 @@ class MarkerDetector:
         if not views:
             return []
         gap = 8
+        for _, my in maps if partial(grey) else ():  # float maps: each view's rows (bilinear: and the next)
+            need_rows(grey, int(np.floor(my.min())), int(np.floor(my.max())) + 2)
         imgs = [cv2.remap(grey, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP) for mx, my in maps]
         tops = np.cumsum([0] + [im.shape[0] + gap for im in imgs])
         mosaic = np.full((int(tops[-1]) - gap, max(im.shape[1] for im in imgs)), 128, np.uint8)
@@ -323,6 +326,7 @@ class MarkerDetector:
         width = int(min(width, w))
         v0 = int(max(0, math.floor(equirect.azel_to_pixel(0.0, max_el)[1])))
         v1 = int(min(equirect.height, math.ceil(equirect.azel_to_pixel(0.0, -max_el)[1]) + 1))
+        need_rows(grey, v0, v1)
         if u0 + width <= w:
             strip = grey[v0:v1, u0:u0 + width]
         else:
@@ -386,6 +390,7 @@ class MarkerDetector:
         unusable image.
         """
         grey = to_grey(image, what)
+        need_rows(grey, 0, grey.shape[0])
         eq = Equirect(grey.shape[1], grey.shape[0])
         q = self.params
         # with the polar views, the equirect is searched up to pole_overlap_deg beyond their band
