@@ -20,8 +20,10 @@ The speed section (issue 17), on the realistic world with its 30 ms rolling shut
               scenario's truth.tum (`evaluate --reference`: the speed must not cost accuracy), and the
               x real time the CPU seconds make on free cores (summary.json's cpu_time_s: the wall
               time is about max(the pipeline thread's CPU, all threads' CPU / cores));
-  decode      the shipped JPEG decode of the bag's frames against a 1/8-scale one (the entropy decoding alone):
-              the most a decoder that skipped the rows the tracker does not read could save;
+  decode      `process` as shipped, decoding only the image rows tracking reads (pipeline.decode_rows), against
+              the same with whole frames decoded (as before: decode_rows false), in the same run: frames/s,
+              CPU, the heading RMSE (the trajectories must be the same, byte for byte: checked), the share
+              of the rows decoded, the frames decoded in part and those a search then decoded whole;
   render      CPU seconds per frame of the demo preset's frames (world.render_frame + JPEG, one OpenCV
               thread as in the generator's workers) and the 60 s demo's rendering time that makes on
               2 workers (budget: 3 minutes).
@@ -31,6 +33,7 @@ generator into .cache/bench/ and reused, their videos written by `synthetic.expo
 """
 import argparse
 import contextlib
+import filecmp
 import json
 import os
 import resource
@@ -171,29 +174,6 @@ def _one_opencv_thread():
         cv2.setNumThreads(threads)
 
 
-def decode_floor(scen: str, frames: int) -> tuple:
-    """(ms per frame of the shipped decode: the whole grey frame, ms of a 1/8-scale decode: its DC coefficients
-    only, i.e. the entropy decoding that every decoder does whatever part of the frame it keeps), one thread,
-    the bag's first ``frames`` images, best of 3."""
-    import itertools
-
-    from aruco_abs_orient.detection import decode_jpeg
-    from aruco_abs_orient.offline.bagio import iter_images
-
-    payloads = [p for _, p in itertools.islice(iter_images(os.path.join(scen, "scenario.bag")), frames)]
-    best = []
-    with _one_opencv_thread():
-        for reduce in (1, 8):
-            runs = []
-            for _ in range(3):
-                t0 = time.process_time()
-                for p in payloads:
-                    decode_jpeg(p, reduce=reduce)
-                runs.append(1e3 * (time.process_time() - t0) / len(payloads))
-            best.append(min(runs))
-    return tuple(best)
-
-
 def render_cost(frames: int) -> tuple:
     """(CPU s per frame of the ``demo`` preset, rendered and JPEG-encoded as a generator worker does it
     (one OpenCV thread), the demo's frame count)."""
@@ -209,6 +189,24 @@ def render_cost(frames: int) -> tuple:
         for i in range(0, step * frames, step):
             encode_jpeg(render_frame(sc, i), sc.config.jpeg_quality)
         return (time.process_time() - t0) / frames, int(sc.frame_times.size)
+
+
+def decoding(scen: str, base: str, cal: tuple, ours: dict, fps: float) -> None:
+    """The shipped run ``ours`` (only the rows tracking reads decoded) against whole frames decoded, run now."""
+    with open(base + "_whole_frames.yaml", "w") as f:
+        f.write("pipeline:\n  decode_rows: false\n")
+    whole = run(scen, base + "_whole", extra=("--params", base + "_whole_frames.yaml", *cal))
+    with open(os.path.join(base + "_ours", "summary.json")) as f:
+        rows = json.load(f)["decoding"]
+    same = filecmp.cmp(os.path.join(base + "_whole", "trajectory.tum"), os.path.join(base + "_ours", "trajectory.tum"),
+                       shallow=False)
+    print(f"decode: whole frames (decode_rows false) {whole['frames'] / whole['wall_s']:.1f} frames/s, "
+          f"{whole['frames'] / whole['wall_s'] / fps:.2f}x real time, {1e3 * whole['cpu_s'] / whole['frames']:.1f} ms "
+          f"CPU/frame, heading RMSE {heading_rmse(scen, base + '_whole'):.4f} deg; shipped / whole frames "
+          f"{(ours['frames'] / ours['wall_s']) / (whole['frames'] / whole['wall_s']):.2f}x frames/s, "
+          f"{whole['cpu_s'] / ours['cpu_s']:.2f}x less CPU; the same trajectory byte for byte: {same}; the shipped "
+          f"run decoded {100 * rows['share']:.0f} % of the rows ({rows['in_part']} of {rows['frames']} frames in "
+          f"part, {rows['completed']} of them decoded whole then for a search; {rows['decoder']})")
 
 
 def speed(a) -> None:
@@ -242,11 +240,7 @@ def speed(a) -> None:
     print(f"ratios: shipped / before {r_ours / r_before:.2f}x frames/s, {before['cpu_s'] / ours['cpu_s']:.2f}x less "
           f"CPU; shipped / naive {r_ours / r_naive:.2f}x frames/s; "
           f"stages of the shipped run, ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in ours["ms"].items()))
-    whole, floor = decode_floor(scen, a.naive_frames)
-    print(f"decode: {whole:.1f} ms/frame whole (shipped), {floor:.1f} ms at 1/8 scale (the entropy decoding, which "
-          f"no region-of-interest decode avoids): decoding only the rows the tracker reads could save at most "
-          f"{whole - floor:.1f} ms/frame, {100 * (whole - floor) / whole:.0f} % of a decode, "
-          f"{100 * (whole - floor) / (1e3 * ours['cpu_s'] / ours['frames']):.0f} % of the shipped CPU per frame")
+    decoding(scen, base, cal, ours, fps)
     per, n_demo = render_cost(a.render_frames)
     print(f"render: demo preset, {a.render_frames} frames rendered + JPEG-encoded as a generator worker does: "
           f"{per:.3f} s/frame CPU; the 60 s demo ({n_demo} frames) on 2 workers: {n_demo * per / 2:.0f} s "

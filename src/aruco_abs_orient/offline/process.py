@@ -2,8 +2,10 @@
 
 Reads the bag twice with rosbags (no ROS master): a first pass for tf, tf_static and the prism,
 then the images streamed through a bounded queue by a reader thread whose JPEGs two decoder
-threads decode (OpenCV/simplejpeg release the GIL, so decoding and detection use both cores), while
-memory stays flat with the length of the recording.
+threads decode (the decoders release the GIL, so decoding and detection use both cores), while
+memory stays flat with the length of the recording. With ``pipeline.decode_rows`` only the rows the
+tracker's plan after the last image says the next ones read are decoded (:mod:`..detection.jpegrows`;
+a frame a search then needs whole is decoded whole by the tracker: the same observations).
 
 Outputs in ``out_dir`` (each written atomically: complete or absent):
 - ``trajectory.tum``: base_link in map, one line per image with a pose, stamps in total-station time,
@@ -15,8 +17,10 @@ Outputs in ``out_dir`` (each written atomically: complete or absent):
 - ``summary.json``: counts, rates, settings, what was skipped and why, the start of the recording, which north
   the headings are referred to (``north``: the map's grid north; with its ``grid`` and ``origin`` the meridian
   convergence, ``meridian_convergence_deg``, that turns them to true north), the self-checks
-  (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too) and the map check
-  (:mod:`aruco_abs_orient.mapcheck`: does the marker map fit the recording?).
+  (:mod:`aruco_abs_orient.selfcheck`; their findings are warnings too), ``decoding`` (how the images were
+  decoded: the share of their rows, the frames decoded in part, those a search then decoded whole, and why whole
+  frames when the row decoder is off or missing) and the map check (:mod:`aruco_abs_orient.mapcheck`: does the
+  marker map fit the recording?).
 
 A marker map that does not fit the recording (another site's, rotated, shifted, scaled, a wrong origin) gets
 no trajectory: ``trajectory.tum`` is not written (an older one in ``out_dir`` is removed) unless
@@ -41,6 +45,7 @@ from typing import Dict, List, NamedTuple, Optional
 import numpy as np
 
 from ..detection import DetectionError, decode_jpeg
+from ..detection.jpegrows import decode_jpeg_rows, row_decoder
 from ..mapcheck import DOES_NOT_FIT, UNDETERMINED, MapCheckParams, MapVerdict, SightingSample, check_map
 from ..markers import MarkerMap
 from ..north import NorthReference
@@ -101,28 +106,56 @@ def _observation_rows(res: FrameResult) -> List[list]:
     return rows
 
 
-def _decoded(payload, reduce: int):
-    """A grey image, or the reason there is none (a string)."""
+class _RowHint:
+    """The rows the decoders decode of the k-th image (0: the first): what the tracker's plan after the last image
+    processed (the ``index``-th) says the next ones read, widened by ``margin`` (rad); None: the whole image."""
+
+    def __init__(self, margin: float):
+        self.margin = margin
+        self._state: tuple = (-1, None)   # (index, RowPlan): replaced whole, read whole, by two threads
+
+    def update(self, index: int, pipe: AbsOrientPipeline, height: int) -> None:
+        self._state = (index, pipe.tracker.row_plan(height, self.margin))
+
+    def rows(self, k: int):
+        index, plan = self._state
+        return None if plan is None or k <= index else plan.rows(k - index - 1)
+
+
+def _decoded(payload, reduce: int, hint: Optional[_RowHint] = None, k: int = 0):
+    """A grey image (with ``hint``, only the rows it gives for the k-th image: a RowFrame), or the reason there is
+    none (a string). The rows are asked when the decoding starts, from the freshest plan."""
     if payload is None:
         return "undecodable image message"
     if not isinstance(payload, bytes):
         return payload
     try:
-        return decode_jpeg(payload, reduce=reduce)
+        return decode_jpeg(payload, reduce=reduce) if hint is None else decode_jpeg_rows(payload, hint.rows(k))
     except DetectionError as e:
         return f"corrupt image: {e}"
 
 
+def _row_hint(params) -> tuple:
+    """(the decoders' :class:`_RowHint`, or None for whole frames; how the frames are decoded, for the summary)."""
+    if not params.decode_rows or int(params.jpeg_reduce) != 1:
+        return None, "whole frames (pipeline.decode_rows is off, or jpeg_reduce is not 1)"
+    lib, why = row_decoder()
+    if lib is None:
+        return None, f"whole frames: {why}"
+    return _RowHint(math.radians(params.decode_row_margin_deg)), "the rows tracking reads (jpegrows)"
+
+
 def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: threading.Event,
-            decoders: ThreadPoolExecutor) -> None:
+            decoders: ThreadPoolExecutor, hint: Optional[_RowHint]) -> None:
     """Producer thread: (stamp, future of a grey image or an error string) in bag order, then None. The JPEGs
     are decoded by ``decoders`` (libjpeg releases the GIL: on 2 cores the decoding of the next frames fills
-    whatever the pipeline leaves, instead of one thread decoding while the other core waits)."""
+    whatever the pipeline leaves, instead of one thread decoding while the other core waits), only the rows
+    ``hint`` gives when there is one."""
     try:
-        for stamp, payload in iter_images(path, topics):
+        for k, (stamp, payload) in enumerate(iter_images(path, topics)):
             if stop.is_set():
                 return
-            out.put((stamp, decoders.submit(_decoded, payload, reduce)))
+            out.put((stamp, decoders.submit(_decoded, payload, reduce, hint, k)))
     except Exception as e:  # a bag or video broken half-way: keep what was read, say why it stopped
         out.put((float("nan"), _done(f"reading stopped: {e}")))
     finally:
@@ -273,6 +306,15 @@ class _Tally:
     tilt_sources: Dict[str, int] = field(default_factory=dict)
     next_prism: int = 0
     next_imu: int = 0
+    rows: Dict[str, float] = field(default_factory=lambda: {"frames": 0, "in_part": 0, "completed": 0, "share": 0.0})
+
+    def decoded(self, image: np.ndarray) -> None:
+        """An image decoded by rows (its share of the frame's rows, whether it was decoded whole later)."""
+        span = getattr(image, "rows", None) or (0, image.shape[0])
+        self.rows["frames"] += 1
+        self.rows["in_part"] += span != (0, image.shape[0])
+        self.rows["completed"] += bool(getattr(image, "completed", False))
+        self.rows["share"] += (span[1] - span[0]) / image.shape[0]
 
     def add(self, res: FrameResult, T_odom: np.ndarray) -> None:
         """One processed frame's timings, counters, marker yaws, sightings and pose."""
@@ -312,9 +354,10 @@ def _feed(pipe: AbsOrientPipeline, data: BagData, tally: _Tally, stamp: float, t
 
 
 def _frames(items: queue.Queue, writer, pipe: AbsOrientPipeline, data: BagData, tally: _Tally,
-            time_offset: float, bar) -> None:
+            time_offset: float, bar, hint: Optional[_RowHint]) -> None:
     """The frame loop: each decoded image (or why there is none) from the reader through the pipeline, its
-    observations to ``writer`` (observations.csv), the rest into ``tally``; until the reader's None."""
+    observations to ``writer`` (observations.csv), the rest into ``tally``; until the reader's None. After each
+    image the tracker's plan of the rows it reads next goes to ``hint`` (when the decoders decode rows)."""
     writer.writerow(OBSERVATION_COLUMNS)
     while True:
         item = items.get()
@@ -335,6 +378,9 @@ def _frames(items: queue.Queue, writer, pipe: AbsOrientPipeline, data: BagData, 
             continue
         _feed(pipe, data, tally, stamp, time_offset)
         res = pipe.process_image(stamp - time_offset, image, T_odom)
+        if hint is not None:
+            hint.update(tally.frames - 1, pipe, image.shape[0])
+            tally.decoded(image)
         tally.add(res, T_odom)
         writer.writerows(_observation_rows(res))
 
@@ -406,6 +452,7 @@ def _summary(bag, marker_map: MarkerMap, setup: RunSetup, pipe: AbsOrientPipelin
         "warnings": data.warnings,
         "pipeline_stats": dict(pipe.stats),
         "search_modes": tally.modes,
+        "decoding": {**tally.rows, "share": tally.rows["share"] / max(tally.rows["frames"], 1)},
         "mean_ms_per_frame": {k: v / max(frames, 1) for k, v in tally.timing_sum.items()},
         "params": asdict(params),
         "bag_duration_s": duration,
@@ -429,9 +476,10 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     stop = threading.Event()
     decoders = ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1), thread_name_prefix="jpeg",
                                   initializer=_yield_to_pipeline)
+    hint, tally.rows["decoder"] = _row_hint(params)
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
     reader = threading.Thread(target=_reader, args=(readable, topics, int(params.jpeg_reduce), items, stop,
-                                                    decoders), daemon=True)
+                                                    decoders, hint), daemon=True)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -440,7 +488,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     reader.start()
     try:
         with os.fdopen(fd, "w", newline="") as f:
-            _frames(items, csv.writer(f), pipe, data, tally, time_offset, bar)
+            _frames(items, csv.writer(f), pipe, data, tally, time_offset, bar, hint)
         stop.set()
         map_check = _map_check(tally.sighted, data, marker_map, pipe, params.markers_only, tunables.mapcheck)
         traj_path, extra = _write_trajectory(out_dir, tally, marker_map, north,

@@ -14,13 +14,16 @@ import numpy as np
 import pytest
 import yaml
 
+from aruco_abs_orient.detection.jpegrows import decode_jpeg_rows
 from aruco_abs_orient.evaluation import error_stats, interp_yaw, yaw_ape
 from aruco_abs_orient.markers import MarkerMap
+from aruco_abs_orient.offline import process as process_module
 from aruco_abs_orient.offline.bagio import BagError, BagTopics, read_bag_data
 from aruco_abs_orient.offline.cli import build_parser
 from aruco_abs_orient.offline.cli import main as cli_main
 from aruco_abs_orient.offline.evaluate import read_observations
 from aruco_abs_orient.offline.process import RunSetup, process_bag
+from aruco_abs_orient.params import parse_params
 from aruco_abs_orient.transforms import wrap_angle, yaw_of
 from aruco_abs_orient.tum import read_tum
 
@@ -37,6 +40,36 @@ def ci_run(scenario_factory, tmp_path_factory):
     res = process_bag(scen.bag, MarkerMap.load(scen.markers), str(out),
                       RunSetup(_hidden(scen)["camera_time_offset"], progress=False))
     return scen, res
+
+
+@pytest.mark.parametrize("world", ["ci", "ci-realistic", "ci tilted"])
+def test_decoding_only_the_rows_tracking_reads_changes_nothing(world, ci_run, scenario_factory, tmp_path,
+                                                               monkeypatch):
+    """`process` decodes only the image rows the tracker reads (detection.jpegrows): on the open field, the
+    hall (pillars, posters, rolling shutter) and a tilted odometry, the trajectory and every observation are
+    those of whole frames decoded by the same decoder, byte for byte, while most tracked frames are decoded in part
+    (the tilted odometry without its calibration: the filter starts after 7 s, the frames before are searched
+    whole)."""
+    if world == "ci":
+        scen, res = ci_run
+    else:
+        scen = scenario_factory("ci-realistic") if world == "ci-realistic" else scenario_factory(
+            "ci", seed=7, odom_levelled=False, roll_pitch_deg=2.0)
+        res = process_bag(scen.bag, MarkerMap.load(scen.markers), str(tmp_path / "rows"),
+                          RunSetup(_hidden(scen)["camera_time_offset"], progress=False))
+    decoding = res.summary["decoding"]
+    assert decoding["decoder"] == "the rows tracking reads (jpegrows)"
+    tracked = res.summary["search_modes"]["tracked"]   # a search of the whole frame reads every row
+    assert decoding["in_part"] >= 0.8 * tracked and decoding["share"] < 0.8, (decoding, tracked)
+    assert decoding["completed"] <= 0.05 * decoding["frames"], decoding
+    # the same decoder for whole frames (decode_jpeg may be OpenCV's exact IDCT: other pixels, other figures)
+    monkeypatch.setattr(process_module, "decode_jpeg", lambda data, reduce=1: decode_jpeg_rows(data, None))
+    whole = process_bag(scen.bag, MarkerMap.load(scen.markers), str(tmp_path / "whole"),
+                        RunSetup(_hidden(scen)["camera_time_offset"], progress=False),
+                        parse_params({"pipeline": {"decode_rows": False}}))
+    assert whole.summary["decoding"]["frames"] == 0
+    for name in ("trajectory.tum", "observations.csv"):
+        assert (tmp_path / "whole" / name).read_bytes() == Path(os.path.dirname(res.trajectory_path), name).read_bytes()
 
 
 def _heading_errors(run_dir, truth_path):
