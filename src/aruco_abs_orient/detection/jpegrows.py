@@ -54,10 +54,7 @@ class RowFrame(np.ndarray):
     def complete(self) -> np.ndarray:
         """The whole frame (decoded now, by the same decoder, so that its decoded rows are these)."""
         self.completed = True
-        try:
-            return _decode(row_decoder()[0], self._jpeg, self.shape, 0, self.shape[0], "jpeg")
-        except _Unreadable as e:  # its rows read, the rest not: damaged below them
-            raise DetectionError(f"jpeg: corrupt JPEG: {e}") from None
+        return _decode(row_decoder()[0], self._jpeg, self.shape, 0, self.shape[0], "jpeg")
 
 
 def partial(grey: np.ndarray) -> bool:
@@ -115,6 +112,10 @@ def _build() -> Tuple[Optional[ctypes.CDLL], str]:
     return lib, ""
 
 
+class _Unreadable(DetectionError):
+    """A JPEG libjpeg could not read here (broken, or CMYK): :func:`decode_jpeg_rows` asks the whole decoder."""
+
+
 def _decode(lib: ctypes.CDLL, data: bytes, shape: Tuple[int, int], r0: int, r1: int, what: str) -> np.ndarray:
     """Rows [r0, r1) of the frame (rows clipped to its height) into zeros of its shape, which ``shape`` (H, W)
     guesses (the last frame's): a wrong guess costs one more header read."""
@@ -126,15 +127,10 @@ def _decode(lib: ctypes.CDLL, data: bytes, shape: Tuple[int, int], r0: int, r1: 
         if status != 2 or (h.value, w.value) == shape or w.value <= 0 or h.value <= 0:
             break
         shape = _SHAPE[0] = (h.value, w.value)
-    if status == 1:
-        raise _Unreadable(msg.value.decode(errors="replace"))
     if status != 0:
-        raise DetectionError(f"{what}: corrupt JPEG: {msg.value.decode(errors='replace')}")
+        error = _Unreadable if status == 1 else DetectionError
+        raise error(f"{what}: corrupt JPEG: {msg.value.decode(errors='replace')}")
     return out
-
-
-class _Unreadable(Exception):
-    """A JPEG libjpeg could not read here (broken, or CMYK): the whole decoder is asked instead."""
 
 
 _SHAPE = [(1920, 3840)]  # the last frame's (H, W): the next one's guess

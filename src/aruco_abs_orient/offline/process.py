@@ -309,7 +309,7 @@ class _Tally:
     rows: Dict[str, float] = field(default_factory=lambda: {"frames": 0, "in_part": 0, "completed": 0, "share": 0.0})
 
     def decoded(self, image: np.ndarray) -> None:
-        """An image decoded by rows (its share of the frame's rows, whether it was decoded whole later)."""
+        """An image processed: the share of its rows decoded, whether it was decoded in part, and whole later."""
         span = getattr(image, "rows", None) or (0, image.shape[0])
         self.rows["frames"] += 1
         self.rows["in_part"] += span != (0, image.shape[0])
@@ -380,7 +380,7 @@ def _frames(items: queue.Queue, writer, pipe: AbsOrientPipeline, data: BagData, 
         res = pipe.process_image(stamp - time_offset, image, T_odom)
         if hint is not None:
             hint.update(tally.frames - 1, pipe, image.shape[0])
-            tally.decoded(image)
+        tally.decoded(image)
         tally.add(res, T_odom)
         writer.writerows(_observation_rows(res))
 
