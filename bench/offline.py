@@ -20,7 +20,7 @@ The speed section (issue 17), on the realistic world with its 30 ms rolling shut
               scenario's truth.tum (`evaluate --reference`: the speed must not cost accuracy), and the
               x real time the CPU seconds make on free cores (summary.json's cpu_time_s: the wall
               time is about max(the pipeline thread's CPU, all threads' CPU / cores));
-  decode      `process` as shipped, decoding only the image rows tracking reads (pipeline.decode_rows), against
+  decode      `process` as shipped, decoding only the image rows tracking reads (tracking.decode_rows), against
               the same with whole frames decoded (as before: decode_rows false), in the same run: frames/s,
               CPU, the heading RMSE (the trajectories must be the same, byte for byte: checked), the share
               of the rows decoded, the frames decoded in part and those a search then decoded whole;
@@ -194,7 +194,7 @@ def render_cost(frames: int) -> tuple:
 def decoding(scen: str, base: str, cal: tuple, ours: dict, fps: float) -> None:
     """The shipped run ``ours`` (only the rows tracking reads decoded) against whole frames decoded, run now."""
     with open(base + "_whole_frames.yaml", "w") as f:
-        f.write("pipeline:\n  decode_rows: false\n")
+        f.write("tracking:\n  decode_rows: false\n")
     whole = run(scen, base + "_whole", extra=("--params", base + "_whole_frames.yaml", *cal))
     with open(os.path.join(base + "_ours", "summary.json")) as f:
         rows = json.load(f)["decoding"]

@@ -92,12 +92,6 @@ class PipelineParams(Params):
                                       "driving keeps the frames that start it)", "frames", 1, 100)
     jpeg_reduce: int = param(1, "decode JPEGs at 1/n resolution (accuracy falls with it: bench/detection.py)", "",
                              choices=(1, 2, 4, 8))
-    decode_rows: bool = param(True, "process: decode only the image rows tracking reads (libjpeg-turbo, built on "
-                              "first use with the system's C compiler and libjpeg's headers; without them whole "
-                              "frames, as the node does)")
-    decode_row_margin_deg: float = param(3.0, "process: rows decoded beyond those the last frame's views and sweep "
-                                         "read, for the markers' motion until a frame is searched (a read beyond "
-                                         "them decodes the frame whole)", "deg", 0.0, 90.0)
     markers_only: bool = param(False, "ignore the prism: every frame's pose from a resection on its markers (≥ 3, or "
                                "≥ 2 with the tilt); without it only frames without a prism position are resected")
     resection_min_cone_deg: float = param(10.0, "a resection whose markers all lie within this angle of each other, "

@@ -70,6 +70,12 @@ class TrackingParams(Params):
                                    "start-up and after a loss)", "frames", 0)
     lost_after_frames: int = param(3, "consecutive frames with predictions but no accepted marker after which "
                                    "tracking falls back to full-frame search", "frames", 1, 1000)
+    decode_rows: bool = param(True, "process: decode only the image rows tracking reads (libjpeg-turbo, built on "
+                              "first use with the system's C compiler and libjpeg's headers; without them whole "
+                              "frames, as the node does)")
+    decode_row_margin_deg: float = param(3.0, "process: rows decoded beyond those the last frame's views and sweep "
+                                         "read, for the markers' motion until a frame is searched (a read beyond "
+                                         "them decodes the frame whole)", "deg", 0.0, 90.0)
     lost_backoff_max_frames: int = param(24, "after a full-frame search that found no marker off its prediction, "
                                          "the next waits for twice the misses, up to this (lost_after_frames or "
                                          "less: no back-off)", "frames", 0)
@@ -181,12 +187,13 @@ class MarkerTracker:
         self._views[key] = (view, maps, fov, az, el)
         return view, maps
 
-    def row_plan(self, height: int, margin: float) -> RowPlan:
+    def row_plan(self, height: int) -> RowPlan:
         """What the next frames of ``height`` rows will read (:class:`RowPlan`): the rows of the last frame's ROI
-        views and of the sweep's band, each widened by ``margin`` (radians) for the markers' motion meanwhile."""
+        views and of the sweep's band, each widened by ``decode_row_margin_deg`` for the markers' motion
+        meanwhile."""
         eq = Equirect(2 * height, height)
-        pad = int(math.ceil(margin / eq.rad_per_px))
         q = self.params
+        pad = int(math.ceil(math.radians(q.decode_row_margin_deg) / eq.rad_per_px))
         rois = None
         if self._last_maps:
             ys = [(float(my.min()), float(my.max())) for _, my in self._last_maps]

@@ -182,7 +182,7 @@ def test_frames_decoded_to_the_plan_give_what_whole_frames_give(turn_deg_s, ever
     plans, in_part = [], 0
     for k in range(9):
         data = encode_jpeg(frame(k, T=walk(k))[0], 95)
-        plans.append(part.row_plan(W // 2, math.radians(3.0)))
+        plans.append(part.row_plan(W // 2))
         ahead = 1 if k >= 2 else 0            # decoded one frame ahead: the plan made after frame k - 2
         rows = plans[k - ahead].rows(ahead)
         img = decode_jpeg_rows(data, rows)

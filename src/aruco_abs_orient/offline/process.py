@@ -3,7 +3,7 @@
 Reads the bag twice with rosbags (no ROS master): a first pass for tf, tf_static and the prism,
 then the images streamed through a bounded queue by a reader thread whose JPEGs two decoder
 threads decode (the decoders release the GIL, so decoding and detection use both cores), while
-memory stays flat with the length of the recording. With ``pipeline.decode_rows`` only the rows the
+memory stays flat with the length of the recording. With ``tracking.decode_rows`` only the rows the
 tracker's plan after the last image says the next ones read are decoded (:mod:`..detection.jpegrows`;
 a frame a search then needs whole is decoded whole by the tracker: the same observations).
 
@@ -108,14 +108,13 @@ def _observation_rows(res: FrameResult) -> List[list]:
 
 class _RowHint:
     """The rows the decoders decode of the k-th image (0: the first): what the tracker's plan after the last image
-    processed (the ``index``-th) says the next ones read, widened by ``margin`` (rad); None: the whole image."""
+    processed (the ``index``-th) says the next ones read; None: the whole image."""
 
-    def __init__(self, margin: float):
-        self.margin = margin
+    def __init__(self):
         self._state: tuple = (-1, None)   # (index, RowPlan): replaced whole, read whole, by two threads
 
     def update(self, index: int, pipe: AbsOrientPipeline, height: int) -> None:
-        self._state = (index, pipe.tracker.row_plan(height, self.margin))
+        self._state = (index, pipe.tracker.row_plan(height))
 
     def rows(self, k: int):
         index, plan = self._state
@@ -135,14 +134,14 @@ def _decoded(payload, reduce: int, hint: Optional[_RowHint] = None, k: int = 0):
         return f"corrupt image: {e}"
 
 
-def _row_hint(params) -> tuple:
+def _row_hint(tunables: Tunables) -> tuple:
     """(the decoders' :class:`_RowHint`, or None for whole frames; how the frames are decoded, for the summary)."""
-    if not params.decode_rows or int(params.jpeg_reduce) != 1:
-        return None, "whole frames (pipeline.decode_rows is off, or jpeg_reduce is not 1)"
+    if not tunables.tracking.decode_rows or int(tunables.pipeline.jpeg_reduce) != 1:
+        return None, "whole frames (tracking.decode_rows is off, or pipeline.jpeg_reduce is not 1)"
     lib, why = row_decoder()
     if lib is None:
         return None, f"whole frames: {why}"
-    return _RowHint(math.radians(params.decode_row_margin_deg)), "the rows tracking reads (jpegrows)"
+    return _RowHint(), "the rows tracking reads (jpegrows)"
 
 
 def _reader(path: str, topics: BagTopics, reduce: int, out: queue.Queue, stop: threading.Event,
@@ -476,7 +475,7 @@ def _process(bag, readable, data: BagData, marker_map, out_dir, setup: RunSetup,
     stop = threading.Event()
     decoders = ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1), thread_name_prefix="jpeg",
                                   initializer=_yield_to_pipeline)
-    hint, tally.rows["decoder"] = _row_hint(params)
+    hint, tally.rows["decoder"] = _row_hint(tunables)
     # reduced decoding is done by the reader: the pipeline then receives grey arrays
     reader = threading.Thread(target=_reader, args=(readable, topics, int(params.jpeg_reduce), items, stop,
                                                     decoders, hint), daemon=True)

@@ -66,7 +66,7 @@ def test_decoding_only_the_rows_tracking_reads_changes_nothing(world, ci_run, sc
     monkeypatch.setattr(process_module, "decode_jpeg", lambda data, reduce=1: decode_jpeg_rows(data, None))
     whole = process_bag(scen.bag, MarkerMap.load(scen.markers), str(tmp_path / "whole"),
                         RunSetup(_hidden(scen)["camera_time_offset"], progress=False),
-                        parse_params({"pipeline": {"decode_rows": False}}))
+                        parse_params({"tracking": {"decode_rows": False}}))
     assert whole.summary["decoding"]["in_part"] == 0 and whole.summary["decoding"]["share"] == 1.0
     for name in ("trajectory.tum", "observations.csv"):
         assert (tmp_path / "whole" / name).read_bytes() == Path(os.path.dirname(res.trajectory_path), name).read_bytes()
