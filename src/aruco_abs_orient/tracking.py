@@ -166,7 +166,6 @@ class MarkerTracker:
         self._lost_after = self.params.lost_after_frames  # misses before the next recovery search
         self._views = {}
         self._last_maps: list = []  # the last frame's ROI views' remap maps (what row_plan reads)
-        self.completed = 0  # frames decoded in part whose missing rows a read needed (decoded then)
 
     def _roi(self, equirect: Equirect, m: MarkerPrediction, fov: float, upsample: float):
         """The ROI view of marker ``m`` and its remap maps. Last frame's are reused, turned
@@ -238,12 +237,11 @@ class MarkerTracker:
         and every map id accepted without the prediction gate (``stats.recovery``). Raises
         DetectionError (or TrackingError) for an unusable image or pose; the state is
         unchanged then. A frame decoded in part (``detection.jpegrows.RowFrame``) that lacks rows a search
-        reads is decoded whole then and searched again (``completed`` counts them): the same observations.
+        reads is decoded whole then (its ``completed`` says so) and searched again: the same observations.
         """
         try:
             return self._process(image, map_T_camera, what)
         except RowsMissing:
-            self.completed += 1
             return self._process(image.complete(), map_T_camera, what)
 
     def _process(self, image: np.ndarray, map_T_camera, what: str) -> TrackingResult:

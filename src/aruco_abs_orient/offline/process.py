@@ -305,7 +305,7 @@ class _Tally:
     tilt_sources: Dict[str, int] = field(default_factory=dict)
     next_prism: int = 0
     next_imu: int = 0
-    rows: Dict[str, float] = field(default_factory=lambda: {"frames": 0, "in_part": 0, "completed": 0, "share": 0.0})
+    rows: Dict[str, object] = field(default_factory=lambda: {"frames": 0, "in_part": 0, "completed": 0, "share": 0.0})
 
     def decoded(self, image: np.ndarray) -> None:
         """An image processed: the share of its rows decoded, whether it was decoded in part, and whole later."""
