@@ -29,7 +29,8 @@ from .detection import (
     dedupe_observations,
     to_grey,
 )
-from .detection.jpegrows import RowsMissing
+from .detection.detector import band_rows
+from .detection.jpegrows import RowsMissing, bilinear_rows
 from .markers import MarkerMap
 from .paramspec import Params, param
 from .transforms import invert_T, rot_z, transform_points, wrap_angle
@@ -195,16 +196,19 @@ class MarkerTracker:
         pad = int(math.ceil(math.radians(q.decode_row_margin_deg) / eq.rad_per_px))
         rois = None
         if self._last_maps:
-            ys = [(float(my.min()), float(my.max())) for _, my in self._last_maps]
-            rois = (int(math.floor(min(y[0] for y in ys))) - pad, int(math.floor(max(y[1] for y in ys))) + 2 + pad)
-        el = math.radians(q.sweep_max_el_deg)
-        top, bottom = eq.azel_to_pixel(0.0, el)[1], eq.azel_to_pixel(0.0, -el)[1]   # as detect_columns' band
-        sweep = (int(math.floor(top)) - pad, int(math.ceil(bottom)) + 1 + pad)
+            spans = [bilinear_rows(my) for _, my in self._last_maps]
+            rois = (min(s[0] for s in spans) - pad, max(s[1] for s in spans) + pad)
+        v0, v1 = band_rows(eq, math.radians(q.sweep_max_el_deg))
+        sweep = (v0 - pad, v1 + pad)
         # whole: the last frame searched the whole image (no pose to predict from yet, or a recovery: the next
         # one may too), a recovery may come next, or a forced search is due
         whole = (not self._since_full or self._misses + 1 >= self._lost_after
                  or (q.max_full_interval > 0 and self._since_full + 1 >= q.max_full_interval))
-        return RowPlan(self.frame, max(1, int(q.sweep_every_frames)), rois, sweep, whole)
+        return RowPlan(self.frame, self._sweep_every(), rois, sweep, whole)
+
+    def _sweep_every(self) -> int:
+        """The sweeping tile is searched on every n-th tracked frame (``sweep_every_frames``; 0 as 1)."""
+        return max(1, int(self.params.sweep_every_frames))
 
     def predict(self, map_T_camera, equirect: Equirect) -> List[MarkerPrediction]:
         """Predicted bearings of all the map's markers (where the camera's stitched image shows them), nearest
@@ -276,7 +280,7 @@ class MarkerTracker:
             stats.predicted = len(views)
             self._last_maps = maps
             candidates = self.detector.detect_in_views(grey, eq, views, maps, expect, "tracked", sizes, gate=gate)
-            every = max(1, int(q.sweep_every_frames))
+            every = self._sweep_every()
             if self.frame % every == 0:
                 step = eq.width / q.sweep_period_frames * every
                 width = int(math.ceil(max(math.radians(q.sweep_tile_deg) / eq.rad_per_px, step)))

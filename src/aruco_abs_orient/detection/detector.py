@@ -22,7 +22,7 @@ import numpy as np
 from ..camera import Equirect, GnomonicView
 from .backend import ArucoBackend
 from .images import to_grey
-from .jpegrows import need_rows, partial
+from .jpegrows import bilinear_rows, need_rows, partial
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectorParams
 from .quads import decode_quads, image_sampler, quiet_zone_contrast, refine_quads
@@ -244,8 +244,8 @@ class MarkerDetector:
         if not views:
             return []
         gap = 8
-        for _, my in maps if partial(grey) else ():  # float maps: each view's rows (bilinear: and the next)
-            need_rows(grey, int(np.floor(my.min())), int(np.floor(my.max())) + 2)
+        for _, my in maps if partial(grey) else ():  # float maps: the rows each view reads
+            need_rows(grey, *bilinear_rows(my))
         imgs = [cv2.remap(grey, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP) for mx, my in maps]
         tops = np.cumsum([0] + [im.shape[0] + gap for im in imgs])
         mosaic = np.full((int(tops[-1]) - gap, max(im.shape[1] for im in imgs)), 128, np.uint8)
@@ -324,8 +324,7 @@ class MarkerDetector:
         w = equirect.width
         u0 = int(u0) % w
         width = int(min(width, w))
-        v0 = int(max(0, math.floor(equirect.azel_to_pixel(0.0, max_el)[1])))
-        v1 = int(min(equirect.height, math.ceil(equirect.azel_to_pixel(0.0, -max_el)[1]) + 1))
+        v0, v1 = band_rows(equirect, max_el)
         need_rows(grey, v0, v1)
         if u0 + width <= w:
             strip = grey[v0:v1, u0:u0 + width]
@@ -414,6 +413,13 @@ class MarkerDetector:
         for polar in (results[0] if results else []):
             found = dedupe_observations(found + polar)
         return sorted(found, key=lambda o: o.id)
+
+
+def band_rows(equirect: Equirect, max_el: float) -> Tuple[int, int]:
+    """The rows [v0, v1) of the band within ``max_el`` (radians) of the horizon that a strip search reads."""
+    v0 = int(max(0, math.floor(equirect.azel_to_pixel(0.0, max_el)[1])))
+    v1 = int(min(equirect.height, math.ceil(equirect.azel_to_pixel(0.0, -max_el)[1]) + 1))
+    return v0, v1
 
 
 def _same_squares(hits: Sequence[Tuple[int, np.ndarray]]) -> List[int]:

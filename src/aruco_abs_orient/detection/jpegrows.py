@@ -30,7 +30,7 @@ import numpy as np
 from .images import decode_jpeg
 from .params import DetectionError
 
-__all__ = ["RowsMissing", "RowFrame", "partial", "need_rows", "row_decoder", "decode_jpeg_rows"]
+__all__ = ["RowsMissing", "RowFrame", "partial", "bilinear_rows", "need_rows", "row_decoder", "decode_jpeg_rows"]
 
 _SOURCE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "jpegrows.c")
 _MSG = 200
@@ -60,6 +60,12 @@ class RowFrame(np.ndarray):
 def partial(grey: np.ndarray) -> bool:
     """Whether ``grey`` is a :class:`RowFrame` with rows not decoded (a reader then says which it reads)."""
     return getattr(grey, "rows", None) is not None
+
+
+def bilinear_rows(v) -> Tuple[int, int]:
+    """The rows [r0, r1) a bilinear read at row coordinates ``v`` (an array, not empty) touches: each point's row
+    and the next."""
+    return int(np.floor(np.min(v))), int(np.floor(np.max(v))) + 2
 
 
 def need_rows(grey: np.ndarray, r0: int, r1: int) -> None:

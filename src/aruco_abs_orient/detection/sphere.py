@@ -18,7 +18,7 @@ import numpy as np
 
 from ..camera import Equirect, GnomonicView, angle_between, sphere_centre_bearing
 from ..transforms import cross3
-from .jpegrows import need_rows, partial
+from .jpegrows import bilinear_rows, need_rows, partial
 from .quads import DECODE, EDGE_FIT, DecodeParams, EdgeFitParams, _remap_points, decode_quads, refine_quads
 
 __all__ = ["sphere_centre_bearing", "pixel_centre_bearing", "marker_angular_size", "refine_corners",
@@ -86,7 +86,7 @@ class _MarkerViews:
             u, v = self.equirect.bearing_to_pixel(self.bearings(pts, sel if rows is None else sel[rows]))
             np.clip(v, 0.0, self.equirect.height - 1.0, out=v)
             if partial(grey) and v.size:
-                need_rows(grey, int(np.floor(v.min())), int(np.floor(v.max())) + 2)
+                need_rows(grey, *bilinear_rows(v))
             return _remap_points(grey, u, v, cv2.BORDER_WRAP)
         return sample
 
