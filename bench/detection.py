@@ -6,7 +6,7 @@ textured background), full size (3840×1920 by default). Prints one table per se
   accuracy  centre bearing error by range and elevation (degrees)
   bias      signed elevation error at 1 m and 45–60°: sphere centre vs pixel-space centre
   pattern_bias  each id's mean centre error (its pattern's bias) against the cell widths, facing and turned
-                away, beside calibrate's model
+                away, beside calibrate's model, and with the pattern fit (what `map` detects with) in the same run
   range     detection rate 1–18 m of a 0.19 m DICT_4X4_50 marker facing the camera
             (this package vs plain OpenCV on the full frame)
   seam_pole markers straddling the ±180° seam and at ±70° elevation, 1.5 m
@@ -172,49 +172,61 @@ def section_pattern_bias(args, det):
     """Each id's mean centre error over renders at one range (sub-pixel positions and noise varied): the bias its
     pattern sets, the same on every frame; its rms over the ids along the azimuth and the elevation against the
     cell widths in pixels, for markers facing the camera and turned 50° about their vertical (seen from the side:
-    narrower across), beside calibrate's model (calibration.bias, CalibrationParams.pattern_bias_*)."""
+    narrower across), beside calibrate's model (calibration.bias, CalibrationParams.pattern_bias_*); and the same
+    markers with the pattern fit (DetectorParams.pattern_fit, what ``map`` detects with) in the same run: its rms
+    bias and the ratio of the edge fit's to it."""
+    from dataclasses import replace
+
     from aruco_abs_orient.calibration import CalibrationParams
     from aruco_abs_orient.calibration.bias import marker_cell_widths, pattern_bias_sigma
     from aruco_abs_orient.synthetic.render import PlacedMarker
     from aruco_abs_orient.transforms import rot_y
 
+    fitting = MarkerDetector("DICT_4X4_50", replace(det.params, pattern_fit=True))
     size, pitch, rows = 0.30, 2 * math.pi / args.width, []
     for turn in (0.0, 50.0):
         for cell_px in (1.6, 1.9, 2.2, 2.6, 3.1, 3.8):
             d = size / 6 / (cell_px * pitch)
-            means, spread, widths = [], [], []
+            means, fitted, spread, widths = [], [], [], []
             for i in range(12):
-                errs = []
+                errs, errs_fit = [], []
                 for k in range(args.bias_frames * 2):
                     rng = np.random.default_rng([i, k, int(100 * cell_px), int(turn)])
                     el = rng.uniform(5, 20) * DEG
                     m = facing_marker(i, size, d * azel_to_bearing(-2.0 + rng.uniform(-0.3, 0.3), el),
                                       roll=rng.uniform(-0.05, 0.05))
                     m = PlacedMarker(i, size, m.center, m.camera_R_marker @ rot_y((-1) ** i * turn * DEG))
-                    found = [o for o in det.detect(render_equirect(args.width, [m], seed=int(rng.integers(10 ** 6))))
-                             if o.id == i]
-                    if found:
-                        a1, e1 = bearing_to_azel(found[0].centre)
-                        a0, e0 = bearing_to_azel(unit(m.center))
-                        errs.append(((a1 - a0) * math.cos(e0), e1 - e0))
-                        widths.append(marker_cell_widths(found[0].centre[None], found[0].corners[None], 6)[0] / pitch)
-                if len(errs) >= 3:
+                    img = render_equirect(args.width, [m], seed=int(rng.integers(10 ** 6)))
+                    a0, e0 = bearing_to_azel(unit(m.center))
+                    for detector, out in ((det, errs), (fitting, errs_fit)):
+                        found = [o for o in detector.detect(img) if o.id == i]
+                        if found:
+                            a1, e1 = bearing_to_azel(found[0].centre)
+                            out.append(((a1 - a0) * math.cos(e0), e1 - e0))
+                            if detector is det:
+                                widths.append(marker_cell_widths(found[0].centre[None], found[0].corners[None], 6)[0]
+                                              / pitch)
+                if len(errs) >= 3 and len(errs_fit) >= 3:
                     means.append(np.mean(errs, axis=0) / pitch)
+                    fitted.append(np.mean(errs_fit, axis=0) / pitch)
                     spread.append(np.std(errs, axis=0) / pitch / math.sqrt(len(errs)))
             if not means:
-                rows.append((f"{turn:.0f}", f"{cell_px:.1f}", f"{d:.1f}", 0, "-", "-", "-", "-"))
+                rows.append((f"{turn:.0f}", f"{cell_px:.1f}", f"{d:.1f}", 0, "-", "-", "-", "-", "-", "-"))
                 continue
             rms = np.sqrt(np.mean(np.square(means), axis=0))
+            rms_fit = np.sqrt(np.mean(np.square(fitted), axis=0))
             noise = np.sqrt(np.mean(np.square(spread), axis=0))
             width = np.mean(widths, axis=0)
             model = pattern_bias_sigma(CalibrationParams(), 1.0, width[None])[0]
             rows.append((f"{turn:.0f}", f"{cell_px:.1f}", f"{d:.1f}", len(means), f"{width[0]:.2f} × {width[1]:.2f}",
                          f"{rms[0]:.3f}, {rms[1]:.3f}", f"{noise[0]:.3f}, {noise[1]:.3f}",
-                         f"{model[0]:.3f}, {model[1]:.3f}"))
+                         f"{model[0]:.3f}, {model[1]:.3f}", f"{rms_fit[0]:.3f}, {rms_fit[1]:.3f}",
+                         f"{np.max(rms) / max(np.max(rms_fit), 1e-9):.1f}×"))
     table(f"Pattern bias: rms over 12 ids of each id's mean centre error, px ({size} m markers, {args.width} px, "
           f"{args.bias_frames * 2} renders per id)",
           ["turned °", "cell px", "range m", "ids", "cells (az × el) px", "rms bias (az, el)",
-           "noise of a mean (az, el)", "calibrate's model (az, el)"], rows)
+           "noise of a mean (az, el)", "calibrate's model (az, el)", "pattern fit: rms bias (az, el)",
+           "edge / fit"], rows)
 
 
 def section_range(args, det):

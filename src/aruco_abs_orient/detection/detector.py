@@ -26,7 +26,7 @@ from .jpegrows import bilinear_rows, need_rows, partial
 from .observation import MarkerObservation, bearing_sigma, dedupe_observations
 from .params import DetectorParams
 from .quads import decode_quads, image_sampler, quiet_zone_contrast, refine_quads
-from .sphere import decode_markers, marker_angular_size, refine_corners_many, sphere_centre_bearing
+from .sphere import decode_markers, fit_patterns_many, marker_angular_size, refine_corners_many, sphere_centre_bearing
 
 __all__ = ["MarkerDetector", "Wanted"]
 
@@ -90,9 +90,13 @@ class MarkerDetector:
         return self.observations(equirect, [marker_id], np.asarray(corners)[None], method)[0]
 
     def observations(self, equirect: Equirect, ids: Sequence[int], corners: np.ndarray,
-                     method: str) -> List[MarkerObservation]:
-        """Records from corner bearings (M, 4, 3) in ArUco order, all at once."""
+                     method: str, grey: Optional[np.ndarray] = None) -> List[MarkerObservation]:
+        """Records from corner bearings (M, 4, 3) in ArUco order, all at once; given the ``grey`` equirect they
+        were found in, the corners of the small ones fitted with their whole pattern first (``pattern_fit``)."""
         corners = np.asarray(corners, dtype=float).reshape(-1, 4, 3)
+        fitted = np.zeros(len(corners), dtype=bool)
+        if grey is not None:
+            corners, fitted = self._pattern_fitted(grey, equirect, ids, corners)
         centres = sphere_centre_bearing(corners)
         u, v = equirect.bearing_to_pixel(np.concatenate([centres[:, None], corners], axis=1))  # (M, 5)
         cu = equirect.unwrap_u(u[:, 1:], u[:, 1:2])
@@ -103,9 +107,30 @@ class MarkerDetector:
             out.append(MarkerObservation(
                 id=int(marker_id), corners=corners[k], centre=centres[k], pixel=(float(u[k, 0]), float(v[k, 0])),
                 corners_px=np.stack([cu[k], v[k, 1:]], axis=1), angular_size=float(sizes[k]),
-                sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px, method), method=method,
+                sigma=bearing_sigma(self.params, equirect.rad_per_px, side_px, method, bool(fitted[k])), method=method,
                 side_px=side_px))
         return out
+
+    def _pattern_fitted(self, grey: np.ndarray, equirect: Equirect, ids: Sequence[int],
+                        corners: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """``corners`` (M, 4, 3) with those of the markers whose cells are at most ``pattern_fit_max_cell_px``
+        wide fitted with their pattern (:func:`.sphere.fit_patterns_many`) where the fit succeeds, and which
+        were (M,) bool."""
+        q = self.params
+        done = np.zeros(len(corners), dtype=bool)
+        if not q.pattern_fit or not len(corners):
+            return corners, done
+        cell_px = np.atleast_1d(marker_angular_size(corners)) / (equirect.rad_per_px * self.backend.bits)
+        small = np.flatnonzero(cell_px <= q.pattern_fit_max_cell_px)
+        if not len(small):
+            return corners, done
+        codes = self.backend.codes[np.asarray(ids, dtype=int)[small]]
+        fitted = fit_patterns_many(grey, equirect, corners[small], codes, q.pattern_fit_params())
+        ok = ~np.isnan(fitted).any(axis=(1, 2))
+        out = corners.copy()
+        out[small[ok]] = fitted[ok]
+        done[small[ok]] = True
+        return out, done
 
     def _finish(self, grey: np.ndarray, equirect: Equirect, found: Tuple[List[int], List[np.ndarray],
                 List[np.ndarray]], searched: _Searched, method: str, wanted: Wanted = _ANY) -> List[MarkerObservation]:
@@ -138,7 +163,7 @@ class MarkerDetector:
                 same = [k for k, (i, hit) in enumerate(zip(kept_ids, hits)) if hit is not None and hit[0] == i]
                 kept_ids, b = [kept_ids[k] for k in same], b[same]
             if kept_ids:
-                out += self.observations(equirect, kept_ids, b, method)
+                out += self.observations(equirect, kept_ids, b, method, grey)
         if not rescue or (expect_id is not None and out):
             return out
         small = q.rescue_max_side_px * 4.0 * scale
@@ -162,7 +187,7 @@ class MarkerDetector:
                 if h is not None and (expect_id is None or h[0] == expect_id)]
         if hits and perspective:
             out += self.observations(equirect, [h[0] for h in hits],
-                                     np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits]), method)
+                                     np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits]), method, grey)
         elif hits:  # read in the equirect: straighten on the sphere, read again
             # the shrunk tries of one marker read as the same square: one (the next only if it fails)
             b = np.array([to_bearing(h[1][:, 0], h[1][:, 1]) for h in hits])
@@ -207,7 +232,7 @@ class MarkerDetector:
                     ids.append(hit[0])
                     bearings.append(hit[1])
             todo = [k for k in todo if k not in batch and keys[k] not in done]
-        return self.observations(equirect, ids, np.array(bearings), method) if ids else []
+        return self.observations(equirect, ids, np.array(bearings), method, grey) if ids else []
 
     def detect_in_view(self, grey: np.ndarray, equirect: Equirect, view: GnomonicView, method: str,
                        maps: Optional[Tuple[np.ndarray, np.ndarray]] = None, map_step: int = 1,
@@ -289,7 +314,7 @@ class MarkerDetector:
                 add(k, expect_ids[k], c if (np.isnan(r).any() or not q.edge_refine) else r)
             elif k not in found and hits.get(j) is not None and hits[j][0] == expect_ids[k]:
                 add(k, hits[j][0], hits[j][1])
-        return self.observations(equirect, marker_ids, np.array(bearings), method) if bearings else []
+        return self.observations(equirect, marker_ids, np.array(bearings), method, grey) if bearings else []
 
     def _view_tries(self, rejected: np.ndarray, tiles: np.ndarray, views: Sequence[GnomonicView],
                     tops: np.ndarray, keep: Mapping[int, np.ndarray], expect_sizes: Optional[Sequence[float]],

@@ -56,16 +56,21 @@ class MarkerObservation:
         return float(bearing_to_azel(self.centre)[1])
 
 
-def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: str = "full") -> float:
+def bearing_sigma(params: DetectorParams, pitch: float, side_px: float, method: str = "full",
+                  fitted: bool = False) -> float:
     """1-σ centre bearing noise (radians, per axis) of a marker with ``side_px`` pixel sides
     in an image of angular pixel pitch ``pitch`` (radians/pixel), found by ``method``.
 
     Corner noise ``corner_sigma_px`` for a well-resolved marker, growing ∝ 1/side² below
     ``small_marker_side_px`` (1–2 px cells: the edge fit loses its straight run); the
     centre averages four corners (÷2); ``tracked_sigma_scale`` × for markers refined in a
-    resampled ROI view. Calibrated on rendered 'realistic' frames (bench/detection.py:
+    resampled ROI view. A marker ``fitted`` with its whole pattern (``pattern_fit``, sampled
+    straight from the equirect): ``pattern_fit_sigma_px`` at 10 px sides, ∝ 1/side (every
+    pixel of its edges counts). Calibrated on rendered 'realistic' frames (bench/detection.py:
     median |error| ≈ 1.18 σ at every range).
     """
+    if fitted:
+        return float(pitch * params.pattern_fit_sigma_px * 10.0 / max(side_px, 1e-6))
     grow = max(1.0, (params.small_marker_side_px / max(side_px, 1e-6)) ** 2)
     scale = params.tracked_sigma_scale if method == "tracked" else 1.0
     return float(pitch * params.corner_sigma_px * grow * scale / 2.0)

@@ -19,10 +19,11 @@ import numpy as np
 from ..camera import Equirect, GnomonicView, angle_between, sphere_centre_bearing
 from ..transforms import cross3
 from .jpegrows import bilinear_rows, need_rows, partial
+from .patternfit import PATTERN_FIT, PatternFitParams, fit_patterns
 from .quads import DECODE, EDGE_FIT, DecodeParams, EdgeFitParams, _remap_points, decode_quads, refine_quads
 
 __all__ = ["sphere_centre_bearing", "pixel_centre_bearing", "marker_angular_size", "refine_corners",
-           "refine_corners_many", "decode_marker", "decode_markers"]
+           "refine_corners_many", "fit_patterns_many", "decode_marker", "decode_markers"]
 
 
 def pixel_centre_bearing(equirect: Equirect, corners_px) -> np.ndarray:
@@ -136,6 +137,22 @@ def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int
     sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
     if len(sel):
         r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations, fit)
+        good = ~np.isnan(r).any(axis=(1, 2))
+        if np.any(good):
+            out[sel[good]] = mv.bearings(r[good], sel[good])
+    return out
+
+
+def fit_patterns_many(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
+                      fit: PatternFitParams = PATTERN_FIT) -> np.ndarray:
+    """Corner bearings (M, 4, 3) of M markers (approximate ones (M, 4, 3), ArUco order) with their inner bits
+    ``codes`` (M, n, n), each fitted with its whole pattern (:func:`.patternfit.fit_patterns`) in its own virtual
+    view, all sampled in one remap; NaN rows for those refused."""
+    mv = _MarkerViews(equirect, corners)
+    out = np.full((len(mv.quads), 4, 3), np.nan)
+    sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
+    if len(sel):
+        r, _ = fit_patterns(mv.sampler(grey, sel), mv.quads[sel], np.asarray(codes)[sel], fit)
         good = ~np.isnan(r).any(axis=(1, 2))
         if np.any(good):
             out[sel[good]] = mv.bearings(r[good], sel[good])
