@@ -50,7 +50,8 @@ from _workflow import cli, hidden_of, scenario_dir, true_calibration  # noqa: E4
 
 from aruco_abs_orient.calibration import Recording  # noqa: E402
 from aruco_abs_orient.calibration.io import load_calibration  # noqa: E402
-from aruco_abs_orient.mapping import MapUnknowns, map_markers  # noqa: E402
+from aruco_abs_orient.detection import DetectorParams  # noqa: E402
+from aruco_abs_orient.mapping import MappingParams, MapUnknowns, map_markers  # noqa: E402
 from aruco_abs_orient.mapping.compare import compare_maps  # noqa: E402
 from aruco_abs_orient.mapping.output import mapped_map  # noqa: E402
 from aruco_abs_orient.markers import Marker, MarkerMap  # noqa: E402
@@ -72,15 +73,18 @@ def true_map(scen: str) -> str:
 
 
 def observations(scen: str):
-    """Every sighting of every marker in every image of the scenario's bag (cached)."""
-    cache = os.path.join(scen, "observations.pkl")
+    """Every sighting of every marker in every image of the scenario's bag, detected as ``map`` detects them
+    (each small marker's pattern fitted: ``mapping.pattern_fit``), cached."""
+    fit = MappingParams().pattern_fit
+    cache = os.path.join(scen, "observations_fit.pkl" if fit else "observations.pkl")
     if os.path.exists(cache):
         with open(cache, "rb") as f:
             return pickle.load(f)
     bag = os.path.join(scen, "scenario.bag")
     data = read_bag_data(bag)
     t0 = time.process_time()
-    obs = collect_observations(bag, None, data=data, progress=False, dictionary=hidden_of(scen)["config"]["dictionary"])
+    obs = collect_observations(bag, None, data=data, progress=False, dictionary=hidden_of(scen)["config"]["dictionary"],
+                               detector_params=DetectorParams(pattern_fit=fit))
     print(f"  detected {len(obs.ids)} sightings in {obs.frames} images: {time.process_time() - t0:.0f} s CPU",
           flush=True)
     with open(cache, "wb") as f:

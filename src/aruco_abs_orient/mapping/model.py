@@ -49,6 +49,9 @@ class MappingParams(Params):
                                "m", above=0.0)
     max_normal_sigma_deg: float = param(5.0, "a face normal whose 1-σ exceeds this is not written (the marker is)",
                                         "deg", above=0.0)
+    pattern_fit: bool = param(True, "the map's detections fit each small marker's whole pattern (detection."
+                              "pattern_fit, off in the live pipeline): the edge fit's bias, the same on every frame, "
+                              "would move a marker 8-13 m away by several mm")
     bias_deg: float = param(0.01, "the error all sightings of a marker have in common, 1-σ per image axis", "deg",
                             0.0)
     test_alpha: float = param(0.001, "false-alarm rate of the test of each marker (and control marker) against "

@@ -76,7 +76,8 @@ def map_recording(recording, topics: BagTopics, time_offset: float, size: float,
     """The markers of ``recording`` placed by the network (see the module's docstring); ``readout`` (s) None: the
     calibration's, else 0."""
     data = read_bag_data(recording, topics)
-    obs = collect_observations(recording, None, topics, progress=progress, detector_params=tunables.detection,
+    detection = dataclasses.replace(tunables.detection, pattern_fit=tunables.mapping.pattern_fit)
+    obs = collect_observations(recording, None, topics, progress=progress, detector_params=detection,
                                data=data, every=every, label="map: detect", dictionary=dictionary)
     name = bag_name(recording)
     if len(data.prism_stamps) < 2:

@@ -60,11 +60,15 @@ def test_map_places_the_markers_of_a_rendered_recording(mapped):
     assert code == 0, out
     mm = MarkerMap.load(str(box / "markers.yaml"))
     assert len(mm) == len(hidden["marker_positions"]) and mm.dictionary == "DICT_4X4_50", out
+    errors = []
     for m in mm:
-        err = np.linalg.norm(m.position - hidden["marker_positions"][m.id])
-        assert err <= 0.008, (m.id, err)                       # 1920 px frames: the detection's own few mm
+        errors.append(np.linalg.norm(m.position - hidden["marker_positions"][m.id]))
+        assert errors[-1] <= 0.006, (m.id, errors[-1])
         assert m.covariance is not None and m.normal is not None and m.size == 0.30
         assert math.degrees(math.acos(min(1.0, float(m.normal @ hidden["marker_normals"][m.id])))) < 1.0
+    # measured 1.1-5.0 mm, 2.9 mm RMS; detected without the pattern fit (mapping.pattern_fit: false) 2.6-6.9 mm,
+    # 5.9 mm RMS: on 1920 px frames each marker's edges carry a bias its cells set, the same on every frame
+    assert math.sqrt(np.mean(np.square(errors))) <= 0.004, errors
     refined = float(out.split("time offset refined with the marker bearings: ")[1].split(" ms")[0]) / 1e3
     assert abs(refined - hidden["camera_time_offset"]) < 0.003, refined
     assert (box / "markers_report.md").read_text().count("| mapped |") == len(mm)
@@ -82,9 +86,9 @@ def test_process_takes_the_mapped_map_unchanged(mapped):
                      str(hidden["camera_time_offset"]), "--calibration", calibration, "--quiet"]) == 0
     assert cli_main(["evaluate", str(run), "--reference", scen.truth]) == 0
     ev = json.loads((run / "report.json").read_text())
-    # measured 0.055° (0.010° with the true map): on 1920 px frames the detection's systematic 0.01-0.02° puts
-    # these close markers (2.5-4 m) a few mm off, a few hundredths of a degree of heading each
-    assert ev["coverage"]["share"] >= 0.9 and ev["heading_ape"]["rmse_deg"] <= 0.1, ev["heading_ape"]
+    # measured 0.027° (0.010° with the true map; 0.055° with a map detected without the pattern fit): what is
+    # left of the map's few mm at these close markers (2.5-4 m), a few hundredths of a degree of heading each
+    assert ev["coverage"]["share"] >= 0.9 and ev["heading_ape"]["rmse_deg"] <= 0.04, ev["heading_ape"]
 
 
 def test_bad_input_is_named(mapped, tmp_path, capsys):
