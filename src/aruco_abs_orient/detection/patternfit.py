@@ -9,17 +9,18 @@ levels around it (NaN rows where the fit fails), and the fitted σ (px).
 Why: an edge located one profile at a time (:func:`.quads.refine_quads`) is pulled by the cells next to it when
 they are under about 3 px wide: a white cell against the black border lifts the border's grey levels, a black
 cell widens it, so each marker's centre is off by a bias its pattern sets, up to 0.1-0.2 px, the same on every
-frame (doc/design.md §11; ``bench/detection.py --only pattern_fit``). A model of the whole pattern has no such
-bias: it knows where every cell is.
+frame (doc/design.md §5 and §11; ``bench/detection.py --only pattern_bias``). A model of the whole pattern has no
+such bias: it knows where every cell is.
 
 The model: the square [0, c]² (c cells across, the black border included, in the marker's own cell units) seen
 through the homography the four corners set, white outside the black square (the quiet zone, one cell wide, as
 the decoder assumes), the inner bits as given; each cell's image blurred by a Gaussian of σ px (optics, pixel
 area, resampling), taken along the square's two axes through the homography's local scale; the grey levels an
 affine map of it (black and white levels solved in closed form at each step). Unknowns: the 8 corner coordinates
-and log σ, fitted by Levenberg-Marquardt over the pixels within ``margin_cells`` of the black square, with the
-Jacobian by forward differences evaluated for all markers and all unknowns in one batch. A fit is refused
-(NaN) when a corner moves more than ``max_move_cells`` cells or σ leaves [0.15, 3] px.
+and log σ, fitted by Levenberg-Marquardt over the pixels within ``margin_cells`` of the black square, all markers
+of a call in one batch; the Jacobian analytic through the blurred cells (Φ's derivatives) and by forward
+differences through the homography. A fit is refused (NaN) when a corner moves more than ``max_move_cells`` cells
+or σ leaves [0.15, 3] px.
 """
 
 from __future__ import annotations
@@ -150,8 +151,8 @@ def _linearise(theta: np.ndarray, grey: np.ndarray, pts: np.ndarray, w: np.ndarr
         return x - np.matmul(np.matmul(x, np.transpose(q, (0, 2, 1))), q)
 
     r = off_span((sw * grey)[:, None])[:, 0]
-    sw_w = np.maximum(w.sum(axis=1), 1e-12)
-    ds = image - ((w * image).sum(axis=1) / sw_w)[:, None]
+    total = np.maximum(w.sum(axis=1), 1e-12)
+    ds = image - ((w * image).sum(axis=1) / total)[:, None]
     amp = (w * ds * grey).sum(axis=1) / np.maximum((w * ds * ds).sum(axis=1), 1e-12)
     return r, -amp[:, None, None] * off_span(sw[:, None] * jac)
 

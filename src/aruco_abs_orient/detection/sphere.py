@@ -132,15 +132,8 @@ def refine_corners_many(grey: np.ndarray, equirect: Equirect, corners, bits: int
                         iterations: int = 2, fit: EdgeFitParams = EDGE_FIT) -> np.ndarray:
     """:func:`refine_corners` of M markers (corner bearings (M, 4, 3)) at once, each in its
     own virtual view, all profiles sampled in one remap: (M, 4, 3), NaN rows for failures."""
-    mv = _MarkerViews(equirect, corners)
-    out = np.full((len(mv.quads), 4, 3), np.nan)
-    sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
-    if len(sel):
-        r = refine_quads(mv.sampler(grey, sel), mv.quads[sel], bits, iterations, fit)
-        good = ~np.isnan(r).any(axis=(1, 2))
-        if np.any(good):
-            out[sel[good]] = mv.bearings(r[good], sel[good])
-    return out
+    return _in_views(grey, equirect, corners, lambda sample, quads, sel: refine_quads(sample, quads, bits, iterations,
+                                                                                       fit))
 
 
 def fit_patterns_many(grey: np.ndarray, equirect: Equirect, corners, codes: np.ndarray,
@@ -148,11 +141,20 @@ def fit_patterns_many(grey: np.ndarray, equirect: Equirect, corners, codes: np.n
     """Corner bearings (M, 4, 3) of M markers (approximate ones (M, 4, 3), ArUco order) with their inner bits
     ``codes`` (M, n, n), each fitted with its whole pattern (:func:`.patternfit.fit_patterns`) in its own virtual
     view, all sampled in one remap; NaN rows for those refused."""
+    codes = np.asarray(codes)
+    return _in_views(grey, equirect, corners, lambda sample, quads, sel: fit_patterns(sample, quads, codes[sel],
+                                                                                       fit)[0])
+
+
+def _in_views(grey: np.ndarray, equirect: Equirect, corners, refine) -> np.ndarray:
+    """Corner bearings (M, 4, 3) of markers (approximate ones (M, 4, 3)) refined in their own views by
+    ``refine(sample, quads (M', 4, 2), sel (M',))`` → quads (M', 4, 2), NaN rows for failures (and for markers
+    with a corner behind its view)."""
     mv = _MarkerViews(equirect, corners)
     out = np.full((len(mv.quads), 4, 3), np.nan)
     sel = np.flatnonzero(~np.isnan(mv.quads).any(axis=(1, 2)))
     if len(sel):
-        r, _ = fit_patterns(mv.sampler(grey, sel), mv.quads[sel], np.asarray(codes)[sel], fit)
+        r = refine(mv.sampler(grey, sel), mv.quads[sel], sel)
         good = ~np.isnan(r).any(axis=(1, 2))
         if np.any(good):
             out[sel[good]] = mv.bearings(r[good], sel[good])
