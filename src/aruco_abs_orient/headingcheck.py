@@ -20,7 +20,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from .calibration.solve import correlation_factor
+from .calibration.variance import correlation_factor
 from .errors import ConfigurationError
 from .north import NorthReference
 from .transforms import wrap_angle

@@ -60,6 +60,9 @@ class CalibrationParams(Params):
                                 above=0.0)
     drift_sigma_deg: float = param(1.0, "1-σ of the change of δ between adjacent knots (a weak prior)", "deg",
                                    above=0.0)
+    drift_walk_estimated: bool = param(False, "δ(t) a random walk about a free constant rate, the walk's size "
+                                       "estimated from the recording (a variance component, drift_sigma_deg its "
+                                       "start); off: drift_sigma_deg a fixed prior on δ's change")
     heading_smooth: float = param(0.25, "σ of the local quadratic fit of the prism track (heading_from_track)", "s",
                                   above=0.0)
     heading_step: float = param(0.25, "spacing of the heading constraints", "s", above=0.0)
@@ -128,7 +131,7 @@ class Calibration:
     - ``heading_rms`` (rad): RMS of the track-heading residuals kept.
     - ``variance_factors``: a-posteriori variance factors of the groups ('markers', 'heading'), and the
       inflation of their variances for the residuals' correlation in time ('markers_correlation',
-      'heading_correlation', ≥ 1: ``solve.correlation_factor``), included in ``cov`` and the σ.
+      'heading_correlation', ≥ 1: ``variance.correlation_factor``), included in ``cov`` and the σ.
     - counts: ``n_observations`` given, ``n_used`` kept, ``n_markers`` distinct ids kept, ``n_heading``
       heading constraints kept, ``moving_time`` (s) they cover, ``skipped`` reason → count.
     - ``used`` (N,) bool over the input observations; ``residuals_before`` / ``residuals_after`` (N,)

@@ -29,8 +29,9 @@ from ..solver import yaw_consensus
 from .bias import pattern_bias_covariance
 from .model import N_GLOBALS, Calibration, CalibrationError, CalibrationParams, Recording, Unknowns
 from .problem import Problem, setup_problem
+from .variance import bearings_correlation, correlation_factor, walk_variance_factor
 
-__all__ = ["calibrate", "correlation_factor"]
+__all__ = ["calibrate"]
 
 _H = 1e-6            # step of the central differences (rad, m, s)
 _CHUNK = 4000        # observations per block of the normal equations (memory)
@@ -69,8 +70,8 @@ class _Layout:
 
 class _Weights(NamedTuple):
     """How :func:`_solve` weights the groups: ``mask_o``/``mask_h`` (0/1 per marker observation / heading
-    constraint), ``robust`` (Cauchy IRLS on top), ``scale_o``/``scale_h``/``scale_m`` (multiply the a-priori σ
-    of the bearings, the headings and the markers' offsets)."""
+    constraint), ``robust`` (Cauchy IRLS on top), ``scale_o``/``scale_h``/``scale_m``/``scale_d`` (multiply the
+    a-priori σ of the bearings, the headings, the markers' offsets and δ's walk)."""
 
     mask_o: np.ndarray
     mask_h: np.ndarray
@@ -78,6 +79,7 @@ class _Weights(NamedTuple):
     scale_o: float
     scale_h: float
     scale_m: float
+    scale_d: float = 1.0
 
 
 class _Fit(NamedTuple):
@@ -133,7 +135,7 @@ def _normal_equations(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, 
                       params: CalibrationParams, linear: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray]] = None):
     """(H, g) of the weighted problem at p (size n + 1, the sink last), with the robust weights when asked;
     ``linear``: :func:`_observation_jacobian` at p when already computed."""
-    mask_o, mask_h, robust, scale_o, scale_h, scale_m = weights
+    mask_o, mask_h, robust, scale_o, scale_h = weights[:5]
     x, d, th, off = lay.unpack(p, x0)
     n1 = lay.n + 1
     H = np.zeros((n1, n1))
@@ -162,8 +164,26 @@ def _normal_equations(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, 
     else:
         ih[:, 2] = lay.n
     _accumulate(H, g, ih, Jh, rh[:, None], wh)
-    # priors: δ a random walk; each tilt knot tied to 0 and to its neighbour; each marker's offset to 0
-    diffs = [(np.arange(lay.o_d, lay.o_t - 1), np.arange(lay.o_d + 1, lay.o_t), 1.0 / pb.drift_sigma ** 2, np.diff(d))]
+    _add_priors(H, g, pb, lay, (x, d, th, off), weights, params)
+    H[lay.n, :] = 0.0                       # the sink: fixed parameters stay 0
+    H[:, lay.n] = 0.0
+    H[lay.n, lay.n] = 1.0
+    g[lay.n] = 0.0
+    return H, g
+
+
+def _add_priors(H: np.ndarray, g: np.ndarray, pb: Problem, lay: _Layout, values, weights: _Weights,
+                params: CalibrationParams) -> None:
+    """H and g with the priors at ``values`` (x, d, θ, offsets), in place: δ a random walk (about a free rate
+    with ``drift_walk_estimated``), each tilt knot tied to 0 and to its neighbour, the lenses to the nominal ones,
+    each marker's offset to 0."""
+    x, d, th, off = values
+    wd = 1.0 / (pb.drift_sigma * weights.scale_d) ** 2
+    diffs = [(np.arange(lay.o_d, lay.o_t - 1), np.arange(lay.o_d + 1, lay.o_t), wd, np.diff(d))]
+    if params.drift_walk_estimated:     # a walk about a free rate: the increments' mean out (rank 1, the ends)
+        ends, sgn = np.array([lay.o_d, lay.o_t - 1]), np.array([-1.0, 1.0])
+        H[np.ix_(ends, ends)] -= wd / (lay.K - 1) * np.outer(sgn, sgn)
+        g[ends] -= wd / (lay.K - 1) * sgn * (d[-1] - d[0])
     if lay.Kt > 1:
         dth = np.diff(th, axis=0).ravel()
         diffs.append((lay.tilt[:-1].ravel(), lay.tilt[1:].ravel(), 1.0 / pb.tilt_drift_sigma ** 2, dth))
@@ -183,15 +203,10 @@ def _normal_equations(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, 
             j = lay.free.index(gl)
             H[j, j] += 1.0 / sp ** 2
             g[j] += x[gl] / sp ** 2
-    wm = 1.0 / np.repeat(pb.markers.sigma * scale_m, 3) ** 2
+    wm = 1.0 / np.repeat(pb.markers.sigma * weights.scale_m, 3) ** 2
     mi = lay.offsets.ravel()
     H[mi, mi] += wm
     g[mi] += wm * off.ravel()
-    H[lay.n, :] = 0.0                       # the sink: fixed parameters stay 0
-    H[:, lay.n] = 0.0
-    H[lay.n, lay.n] = 1.0
-    g[lay.n] = 0.0
-    return H, g
 
 
 def _solve(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, weights: _Weights,
@@ -271,9 +286,16 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
         vf = {"markers": f_o * weights.scale_o ** 2, "heading": f_h * weights.scale_h ** 2 if n_h else float("nan"),
               "marker_positions": f_m * weights.scale_m ** 2}
         scale_m = max(1.0, weights.scale_m * math.sqrt(max(f_m, 1e-6)))   # never below the survey's σ
-        done = abs(f_o - 1.0) < 0.05 and abs(f_h - 1.0) < 0.05 and abs(scale_m / weights.scale_m - 1.0) < 0.05
+        f_d = 1.0
+        if params.drift_walk_estimated:
+            f_d = walk_variance_factor(p[lay.o_d:lay.o_t], cov[lay.o_d:lay.o_t, lay.o_d:lay.o_t],
+                                       pb.drift_sigma * weights.scale_d)
+            vf["drift"] = f_d * weights.scale_d ** 2
+        done = (abs(f_o - 1.0) < 0.05 and abs(f_h - 1.0) < 0.05 and abs(scale_m / weights.scale_m - 1.0) < 0.05
+                and abs(f_d - 1.0) < 0.05)
         weights = weights._replace(scale_o=weights.scale_o * math.sqrt(max(f_o, 1e-6)),
-                                   scale_h=weights.scale_h * math.sqrt(max(f_h, 1e-6)), scale_m=scale_m)
+                                   scale_h=weights.scale_h * math.sqrt(max(f_h, 1e-6)), scale_m=scale_m,
+                                   scale_d=weights.scale_d * math.sqrt(max(f_d, 1e-6)))
         if done:
             break
     # the residuals are correlated in time (the VO's yaw walk between knots, the smoothed track heading, a
@@ -283,7 +305,7 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
     x, d, th, off = lay.unpack(p, x0)
     linear = _observation_jacobian(pb, lay, x, d, th, off)
     r_o = linear[0] / pb.sigma[:, None]
-    c_o = _bearings_correlation(r_o, pb.t, pb.markers.index, weights.mask_o > 0)
+    c_o = bearings_correlation(r_o, pb.t, pb.markers.index, weights.mask_o > 0)
     c_h = correlation_factor((pb.heading_residuals(x, d) / pb.sigma_head)[weights.mask_h > 0, None]) if n_h else 1.0
     vf.update({"markers_correlation": c_o, "heading_correlation": c_h})
     cov = _inverse(_normal_equations(pb, lay, p, x0, weights._replace(scale_o=weights.scale_o * math.sqrt(c_o),
@@ -295,39 +317,6 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
                                             weights.mask_o / (pb.sigma * weights.scale_o) ** 2, pb.u,
                                             pb.predict(x, *pb.local(d, th, off)), pb.bias, pb.markers.index, lay.n)
     return _Fit(p, cov, weights.mask_o.astype(bool), weights.mask_h.astype(bool), vf, it)
-
-
-def _bearings_correlation(r: np.ndarray, t: np.ndarray, marker: np.ndarray, used: np.ndarray) -> float:
-    """The bearings' variance inflation: the larger of the time series of all of them (a common error: the
-    VO's walk, the platform) and of each marker's own (its error the same frame after frame: a centre its
-    pattern biases, a seam), the markers' n_m / c_m summed to the effective count n / c."""
-    order = np.argsort(t, kind="stable")
-    order = order[used[order]]
-    r, m = r[order], marker[order]
-    pooled = correlation_factor(r)
-    effective = sum(float(np.sum(m == k)) / correlation_factor(r[m == k]) for k in np.unique(m))
-    return max(pooled, len(r) / effective) if effective > 0 else pooled
-
-
-def correlation_factor(series: np.ndarray, max_lag: int = 200) -> float:
-    """Variance inflation 1 + 2 Σ ρ_k (≥ 1) of the mean of a time-ordered series (n, c) of residuals: ρ_k
-    its lag-k autocorrelation (the columns pooled), summed while positive (the initial positive sequence),
-    up to ``max_lag`` or n/10 lags."""
-    x = np.asarray(series, dtype=float)
-    n = len(x)
-    if n < 20:
-        return 1.0
-    x = x - x.mean(axis=0)
-    var = float(np.sum(x * x))
-    if var <= 0.0:
-        return 1.0
-    total = 0.0
-    for k in range(1, min(max_lag, n // 10) + 1):
-        rho = float(np.sum(x[k:] * x[:-k])) / var
-        if rho <= 0.0:
-            break
-        total += rho
-    return 1.0 + 2.0 * total
 
 
 def calibrate(rec: Recording, unknowns: Optional[Unknowns] = None, params: Optional[CalibrationParams] = None,

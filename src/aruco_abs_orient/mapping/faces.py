@@ -24,7 +24,7 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 
 from ..calibration.problem import Problem
-from ..calibration.solve import correlation_factor
+from ..calibration.variance import correlation_factor
 from ..transforms import rotvec_to_matrix
 from .rays import bias_covariance, bias_jacobian, rays_in_map, triangulate
 

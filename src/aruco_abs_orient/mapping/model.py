@@ -52,6 +52,9 @@ class MappingParams(Params):
     pattern_fit: bool = param(True, "the map's detections fit each small marker's whole pattern (detection."
                               "pattern_fit, off in the live pipeline): the edge fit's bias, the same on every frame, "
                               "would move a marker 8-13 m away by several mm")
+    drift_walk_estimated: bool = param(True, "the network's map→odom yaw δ(t) a random walk about a free rate, the "
+                                       "walk's size estimated from the recording (calibration.drift_walk_estimated,"
+                                       " off in calibrate): a far marker seen alone no longer turns δ freely")
     bias_deg: float = param(0.01, "the error all sightings of a marker have in common, 1-σ per image axis", "deg",
                             0.0)
     test_alpha: float = param(0.001, "false-alarm rate of the test of each marker (and control marker) against "
@@ -134,6 +137,9 @@ class MappingResult:
       when fixed); ``readout`` (s, the one used: estimated or given) and ``readout_sigma``; ``time_offset_delta``
       (s, added to the offset given) and ``time_offset_sigma``; ``lenses`` (the camera's lenses used).
     - ``variance_factors`` (the network's groups, as the calibration's), ``heading_model`` used.
+    - ``yaw_drift`` (rad/s) the map→odom yaw's mean rate over the recording (the VO's yaw drift, sign flipped) and
+      ``yaw_walk`` (rad/√s) its walk about that rate as estimated (NaN when not estimated:
+      ``drift_walk_estimated`` off, or too short a recording).
     - counts: ``n_observations`` given, ``n_used`` in the network, ``skipped`` reason → count.
     - ``drive`` (T, 3) m: the camera's positions in map along the recording (for the report's plan).
     - ``warnings``: one line each.
@@ -151,6 +157,8 @@ class MappingResult:
     heading_model: str
     n_observations: int
     n_used: int
+    yaw_drift: float = float("nan")
+    yaw_walk: float = float("nan")
     skipped: Dict[str, int] = field(default_factory=dict)
     drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     warnings: List[str] = field(default_factory=list)

@@ -294,7 +294,8 @@ def map_markers(rec: Recording, corners: Optional[np.ndarray] = None, size: floa
         unknowns: which camera parameters the network estimates (default none: the mounting, readout, time offset
             and lenses given are kept).
         params: the network's model (``CalibrationParams``: knots, heading constraints, gates; ``heading_model``
-            "auto" is the VO's yaw here: a platform that crabs wants "vo_track").
+            "auto" is the VO's yaw here: a platform that crabs wants "vo_track"; its ``drift_walk_estimated`` is
+            ``mparams``').
         mparams: :class:`~.model.MappingParams`.
         readout: the camera's rolling-shutter readout (s), fixed or the start of its estimate.
 
@@ -304,9 +305,10 @@ def map_markers(rec: Recording, corners: Optional[np.ndarray] = None, size: floa
     unknowns = unknowns or MapUnknowns()
     params = params or CalibrationParams()
     params.validate()
+    mparams = mparams or MappingParams()
+    params = replace(params, drift_walk_estimated=mparams.drift_walk_estimated)
     if params.heading_model == "auto":
         params = replace(params, heading_model="vo_yaw")
-    mparams = mparams or MappingParams()
     if not (math.isfinite(size) and size > 0):
         raise MappingError(f"size: expected the markers' side in metres > 0, got {size!r}")
     if not (math.isfinite(readout) and 0.0 <= readout < 1.0):
@@ -420,10 +422,13 @@ def _result(rec: Recording, net: _Net, st: _Stats, corners, size: float, mparams
     beyond = int(np.count_nonzero(net.setup.usable & ~used))
     if beyond:
         skipped["beyond the gate"] = beyond
+    knots, vf = net.pb.knots, fit.variance_factors
+    walk = net.pb.drift_sigma * math.sqrt(vf["drift"] / (knots[1] - knots[0])) if "drift" in vf else float("nan")
     return MappingResult(markers=markers, boresight=x[:3].copy(), boresight_sigma=sd_x[:3].copy(),
                          readout=net.readout, readout_sigma=float(sd_x[7]), time_offset_delta=net.shift,
                          time_offset_sigma=float(sd_x[6]), lenses=pb.lenses_at(x),
                          variance_factors=dict(fit.variance_factors), heading_model=pb.params.heading_model,
                          n_observations=n, n_used=int(used.sum()), skipped=skipped,
+                         yaw_drift=float((d[-1] - d[0]) / (knots[-1] - knots[0])), yaw_walk=walk,
                          drive=np.asarray(rec.prism_positions, dtype=float)[::10].copy(), warnings=warnings)
 

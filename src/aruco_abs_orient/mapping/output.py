@@ -102,6 +102,11 @@ def report_markdown(result: MappingResult, title: str, plan: Optional[str] = Non
         lines += [f"Position 1-σ of the worst axis: at most {1e3 * worst:.1f} mm; the frame is the total station's "
                   "(the prism track)" + (", tied further by control markers." if any(
                       m.control is not None and m.control[2] for m in mapped) else "."), ""]
+    if math.isfinite(result.yaw_walk):
+        rate = 60 * math.degrees(result.yaw_drift)
+        lines += [f"map→odom's yaw (the odometry's yaw drift, corrected) moved {rate:+.2f}°/min and walked "
+                  f"{math.degrees(result.yaw_walk):.3f}°/√s about that rate (estimated; the filter's yaw_random_walk "
+                  "should not be below it).", ""]
     if np.any(np.isfinite(result.boresight_sigma)):
         lines += ["Boresight estimated (deg, on top of the mounting given): " + ", ".join(
             f"{n} {math.degrees(a):+.4f} ± {math.degrees(s):.4f}" for n, a, s in

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aruco_abs_orient.calibration import CalibrationError, CalibrationParams, Recording, Unknowns, calibrate
-from aruco_abs_orient.calibration.solve import _bearings_correlation
+from aruco_abs_orient.calibration.variance import bearings_correlation
 from aruco_abs_orient.solver import Mounting, yaw_from_marker
 from aruco_abs_orient.transforms import matrix_to_rpy, wrap_angle
 from aruco_abs_orient.tum import Trajectory
@@ -299,7 +299,7 @@ def test_a_marker_error_that_persists_frame_after_frame_inflates_the_sigma(n_mar
     means = [float(np.mean(replica(rng))) for _ in range(300)]
     truth = np.var(means) * len(t)           # the mean's variance over that of n independent unit residuals
     used = np.ones(len(t), dtype=bool)
-    factor = _bearings_correlation(replica(rng), t, marker, used)
+    factor = bearings_correlation(replica(rng), t, marker, used)
     # an autocorrelation estimated from one recording: over 500 draws of these worlds factor/truth had its
     # median at 0.81 and 99 % within 0.49-1.52 (truth itself from 300 replicas: ±8 %); ignoring the correlation
     # (factor 1) gives 0.09-0.29 of the truth's 3.5-11

@@ -55,6 +55,27 @@ def test_markers_are_placed_within_their_sigma(preset, changes):
         assert m.status == "mapped" or "drive past it" in m.reason, (m.id, m.status, m.reason)
 
 
+@pytest.mark.parametrize("preset, changes", [
+    ("demo", dict(SMALL_LOOP, seed=4, vo_yaw_walk_deg_per_sqrt_s=0.01, vo_yaw_drift_deg_per_min=-6.0, crab_deg=3.0)),
+    ("demo", dict(SMALL_LOOP, seed=6, vo_yaw_walk_deg_per_sqrt_s=0.1, vo_yaw_drift_deg_per_min=2.0)),
+    ("ci", {"seed": 7, "duration": 40.0, "track_radii": (6.0, 4.0), "marker_distance": (2.5, 7.0), "n_markers": 10,
+            "vo_yaw_walk_deg_per_sqrt_s": 0.04, "vo_yaw_drift_deg_per_min": 0.0}),
+])
+def test_the_odometry_yaw_walk_and_drift_are_estimated(preset, changes):
+    """δ(t) is a random walk about a free rate whose size the network estimates: what the generator's VO did,
+    over walks ten times apart, drifts of either sign, platforms that crab and that don't."""
+    sc = scenario(preset, **changes)
+    rec, corners = recording(sc)
+    res = _map(sc, rec, corners)
+    walk = math.radians(sc.config.vo_yaw_walk_deg_per_sqrt_s)
+    assert 0.5 * walk <= res.yaw_walk <= 1.6 * walk, (math.degrees(res.yaw_walk), math.degrees(walk))
+    # δ undoes the VO's drift; the endpoints' rate is off by the walk over the recording
+    drift = -math.radians(sc.config.vo_yaw_drift_deg_per_min) / 60.0
+    assert abs(res.yaw_drift - drift) <= 3.0 * walk / math.sqrt(sc.config.duration) + math.radians(0.2) / 60.0, (
+        60 * math.degrees(res.yaw_drift), 60 * math.degrees(drift))
+    assert all(z <= 3.0 for _, z, _ in errors(res, sc).values())
+
+
 def test_the_boresight_is_estimated_with_the_markers():
     sc = scenario("demo", **dict(SMALL_LOOP, seed=2))
     rec, corners = recording(sc, true_mount=False)
