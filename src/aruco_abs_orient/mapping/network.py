@@ -293,9 +293,10 @@ def map_markers(rec: Recording, corners: Optional[np.ndarray] = None, size: floa
         size: the markers' black-square side (m; a control marker's own size wins).
         unknowns: which camera parameters the network estimates (default none: the mounting, readout, time offset
             and lenses given are kept).
-        params: the network's model (``CalibrationParams``: knots, heading constraints, gates; ``heading_model``
-            "auto" is the VO's yaw here: a platform that crabs wants "vo_track"; its ``drift_walk_estimated`` is
-            ``mparams``').
+        params: the network's model (``CalibrationParams``: knots, heading constraints, gates; its
+            ``drift_walk_estimated`` is ``mparams``'). ``heading_model`` "auto" is the VO's direction of travel
+            here (the prism track against the track the VO predicts for the prism: a platform's crab and weave
+            cancel), the VO's yaw when its track cannot tell δ (an odometry without positions), with a warning.
         mparams: :class:`~.model.MappingParams`.
         readout: the camera's rolling-shutter readout (s), fixed or the start of its estimate.
 
@@ -307,8 +308,21 @@ def map_markers(rec: Recording, corners: Optional[np.ndarray] = None, size: floa
     params.validate()
     mparams = mparams or MappingParams()
     params = replace(params, drift_walk_estimated=mparams.drift_walk_estimated)
-    if params.heading_model == "auto":
-        params = replace(params, heading_model="vo_yaw")
+    if params.heading_model != "auto":
+        return _map_markers(rec, corners, size, unknowns, params, mparams, readout)
+    try:
+        return _map_markers(rec, corners, size, unknowns, replace(params, heading_model="vo_track"), mparams, readout)
+    except MappingError as e:
+        result = _map_markers(rec, corners, size, unknowns, replace(params, heading_model="vo_yaw"), mparams, readout)
+        result.warnings.append(f"the odometry's direction of travel could not tell the map->odom yaw ({e}): its "
+                               "yaw did, base_link x taken as the direction of travel (a platform that crabs "
+                               "biases it)")
+        return result
+
+
+def _map_markers(rec: Recording, corners: Optional[np.ndarray], size: float, unknowns: MapUnknowns,
+                 params: CalibrationParams, mparams: MappingParams, readout: float) -> MappingResult:
+    """:func:`map_markers` with a heading model chosen."""
     if not (math.isfinite(size) and size > 0):
         raise MappingError(f"size: expected the markers' side in metres > 0, got {size!r}")
     if not (math.isfinite(readout) and 0.0 <= readout < 1.0):

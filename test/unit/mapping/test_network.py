@@ -76,6 +76,22 @@ def test_the_odometry_yaw_walk_and_drift_are_estimated(preset, changes):
     assert all(z <= 3.0 for _, z, _ in errors(res, sc).values())
 
 
+def test_the_heading_model_is_the_odometry_track_and_its_yaw_without_positions():
+    """auto: the prism track against the track the VO predicts for the prism, whatever the platform's crab; an
+    odometry that gives no positions (an attitude source alone) falls back to its yaw, with a warning."""
+    sc = scenario("demo", **dict(SMALL_LOOP, seed=8, crab_deg=2.5))
+    rec, corners = recording(sc)
+    res = _map(sc, rec, corners)
+    assert res.heading_model == "vo_track" and not any("direction of travel" in w for w in res.warnings)
+    still = rec.odom._replace(positions=np.zeros_like(rec.odom.positions))
+    res_yaw = _map(sc, dataclasses.replace(rec, odom=still), corners)
+    assert res_yaw.heading_model == "vo_yaw"
+    assert any(w.startswith("the odometry's direction of travel could not tell") for w in res_yaw.warnings)
+    for r in (res, res_yaw):
+        err = errors(r, sc)
+        assert len(err) >= 6 and all(z <= 3.0 for _, z, _ in err.values()), err
+
+
 def test_the_boresight_is_estimated_with_the_markers():
     sc = scenario("demo", **dict(SMALL_LOOP, seed=2))
     rec, corners = recording(sc, true_mount=False)

@@ -89,8 +89,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--readout-ms", type=float, default=None, metavar="MS",
                    help="the rolling-shutter readout as known (ms; default the calibration file's, else 0)")
     p.add_argument("--heading-model", choices=HEADING_MODELS, default=None,
-                   help="how the prism track's direction measures the map->odom yaw: vo_yaw (the platform drives "
-                        "where base_link x points; what auto means here) or vo_track (a platform that crabs)")
+                   help="how the prism track's direction measures the map->odom yaw: vo_track (against the track "
+                        "the odometry predicts for the prism: crab and weave cancel; what auto means here, vo_yaw "
+                        "when the odometry has no positions) or vo_yaw (the platform drives where base_link x "
+                        "points)")
     p.add_argument("--compare", metavar="YAML", help="an older map (mapped or surveyed): report the markers that moved "
                    "beyond their sigma")
     p.add_argument("--every", type=int, default=1, metavar="N",
