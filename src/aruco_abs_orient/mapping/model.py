@@ -41,6 +41,9 @@ class MappingParams(Params):
     error = MappingError
 
     min_views: int = param(10, "a marker seen in fewer images is refused (not placed), with what to drive", "", 1)
+    moved_share: float = param(0.02, "a marker is taken to have moved (or to share its id) only when this share of "
+                               "its sightings (and min_views) meet at a second place: a long recording's tail beyond "
+                               "the gate is not a second marker", "", 0.0, 1.0)
     min_baseline: float = param(1.0, "a marker seen only from camera positions closer together than this is "
                                 "refused", "m", 0.0)
     max_sigma: float = param(0.05, "a marker whose position 1-σ along its worst axis exceeds this is refused", "m",

@@ -47,6 +47,7 @@ FREE_SIGMA = 100.0
 _FIRST_TOLERANCE = math.radians(1.5)
 _CLOCK_ITERATIONS = 4     # Δτ and Δρ are linearised: the clocks are moved by them and the network adjusted again
 _FEW_OUTLIERS = 2  # sightings beyond the gate a marker may have without a warning (the gate's own share: 0.03 %)
+_TAIL_SHARE = 0.01  # and its share of them: a long drive's tail beyond the gate is 0.1-0.6 % (bench --passes scale)
 
 
 class _Net(NamedTuple):
@@ -243,14 +244,16 @@ def _stats(net: _Net, mparams: MappingParams) -> _Stats:
 
 def _second_place(net: _Net, k: int, rays, mparams: MappingParams) -> Optional[np.ndarray]:
     """Where the gated sightings of marker k meet (``rays``: every observation's, :func:`rays_in_map`), when
-    enough of them do from a long enough baseline: the marker moved during the recording, or a second marker has
-    its id."""
+    enough of them do (``min_views`` and ``moved_share`` of its sightings) from a long enough baseline: the marker
+    moved during the recording, or a second marker has its id."""
     pb = net.pb
-    sel = np.flatnonzero((pb.markers.index == k) & ~net.fit.mask_o)
-    if len(sel) < mparams.min_views:
+    mine = pb.markers.index == k
+    sel = np.flatnonzero(mine & ~net.fit.mask_o)
+    enough = max(mparams.min_views, int(math.ceil(mparams.moved_share * np.count_nonzero(mine))))
+    if len(sel) < enough:
         return None
     org, dirs = rays
-    X, inl = triangulate(org[sel], dirs[sel], _FIRST_TOLERANCE, min_support=mparams.min_views, seed=k)
+    X, inl = triangulate(org[sel], dirs[sel], _FIRST_TOLERANCE, min_support=enough, seed=k)
     if X is None or diameter(org[sel][inl]) < mparams.min_baseline:
         return None
     return X
@@ -415,7 +418,7 @@ def _result(rec: Recording, net: _Net, st: _Stats, corners, size: float, mparams
             warnings.append(f"marker {mid}: placed only to ± {1e3 * worst:.1f} mm (1-σ, worst axis), seen in {m.views} "
                             f"images from {m.baseline:.1f} m of track at {m.ranges[0]:.1f}-{m.ranges[1]:.1f} m: "
                             "process and the node weigh it by that; to place it better, " + _DRIVE_ADVICE)
-        if m.status == "mapped" and m.outliers > max(_FEW_OUTLIERS, 0.002 * (m.outliers + m.views)):
+        if m.status == "mapped" and m.outliers > max(_FEW_OUTLIERS, _TAIL_SHARE * (m.outliers + m.views)):
             warnings.append(f"marker {mid}: {m.outliers} of its sightings agree with no position (false ids or "
                             "reflections): left out of it")
         markers[mid] = m
