@@ -288,9 +288,11 @@ def _fit(pb: Problem, lay: _Layout, p: np.ndarray, x0: np.ndarray, params: Calib
         scale_m = max(1.0, weights.scale_m * math.sqrt(max(f_m, 1e-6)))   # never below the survey's σ
         f_d = 1.0
         if params.drift_walk_estimated:
-            f_d = walk_variance_factor(p[lay.o_d:lay.o_t], cov[lay.o_d:lay.o_t, lay.o_d:lay.o_t],
-                                       pb.drift_sigma * weights.scale_d)
-            vf["drift"] = f_d * weights.scale_d ** 2
+            f = walk_variance_factor(p[lay.o_d:lay.o_t], cov[lay.o_d:lay.o_t, lay.o_d:lay.o_t],
+                                     pb.drift_sigma * weights.scale_d)
+            if math.isfinite(f):        # NaN: too few knots tell the walk, its prior stays
+                f_d = f
+                vf["drift"] = f_d * weights.scale_d ** 2
         done = (abs(f_o - 1.0) < 0.05 and abs(f_h - 1.0) < 0.05 and abs(scale_m / weights.scale_m - 1.0) < 0.05
                 and abs(f_d - 1.0) < 0.05)
         weights = weights._replace(scale_o=weights.scale_o * math.sqrt(max(f_o, 1e-6)),

@@ -55,10 +55,10 @@ def walk_variance_factor(values: np.ndarray, cov: np.ndarray, sigma: float) -> f
     """Helmert's estimate of the variance factor of a random walk about a free constant rate, its increments
     weighted by 1/``sigma``²: their squares less their mean against their redundancy (their count less the rate
     and what the data tell of them). ``values`` (K,) equally spaced knots of the walk as estimated, ``cov`` (K, K)
-    their covariance; 1 when fewer than :data:`MIN_WALK_INCREMENTS` increments beyond the rate tell it."""
+    their covariance; NaN when fewer than :data:`MIN_WALK_INCREMENTS` increments beyond the rate tell it."""
     rank = len(values) - 2
     if rank < MIN_WALK_INCREMENTS:
-        return 1.0
+        return float("nan")
     w = 1.0 / sigma ** 2
     inc = np.diff(values)
     c = np.diff(np.diff(cov, axis=0), axis=1)                                 # the increments' covariance

@@ -15,7 +15,9 @@ import re
 import numpy as np
 import pytest
 
+from aruco_abs_orient.calibration import CalibrationParams
 from aruco_abs_orient.mapping import MappingError, MapUnknowns, map_markers
+from aruco_abs_orient.mapping.output import report_markdown
 from aruco_abs_orient.markers import MarkerMap
 from aruco_abs_orient.transforms import matrix_to_rpy
 
@@ -74,6 +76,16 @@ def test_the_odometry_yaw_walk_and_drift_are_estimated(preset, changes):
     assert abs(res.yaw_drift - drift) <= 3.0 * walk / math.sqrt(sc.config.duration) + math.radians(0.2) / 60.0, (
         60 * math.degrees(res.yaw_drift), 60 * math.degrees(drift))
     assert all(z <= 3.0 for _, z, _ in errors(res, sc).values())
+
+
+def test_a_walk_too_few_knots_tell_is_not_estimated():
+    """Knots 4 s apart on a 30 s drive: fewer increments than a walk's size needs; the prior is kept and no walk
+    is reported."""
+    sc = scenario("demo", **dict(SMALL_LOOP, seed=4))
+    rec, corners = recording(sc)
+    res = _map(sc, rec, corners, params=CalibrationParams(knot_spacing=4.0))
+    assert math.isnan(res.yaw_walk) and "drift" not in res.variance_factors
+    assert "walked" not in report_markdown(res, "short") and len(errors(res, sc)) >= 6
 
 
 def test_the_heading_model_is_the_odometry_track_and_its_yaw_without_positions():
