@@ -311,6 +311,15 @@ def map_markers(rec: Recording, corners: Optional[np.ndarray] = None, size: floa
     params.validate()
     mparams = mparams or MappingParams()
     params = replace(params, drift_walk_estimated=mparams.drift_walk_estimated)
+    if not (math.isfinite(size) and size > 0):
+        raise MappingError(f"size: expected the markers' side in metres > 0, got {size!r}")
+    if not (math.isfinite(readout) and 0.0 <= readout < 1.0):
+        raise MappingError(f"readout: expected seconds in [0, 1), got {readout!r}")
+    ids = np.asarray(rec.obs_ids).ravel()
+    if corners is not None:
+        corners = np.asarray(corners, dtype=float)
+        if corners.shape != (len(ids), 4, 3):
+            raise MappingError(f"corners: expected an array of shape ({len(ids)}, 4, 3), got {corners.shape}")
     if params.heading_model != "auto":
         return _map_markers(rec, corners, size, unknowns, params, mparams, readout)
     try:
@@ -325,17 +334,8 @@ def map_markers(rec: Recording, corners: Optional[np.ndarray] = None, size: floa
 
 def _map_markers(rec: Recording, corners: Optional[np.ndarray], size: float, unknowns: MapUnknowns,
                  params: CalibrationParams, mparams: MappingParams, readout: float) -> MappingResult:
-    """:func:`map_markers` with a heading model chosen."""
-    if not (math.isfinite(size) and size > 0):
-        raise MappingError(f"size: expected the markers' side in metres > 0, got {size!r}")
-    if not (math.isfinite(readout) and 0.0 <= readout < 1.0):
-        raise MappingError(f"readout: expected seconds in [0, 1), got {readout!r}")
-    ids = np.asarray(rec.obs_ids).ravel()
-    if corners is not None:
-        corners = np.asarray(corners, dtype=float)
-        if corners.shape != (len(ids), 4, 3):
-            raise MappingError(f"corners: expected an array of shape ({len(ids)}, 4, 3), got {corners.shape}")
-    seen = sorted({int(i) for i in ids})
+    """:func:`map_markers` with a heading model chosen and the inputs checked."""
+    seen = sorted({int(i) for i in np.asarray(rec.obs_ids).ravel()})
     positions, refused, start = _first_positions(rec, params, mparams, size, readout, 0.0, seen)
     if len(positions) < params.min_markers:
         raise MappingError(f"only {len(positions)} of the {len(seen)} markers seen were seen enough to place: "
