@@ -16,8 +16,9 @@ track's direction against the odometry and by the bearings themselves (markers s
 camera's heading). First positions: δ(t) from the track headings alone, each observation's lens ray in map, and
 per id the point most rays pass near (so a false id cannot pull it), least squares on those. Then the network,
 the test of each marker against the others (its residuals against their redundancy; sightings beyond the gate
-that meet at a second place: the marker moved, or two markers share the id), the worst failing one left out and
-the network adjusted again; the control markers tested against the free network before they tie it.
+that meet at a second place, apart from the first beyond both places' σ: the marker moved, or two markers share
+the id), the worst failing one left out and the network adjusted again; the control markers tested against the
+free network before they tie it.
 """
 
 from __future__ import annotations
@@ -36,7 +37,15 @@ from ..markers import Marker, MarkerMap
 from ..solver import yaw_consensus
 from .faces import fit_faces
 from .model import MappedMarker, MappingError, MappingParams, MappingResult, MapUnknowns, chi2_quantile, format_xyz
-from .rays import bias_covariance, bias_jacobian, diameter, normal_matrices, rays_in_map, triangulate
+from .rays import (
+    bias_covariance,
+    bias_jacobian,
+    diameter,
+    normal_matrices,
+    rays_in_map,
+    scatter_covariance,
+    triangulate,
+)
 
 __all__ = ["map_markers"]
 
@@ -244,8 +253,11 @@ def _stats(net: _Net, mparams: MappingParams) -> _Stats:
 
 def _second_place(net: _Net, k: int, rays, mparams: MappingParams) -> Optional[np.ndarray]:
     """Where the gated sightings of marker k meet (``rays``: every observation's, :func:`rays_in_map`), when
-    enough of them do (``min_views`` and ``moved_share`` of its sightings) from a long enough baseline: the marker
-    moved during the recording, or a second marker has its id."""
+    enough of them do (``min_views`` and ``moved_share`` of its sightings) from a long enough baseline, and that
+    place differs from the marker's beyond both their σ (χ² of 3 degrees of freedom at ``test_alpha``; the second
+    place's σ from its rays' own scatter, their correlation in time included): the marker moved during the
+    recording, or a second marker has its id. Sightings a little off everywhere (near a seam, on a precise
+    network) meet near the marker itself: not a second place."""
     pb = net.pb
     mine = pb.markers.index == k
     sel = np.flatnonzero(mine & ~net.fit.mask_o)
@@ -255,6 +267,11 @@ def _second_place(net: _Net, k: int, rays, mparams: MappingParams) -> Optional[n
     org, dirs = rays
     X, inl = triangulate(org[sel], dirs[sel], _FIRST_TOLERANCE, min_support=enough, seed=k)
     if X is None or diameter(org[sel][inl]) < mparams.min_baseline:
+        return None
+    corr = max(net.fit.variance_factors.get("markers_correlation", 1.0), 1.0)
+    diff = X - net.positions()[int(pb.markers.ids[k])]
+    C = net.covariance(k) + corr * scatter_covariance(X, org[sel][inl], dirs[sel][inl])
+    if float(diff @ np.linalg.solve(C, diff)) <= chi2_quantile(3.0, mparams.test_alpha):
         return None
     return X
 

@@ -4,8 +4,9 @@ was seen from.
 In: the calibration's :class:`~aruco_abs_orient.calibration.problem.Problem` (observations with their prism,
 odometry, mounting and lenses) with the values of its unknowns; rays (origins, directions) in map. Out: rays in
 map (:func:`rays_in_map`, through ``camera.DualFisheye.rays``: each stitched bearing from its lens's centre), the
-robust point of a bundle of rays (:func:`triangulate`: false sightings cannot pull it), the diameter of a point
-set (:func:`diameter`, the baseline a marker was seen over).
+robust point of a bundle of rays (:func:`triangulate`: false sightings cannot pull it) and its covariance from the
+rays' own scatter (:func:`scatter_covariance`), the diameter of a point set (:func:`diameter`, the baseline a
+marker was seen over).
 
 Units: metres, radians.
 """
@@ -20,7 +21,8 @@ import numpy as np
 from ..calibration.problem import Problem
 from ..transforms import rot_z, rotvec_to_matrix, rpy_to_matrix
 
-__all__ = ["triangulate", "rays_in_map", "diameter", "bias_jacobian", "bias_covariance", "normal_matrices"]
+__all__ = ["triangulate", "scatter_covariance", "rays_in_map", "diameter", "bias_jacobian", "bias_covariance",
+           "normal_matrices"]
 
 
 def triangulate(origins: np.ndarray, directions: np.ndarray, tolerance: float, min_support: int = 2,
@@ -65,6 +67,19 @@ def triangulate(origins: np.ndarray, directions: np.ndarray, tolerance: float, m
             return none
     inl = _near(X, org, dirs, tolerance)
     return (X, inl) if np.count_nonzero(inl) >= max(min_support, 2) else none
+
+
+def scatter_covariance(X: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """The covariance (3, 3) m² of the point ``X`` (3,) that rays (N ≥ 2, unit ``directions``) meet at, from their
+    own scatter about it: each ray's miss angle (its distance from X over its range), their mean square over the
+    2N − 3 degrees of freedom, times the inverse of Σ (I − d dᵀ) / range²."""
+    v = X - np.asarray(origins, dtype=float)
+    d = np.asarray(directions, dtype=float)
+    rng2 = np.maximum(np.sum(v * d, axis=1), 1e-3) ** 2
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    miss = np.einsum("nij,nj->ni", P, v)
+    s2 = float(np.sum(np.sum(miss ** 2, axis=1) / rng2)) / max(2 * len(v) - 3, 1)
+    return s2 * np.linalg.inv(np.sum(P / rng2[:, None, None], axis=0))
 
 
 def _near(X, org, dirs, tolerance) -> np.ndarray:
