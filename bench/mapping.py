@@ -21,6 +21,12 @@ Passes (``--passes``):
             per range and near the lenses' seams (within 6° of them) against the detection's own σ, and the
             RMS of each marker's mean error (what the network's bias_deg stands for). The truth is sampled per
             image and interpolated (slerp) to the rows; the sightings on the middle rows need no interpolation.
+  information  what holds the map back: the rendered pass's network (same sightings) on the recording as it is
+            and with one of the instruments' errors taken out of it, regenerated from the scenario (its own
+            random draws, that error set to 0): the VO's yaw exact (no walk, no drift: δ(t) known but for a
+            constant), the VO's positions without their jitter, the prism's noise divided by 4; per case the
+            markers with a 3 m baseline within 5 mm, |error|/σ ≤ 3, and each miss's error along and across its
+            mean sight line.
   scale     the network's CPU time and peak memory (tracemalloc) for 50 markers and 10 minutes of the generator's
             exact bearings (synthetic.feed, 0.02° noise, every 3rd image and every image).
 
@@ -28,7 +34,8 @@ Scenarios are cached in .cache/bench/mapping/ (keyed by a digest of their config
 each scenario's directory (observations.pkl). Rendering one 60 s scenario takes about 2.5 min on 2 cores, detecting
 its 1800 images about 3 min of CPU (4.5 min before the rescue's first look): 10 seeds about 70 min.
 
-Usage: bench/mapping.py [--seeds 101 ... 110] [--passes rendered control compare bearings scale] [--workers 2]
+Usage: bench/mapping.py [--seeds 101 ... 110] [--passes rendered control compare bearings information scale]
+                        [--workers 2]
 """
 import argparse
 import dataclasses
@@ -58,7 +65,8 @@ from aruco_abs_orient.markers import Marker, MarkerMap  # noqa: E402
 from aruco_abs_orient.offline.bagio import read_bag_data  # noqa: E402
 from aruco_abs_orient.offline.calibrate import collect_observations  # noqa: E402
 from aruco_abs_orient.synthetic.scenario import PRESETS, Scenario  # noqa: E402
-from aruco_abs_orient.tum import read_tum  # noqa: E402
+from aruco_abs_orient.transforms import matrix_to_quat  # noqa: E402
+from aruco_abs_orient.tum import Trajectory, read_tum  # noqa: E402
 
 MOVE = (0.0, 0.03, -0.04)   # m, the knocked marker of the compare pass (5 cm)
 
@@ -92,9 +100,11 @@ def observations(scen: str):
     return obs, data
 
 
-def network(scen: str, control: MarkerMap = None):
-    """map_markers on the cached sightings with the true calibration: (result, CPU s)."""
-    obs, data = observations(scen)
+def network(scen: str, control: MarkerMap = None, data=None):
+    """map_markers on the cached sightings with the true calibration (and the recording's odometry and prism
+    track, or those of ``data``): (result, CPU s)."""
+    obs, recorded = observations(scen)
+    data = recorded if data is None else data
     hidden, cal = hidden_of(scen), load_calibration(true_calibration(scen))
     rec = Recording(obs.times, obs.ids, obs.bearings, obs.sigmas, data.odom,
                     data.prism_stamps + hidden["camera_time_offset"], data.prism_positions,
@@ -194,6 +204,55 @@ def pass_compare(seeds) -> None:
     print("\n".join(comp.lines("the first recording")), flush=True)
 
 
+#: the information pass's cases: the scenario's configuration changed so (None: the recording as it is)
+INFORMATION = (("as recorded", None),
+               ("VO yaw exact", {"vo_yaw_walk_deg_per_sqrt_s": 0.0, "vo_yaw_drift_deg_per_min": 0.0}),
+               ("VO positions without jitter", {"vo_translation_noise": 0.0}),
+               ("prism noise / 4", {"prism_noise": 0.25}))
+
+
+def without(scen: str, change: dict):
+    """The recording's odometry and prism track with one error of the scenario changed (``INFORMATION``): the
+    odometry regenerated at its stamps from the scenario with ``change`` (the generator's other draws stay), the
+    prism's noise (its fixes against the noise-free track) scaled by ``change["prism_noise"]``."""
+    _, data = observations(scen)
+    sc = Scenario.from_hidden(os.path.join(scen, "hidden.yaml"))
+    c = sc.config
+    if "prism_noise" in change:
+        exact = sc.prism_position(data.prism_stamps)     # the total station's clock is the true one
+        return dataclasses.replace(data, prism_positions=exact + change["prism_noise"] * (data.prism_positions
+                                                                                          - exact))
+    eps = 1e-6 * c.clock_rate_error_ppm
+    s = data.odom.stamps
+    T = Scenario(dataclasses.replace(c, **change)).odom_T_base((s - c.camera_time_offset + eps * c.start_time)
+                                                                / (1.0 + eps))
+    return dataclasses.replace(data, odom=Trajectory(s, T[:, :3, 3], matrix_to_quat(T[:, :3, :3])))
+
+
+def pass_information(seeds) -> None:
+    print("\n## information: the network with one of the instruments' errors taken out of the recording")
+    print(f"{'case':>28} {'≤5 mm (≥3 m base)':>18} {'z≤3':>7}  misses: seed/marker |error| mm (along its "
+          f"worst axis, its σ there; the rest)")
+    for name, change in INFORMATION:
+        base, honest, mapped, misses = 0, 0, 0, []
+        for seed in seeds:
+            scen = scenario_dir(dataclasses.replace(PRESETS["demo"], seed=seed), "mapping", ARGS.workers)
+            res, _ = network(scen, data=None if change is None else without(scen, change))
+            hidden = hidden_of(scen)
+            for m, e in zip(res.with_status("mapped"), errors(res, hidden)):
+                mapped += 1
+                honest += e[3] <= 3.0
+                base += e[4] >= 3.0
+                if e[4] >= 3.0 and e[1] > 5.0:
+                    d = 1e3 * (m.position - np.array(hidden["marker_positions"][m.id]))
+                    axes, dirs = m.ellipsoid(1.0)
+                    along = float(d @ dirs[0])
+                    misses.append(f"{seed}/{m.id} {e[1]:.1f} ({along:+.1f}, {1e3 * axes[0]:.1f}; "
+                                  f"{np.linalg.norm(d - along * dirs[0]):.1f})")
+        print(f"{name:>28} {base - len(misses):>12}/{base:<5} {honest:>3}/{mapped:<3}  {'; '.join(misses)}",
+              flush=True)
+
+
 def pass_scale() -> None:
     from unit.mapping.common import recording
 
@@ -276,7 +335,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(101, 111)))
-    ap.add_argument("--passes", nargs="+", choices=("rendered", "control", "compare", "bearings", "scale"),
+    ap.add_argument("--passes", nargs="+",
+                    choices=("rendered", "control", "compare", "bearings", "information", "scale"),
                     default=["rendered", "control", "compare", "scale"])
     ap.add_argument("--workers", type=int, default=2)
     ARGS = ap.parse_args(argv)
@@ -285,6 +345,7 @@ def main(argv=None) -> int:
     for name in ARGS.passes:
         {"rendered": lambda: pass_rendered(ARGS.seeds), "control": lambda: pass_control(ARGS.seeds),
          "compare": lambda: pass_compare(ARGS.seeds), "bearings": lambda: pass_bearings(ARGS.seeds),
+         "information": lambda: pass_information(ARGS.seeds),
          "scale": pass_scale}[name]()
     return 0
 
