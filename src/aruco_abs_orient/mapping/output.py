@@ -105,8 +105,8 @@ def report_markdown(result: MappingResult, title: str, plan: Optional[str] = Non
     if math.isfinite(result.yaw_walk):
         rate = 60 * math.degrees(result.yaw_drift)
         lines += [f"map→odom's yaw (the odometry's yaw drift, corrected) moved {rate:+.2f}°/min and walked "
-                  f"{math.degrees(result.yaw_walk):.3f}°/√s about that rate (estimated; the filter's yaw_random_walk "
-                  "should not be below it).", ""]
+                  f"{math.degrees(result.yaw_walk):.3f}°/√s about that rate (estimated with the camera's mounting as "
+                  "given; with a calibrated camera, the filter's yaw_random_walk should not be below it).", ""]
     if np.any(np.isfinite(result.boresight_sigma)):
         lines += ["Boresight estimated (deg, on top of the mounting given): " + ", ".join(
             f"{n} {math.degrees(a):+.4f} ± {math.degrees(s):.4f}" for n, a, s in

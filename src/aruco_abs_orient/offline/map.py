@@ -16,6 +16,7 @@ status), the reader's errors for bad input.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
 from typing import NamedTuple, Optional
@@ -96,6 +97,12 @@ def map_recording(recording, topics: BagTopics, time_offset: float, size: float,
     except MappingError as e:
         raise NothingMappedError(f"{name}: cannot map the markers: {e}") from None
     elapsed = time.perf_counter() - t0
+    if "camera" not in calibration and not unknowns.boresight and math.isfinite(result.yaw_walk):
+        result.warnings.append(
+            "the camera's mounting is the recording's nominal one (no --calibration, no --boresight): its error "
+            "turns map→odom's yaw as the platform turns, so the walk and drift the report gives are not the "
+            "odometry's alone; do not set the filter's yaw_random_walk from them (calibrate the camera first, or "
+            "add --boresight)")
     mm = mapped_map(result, size, dictionary, origin=control.origin, sizes={m.id: m.size for m in control})
     for k, v in obs.skipped.items():
         result.skipped[k] = result.skipped.get(k, 0) + v

@@ -91,6 +91,18 @@ def test_process_takes_the_mapped_map_unchanged(mapped):
     assert ev["coverage"]["share"] >= 0.9 and ev["heading_ape"]["rmse_deg"] <= 0.04, ev["heading_ape"]
 
 
+def test_without_a_calibrated_camera_the_walk_is_not_the_odometry_s(mapped, tmp_path, capsys):
+    """The mounting left nominal (the scenario's camera is mounted off it): the report's walk holds the mounting's
+    error, and map says so, on the console and in the report; with the calibration it does not."""
+    scen, hidden, box, _, _, code, _ = mapped
+    assert code == 0
+    assert "yaw_random_walk from them" not in (box / "markers_report.md").read_text()
+    assert cli_main(["map", scen.bag, "--size", "0.30", "--time-offset", str(hidden["camera_time_offset"]),
+                     "--every", "3", "--out", str(tmp_path / "markers.yaml"), "--quiet"]) == 0
+    assert "warning: the camera's mounting is the recording's nominal one" in capsys.readouterr().err
+    assert "yaw_random_walk from them" in (tmp_path / "markers_report.md").read_text()
+
+
 def test_bad_input_is_named(mapped, tmp_path, capsys):
     scen = mapped[0]
     assert cli_main(["map", scen.bag, "--size", "0", "--out", str(tmp_path / "m.yaml")]) == 2
