@@ -24,7 +24,8 @@ Passes (``--passes``):
   information  what holds the map back: the rendered pass's network (same sightings) on the recording as it is
             and with one of the instruments' errors taken out of it, regenerated from the scenario (its own
             random draws, that error set to 0): the VO's yaw exact (no walk, no drift: δ(t) known but for a
-            constant), the VO's positions without their jitter, the prism's noise divided by 4; per case the
+            constant), the VO's positions without their jitter, the prism's noise divided by 4 or drawn again
+            (five draws: how much the count owes to the recording's one draw); per case the
             markers with a 3 m baseline within 5 mm, |error|/σ ≤ 3, and each miss's error along and across its
             mean sight line.
   scale     the network's CPU time and peak memory (tracemalloc) for 50 markers and 10 minutes of the generator's
@@ -208,20 +209,25 @@ def pass_compare(seeds) -> None:
 INFORMATION = (("as recorded", None),
                ("VO yaw exact", {"vo_yaw_walk_deg_per_sqrt_s": 0.0, "vo_yaw_drift_deg_per_min": 0.0}),
                ("VO positions without jitter", {"vo_translation_noise": 0.0}),
-               ("prism noise / 4", {"prism_noise": 0.25}))
+               ("prism noise / 4", {"prism_noise": 0.25})) + tuple(
+                   (f"prism noise drawn again ({k})", {"prism_draw": k}) for k in range(1, 6))
 
 
 def without(scen: str, change: dict):
     """The recording's odometry and prism track with one error of the scenario changed (``INFORMATION``): the
     odometry regenerated at its stamps from the scenario with ``change`` (the generator's other draws stay), the
-    prism's noise (its fixes against the noise-free track) scaled by ``change["prism_noise"]``."""
+    prism's noise (its fixes against the noise-free track) scaled by ``change["prism_noise"]``, or drawn again
+    (``change["prism_draw"]``: the draw's seed, with the scenario's)."""
     _, data = observations(scen)
     sc = Scenario.from_hidden(os.path.join(scen, "hidden.yaml"))
     c = sc.config
+    exact = sc.prism_position(data.prism_stamps)     # the total station's clock is the true one
     if "prism_noise" in change:
-        exact = sc.prism_position(data.prism_stamps)     # the total station's clock is the true one
         return dataclasses.replace(data, prism_positions=exact + change["prism_noise"] * (data.prism_positions
                                                                                           - exact))
+    if "prism_draw" in change:
+        noise = np.random.default_rng([change["prism_draw"], c.seed]).normal(0.0, c.prism_noise, exact.shape)
+        return dataclasses.replace(data, prism_positions=exact + noise)
     eps = 1e-6 * c.clock_rate_error_ppm
     s = data.odom.stamps
     T = Scenario(dataclasses.replace(c, **change)).odom_T_base((s - c.camera_time_offset + eps * c.start_time)
