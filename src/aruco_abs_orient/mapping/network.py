@@ -251,12 +251,12 @@ def _stats(net: _Net, mparams: MappingParams) -> _Stats:
     return _Stats(redundancy, test, limit, kept.astype(int), gated.astype(int), rms, bias)
 
 
-def _second_place(net: _Net, k: int, rays, mparams: MappingParams) -> Optional[np.ndarray]:
+def _second_place(net: _Net, k: int, at: np.ndarray, rays, mparams: MappingParams) -> Optional[np.ndarray]:
     """Where the gated sightings of marker k meet (``rays``: every observation's, :func:`rays_in_map`), when
     enough of them do (``min_views`` and ``moved_share`` of its sightings) from a long enough baseline, and that
-    place differs from the marker's beyond both their σ (χ² of 3 degrees of freedom at ``test_alpha``; the second
-    place's σ from its rays' own scatter, their correlation in time included): the marker moved during the
-    recording, or a second marker has its id. Sightings a little off everywhere (near a seam, on a precise
+    place differs from the marker's (``at``) beyond both their σ (χ² of 3 degrees of freedom at ``test_alpha``;
+    the second place's σ from its rays' own scatter, their correlation in time included): the marker moved during
+    the recording, or a second marker has its id. Sightings a little off everywhere (near a seam, on a precise
     network) meet near the marker itself: not a second place."""
     pb = net.pb
     mine = pb.markers.index == k
@@ -269,7 +269,7 @@ def _second_place(net: _Net, k: int, rays, mparams: MappingParams) -> Optional[n
     if X is None or diameter(org[sel][inl]) < mparams.min_baseline:
         return None
     corr = max(net.fit.variance_factors.get("markers_correlation", 1.0), 1.0)
-    diff = X - net.positions()[int(pb.markers.ids[k])]
+    diff = X - at
     C = net.covariance(k) + corr * scatter_covariance(X, org[sel][inl], dirs[sel][inl])
     if float(diff @ np.linalg.solve(C, diff)) <= chi2_quantile(3.0, mparams.test_alpha):
         return None
@@ -285,7 +285,7 @@ def _failing(net: _Net, st: _Stats, mparams: MappingParams) -> Dict[int, Tuple[f
     rays = rays_in_map(pb, x, d, th)
     for k, mid in enumerate(pb.markers.ids):
         total = st.kept[k] + st.gated[k]
-        second = _second_place(net, k, rays, mparams) if st.gated[k] else None
+        second = _second_place(net, k, positions[int(mid)], rays, mparams) if st.gated[k] else None
         if second is not None:
             moved = float(np.linalg.norm(second - positions[int(mid)]))
             out[k] = (np.inf, f"{st.gated[k]} of its {total} sightings meet {1e3 * moved:.0f} mm from the others "

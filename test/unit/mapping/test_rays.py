@@ -27,8 +27,8 @@ def _rays(rng, X, n, baseline, noise):
 @given(seed=st.integers(0, 2 ** 31), n=st.integers(30, 200), baseline=st.floats(1.0, 20.0),
        noise_deg=st.floats(0.002, 0.5))
 def test_the_scatter_covariance_is_what_the_point_scatters_by(seed, n, baseline, noise_deg):
-    """Over 200 bundles, the point's errors normalised by the covariance its own rays give: √χ² of 3 degrees of
-    freedom (mean 3); noise-free rays give the point itself and no covariance."""
+    """Over 200 bundles, the point's squared error normalised by the covariance its own rays give: χ² of 3
+    degrees of freedom (mean 3); noise-free rays give the point itself and no covariance."""
     rng = np.random.default_rng(seed)
     X = rng.uniform(-20.0, 20.0, 3)
     org, d = _rays(rng, X, n, baseline, 0.0)
