@@ -326,6 +326,12 @@ class Scenario:
         t = np.asarray(t, dtype=float)
         return t + c.camera_time_offset + 1e-6 * c.clock_rate_error_ppm * (t - c.start_time)
 
+    def true_time(self, stamp):
+        """The true time(s) at which the camera/VO clock reads ``stamp`` (s): :meth:`camera_clock` inverted."""
+        c = self.config
+        eps = 1e-6 * c.clock_rate_error_ppm
+        return (np.asarray(stamp, dtype=float) - c.camera_time_offset + eps * c.start_time) / (1.0 + eps)
+
     def row_times(self, t: float, height: int) -> np.ndarray:
         """True capture times (height,) of the image rows of the frame whose middle row is captured at
         true time t: row v at t + (v / height − ½) · rolling_shutter_readout (all t without a rolling

@@ -151,6 +151,7 @@ def test_camera_clock_rate_error():
     np.testing.assert_allclose(np.diff(sc.frame_times), 1.0 / cfg.fps / 1.0005, rtol=2e-5)
     lead = sc.camera_stamps - sc.frame_times
     assert lead[-1] - lead[0] == pytest.approx(500e-6 * (sc.frame_times[-1] - sc.frame_times[0]), rel=1e-4)
+    np.testing.assert_allclose(sc.true_time(sc.camera_stamps), sc.frame_times, rtol=0, atol=1e-6)
 
 
 @settings(max_examples=10, deadline=None)
