@@ -59,8 +59,8 @@ def triangulate(origins: np.ndarray, directions: np.ndarray, tolerance: float, m
         inl = _near(X, org, dirs, tolerance)
         if np.count_nonzero(inl) < max(min_support, 2):
             return none
-        rng2 = np.maximum(np.sum((X - org[inl]) * dirs[inl], axis=1), 1e-3)
-        A = (np.eye(3)[None] - dirs[inl, :, None] * dirs[inl, None, :]) / rng2[:, None, None] ** 2
+        P, r2 = _across(X, org[inl], dirs[inl])
+        A = P / r2[:, None, None]
         try:
             X = np.linalg.solve(A.sum(axis=0), np.einsum("nij,nj->i", A, org[inl]))
         except np.linalg.LinAlgError:
@@ -73,13 +73,18 @@ def scatter_covariance(X: np.ndarray, origins: np.ndarray, directions: np.ndarra
     """The covariance (3, 3) m² of the point ``X`` (3,) that rays (N ≥ 2, unit ``directions``) meet at, from their
     own scatter about it: each ray's miss angle (its distance from X over its range), their mean square over the
     2N − 3 degrees of freedom, times the inverse of Σ (I − d dᵀ) / range²."""
-    v = X - np.asarray(origins, dtype=float)
-    d = np.asarray(directions, dtype=float)
-    rng2 = np.maximum(np.sum(v * d, axis=1), 1e-3) ** 2
-    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    miss = np.einsum("nij,nj->ni", P, v)
-    s2 = float(np.sum(np.sum(miss ** 2, axis=1) / rng2)) / max(2 * len(v) - 3, 1)
-    return s2 * np.linalg.inv(np.sum(P / rng2[:, None, None], axis=0))
+    origins = np.asarray(origins, dtype=float)
+    P, r2 = _across(X, origins, np.asarray(directions, dtype=float))
+    miss = np.einsum("nij,nj->ni", P, X - origins)
+    s2 = float(np.sum(np.sum(miss ** 2, axis=1) / r2)) / max(2 * len(r2) - 3, 1)
+    return s2 * np.linalg.inv(np.sum(P / r2[:, None, None], axis=0))
+
+
+def _across(X, org, dirs) -> Tuple[np.ndarray, np.ndarray]:
+    """Per ray: the projection (N, 3, 3) across its unit direction, I − d dᵀ, and the square (N,) of X's range
+    along it (at least 1 mm): a miss across a ray over its range is its angle."""
+    r = np.maximum(np.sum((X - org) * dirs, axis=1), 1e-3)
+    return np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :], r ** 2
 
 
 def _near(X, org, dirs, tolerance) -> np.ndarray:
